@@ -30,6 +30,7 @@ __all__ = [
     "load_sensor",
     "sensor_from_dict",
     "sensor_to_dict",
+    "dump_sensor",
 ]
 
 _FX_DEFAULT = 640.0 / math.tan(math.radians(26.95))
@@ -236,3 +237,14 @@ def _check_geometry(sensor: Sensor) -> None:
             f"{src}: [plate] h_r_mm: the rod must reach beyond the cross (h_r_mm > cross_offset_mm)"
         )
 
+
+def dump_sensor(sensor: Sensor) -> str:
+    """The resolved configuration as sensor-file TOML text (loads back to an equal Sensor)."""
+    lines = [f"# camwhisker sensor file (resolved from {sensor.source})"]
+    for table, values in sensor_to_dict(sensor).items():
+        lines.append(f"\n[{table}]")
+        for key, value in values.items():
+            if isinstance(value, list):
+                value = "[" + ", ".join(repr(float(v)) for v in value) + "]"
+            lines.append(f"{key} = {value}")
+    return "\n".join(lines) + "\n"
