@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.sensor import SensorFileError, load_sensor
+from camwhisker.sensor import SensorFileError
 
 
 class CommandError(RuntimeError):
@@ -17,7 +17,10 @@ def _sensor_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor", metavar="FILE", help="sensor file (TOML); default: Table I values")
 
 
-# --- front end and synthetic data -------------------------------------------------------------
+# --- synthetic data ------------------------------------------------------------------------
+
+
+# --- vision front end ------------------------------------------------------------------------
 
 
 # --- contact back end -------------------------------------------------------------------------
