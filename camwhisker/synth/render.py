@@ -15,6 +15,9 @@ centres; pixels whose 3x3 neighbourhood is not uniform are then sampled at
 ``samples`` points of a Fibonacci lattice. The lattice has as many distinct
 column and row offsets as samples, so the coverage of a straight edge in any
 orientation is exact to 1 / samples of a pixel (0.011 px for 89 samples).
+The lattice is shifted by a fixed random amount in each pixel (a
+Cranley-Patterson rotation), so that along an edge the rounding errors of
+neighbouring pixels are independent and average out instead of adding up.
 Sub-pixel ray directions are interpolated bilinearly from the per-pixel
 rays, which is exact without distortion and within ~1e-6 px with it.
 
@@ -93,12 +96,16 @@ class SceneRenderer:
 
     #: Extra pixels around each layer's projected outline (covers the 3x3 test).
     BBOX_MARGIN_PX = 4
+    #: Seed of the per-pixel lattice shifts: fixed, so every render is reproducible.
+    LATTICE_SEED = 20261122
 
     def __init__(self, sensor: Sensor, appearance: Appearance | None = None, samples: int = 89):
         self.sensor = sensor
         self.appearance = appearance or Appearance()
         self.offsets = fibonacci_offsets(samples)
         cam = sensor.camera
+        rng = np.random.default_rng(self.LATTICE_SEED)
+        self._shifts = rng.uniform(0.0, 1.0, (cam.height_px, cam.width_px, 2))
         self.shape = (cam.height_px, cam.width_px)
         self.rays = pixel_rays(cam)
         self.background = self._cloth()
@@ -129,6 +136,11 @@ class SceneRenderer:
         top = r[v0, u0] * (1 - fu) + r[v0, u0 + 1] * fu
         bottom = r[v0 + 1, u0] * (1 - fu) + r[v0 + 1, u0 + 1] * fu
         return top * (1 - fv) + bottom * fv
+
+    def _sample_positions(self, rows: np.ndarray, cols: np.ndarray):
+        """Supersample positions (u, v), each shape (N, samples), in the given pixels."""
+        shifted = np.mod(self.offsets[None] + 0.5 + self._shifts[rows, cols][:, None], 1.0) - 0.5
+        return cols[:, None] + shifted[..., 0], rows[:, None] + shifted[..., 1]
 
     def _bbox(self, points_in_camera: np.ndarray) -> tuple[slice, slice] | None:
         uv = project(points_in_camera, self.sensor.camera)
@@ -185,8 +197,7 @@ class SceneRenderer:
         cover = centre.astype(np.float32)
         mixed = np.nonzero(self._mixed(centre))
         if len(mixed[0]):
-            u = (mixed[1] + cols.start)[:, None] + self.offsets[:, 0]
-            v = (mixed[0] + rows.start)[:, None] + self.offsets[:, 1]
+            u, v = self._sample_positions(mixed[0] + rows.start, mixed[1] + cols.start)
             inside = hit(self._rays_at(u.ravel(), v.ravel())).reshape(u.shape)
             cover[mixed] = inside.mean(axis=1)
         return cover
@@ -264,8 +275,7 @@ class SceneRenderer:
         paint = colour.reshape(*shape, 3).astype(np.float32)
         mixed = np.nonzero(self._mixed(label))
         if len(mixed[0]):
-            u = (mixed[1] + cols.start)[:, None] + self.offsets[:, 0]
-            v = (mixed[0] + rows.start)[:, None] + self.offsets[:, 1]
+            u, v = self._sample_positions(mixed[0] + rows.start, mixed[1] + cols.start)
             lab, col = self._rod_shade(self._rays_at(u.ravel(), v.ravel()), pose)
             lab = lab.reshape(u.shape)
             col = col.reshape(*u.shape, 3)

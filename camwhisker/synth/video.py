@@ -2,8 +2,9 @@
 
 ``.avi`` is Motion-JPEG, what a webcam delivers, written by OpenCV's MJPEG
 encoder at the scenario's JPEG quality. ``.mp4`` is H.264 (libx264 through
-PyAV), what a recording usually is. Every output is written to a temporary
-name and renamed into place, so a crash never leaves a file that looks whole.
+PyAV, 4:4:4 chroma so that colours survive), what a recording usually is.
+Every output is written to a temporary name and renamed into place, so a
+crash never leaves a file that looks whole.
 
 For ``NAME.avi`` the files are::
 
@@ -97,7 +98,7 @@ def write_video(
                     if stream is None:
                         stream = container.add_stream("libx264", rate=round(fps))
                         stream.height, stream.width = frame.shape[:2]
-                        stream.pix_fmt = "yuv420p"
+                        stream.pix_fmt = "yuv444p"  # 4:2:0 shifts colours by ~3 DN
                         stream.options = {"crf": str(MP4_CRF), "preset": "medium"}
                     packet = av.VideoFrame.from_ndarray(frame, format="bgr24")
                     container.mux(stream.encode(packet))
