@@ -65,3 +65,11 @@ def test_bad_values_name_file_and_key(tmp_path, text, names):
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(SensorFileError, match="nope.toml"):
         load_sensor(tmp_path / "nope.toml")
+
+
+def test_bundled_default_file_equals_the_built_in_defaults():
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "calib" / "sensor_default.toml"
+    s = load_sensor(path)
+    assert (s.camera, s.plate, s.whisker) == (Sensor().camera, Sensor().plate, Sensor().whisker)

@@ -31,7 +31,7 @@ class Sample:
 SAMPLES = (
     Sample("nominal.mp4", "nominal", 90, 101),
     Sample("distortion.mp4", "distortion", 60, 102),
-    Sample("hard.mp4", "hard", 60, 103),
+    Sample("hard.mp4", "hard", 40, 103),
     Sample("nominal_mjpg.avi", "nominal", 12, 104),
 )
 

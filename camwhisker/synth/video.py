@@ -37,6 +37,8 @@ from camwhisker.synth.scenarios import Scenario
 
 __all__ = ["write_video", "render_frames", "render_scenario", "atomic_path", "sidecar_paths"]
 
+_FILE_MODE = 0o644
+
 #: H.264 constant rate factor for MP4 output: visually lossless, keeps sensor noise.
 MP4_CRF = 18
 
@@ -50,6 +52,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, _FILE_MODE)  # mkstemp makes it private; outputs are ordinary files
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
