@@ -1,0 +1,38 @@
+"""Quasi-static whisker mechanics: simulated stage experiments with known truth.
+
+- :mod:`~camwhisker.mechanics.whisker`: the tapered whisker on its spring base
+  (small-deflection beam in closed form, elastica by shooting).
+- :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant), a box corner, a
+  circle; quasi-static sweeps of the base.
+- :mod:`~camwhisker.mechanics.experiment`: stage runs with clocks, noise, truth.
+- :mod:`~camwhisker.mechanics.files`: writing runs to CSV files.
+"""
+
+from camwhisker.mechanics.experiment import (
+    KINDS,
+    NoiseModel,
+    StageProtocol,
+    StageRun,
+    signal_arrays,
+    simulate_run,
+    simulate_runs,
+)
+from camwhisker.mechanics.scenes import BoxScene, CircleScene, PegScene, sweep
+from camwhisker.mechanics.whisker import WhiskerMechanics, beam_peg_response, solve_elastica
+
+__all__ = [
+    "KINDS",
+    "BoxScene",
+    "CircleScene",
+    "NoiseModel",
+    "PegScene",
+    "StageProtocol",
+    "StageRun",
+    "WhiskerMechanics",
+    "beam_peg_response",
+    "signal_arrays",
+    "simulate_run",
+    "simulate_runs",
+    "solve_elastica",
+    "sweep",
+]

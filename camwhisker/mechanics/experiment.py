@@ -1,0 +1,285 @@
+"""Simulated linear-stage experiments with known truth.
+
+One *run* is one scene swept by the stage: a rest, 1 mm steps with pauses of
+jittered length (>= 1 s, like the paper), a rest. The run produces
+
+- a stage log on the stage's own clock (``t_s, x_mm`` and, for calibration
+  runs, ``r_mm``),
+- a signal table on the camera's clock (SENSOR.md section 6), whose clock is
+  offset from the stage's by several seconds (``t_camera = t_stage + offset_s``),
+- the truth per frame (contact point, r, slipping, ...).
+
+Kinds (see :data:`KINDS`): ``rigid`` (pegs at the paper's radii), ``compliant``
+(pegs on springs, the paper's pipe cleaner radii), ``slide-box`` (a box corner),
+``slide-circle`` (a water bottle), and ``eq8`` (phi generated from eq. (8) with
+C = 132 instead of mechanics, so C recovery can be tested).
+
+:func:`signal_arrays` gives the noise-free time series of a run at any frame
+rate, for a video renderer.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from camwhisker.contact.gm import eq8_phi_deg
+from camwhisker.mechanics.scenes import BoxScene, CircleScene, PegScene, Sweep, sweep
+from camwhisker.mechanics.whisker import WhiskerMechanics, beam_dz_from_phi
+
+__all__ = [
+    "KINDS",
+    "PAPER_RIGID_RADII_MM",
+    "PAPER_COMPLIANT_RADII_MM",
+    "PAPER_C",
+    "StageProtocol",
+    "NoiseModel",
+    "StageRun",
+    "simulate_runs",
+    "simulate_run",
+    "signal_arrays",
+]
+
+PAPER_RIGID_RADII_MM = (22.5, 27.5, 33.5, 42.5, 50.0, 60.0, 72.5, 90.0)
+PAPER_COMPLIANT_RADII_MM = (35.0, 55.0, 90.0)
+PAPER_C = 132.0
+
+# Lateral stiffness of the simulated pipe cleaner: with the default whisker it
+# makes eq.-(8)-style GM overestimate r by ~15-35 mm, like Table III (-23.5 mm).
+COMPLIANT_K_N_PER_MM = 6.0e-4
+
+# Direction (deg, SENSOR.md section 2) in which the magnifier tip moves when the
+# whisker leans toward -x, with lab x along the image's u axis.
+THETA_TRUE_DEG = 0.0
+
+# theta is left empty below this phi: 4.5 sigma of the paper's phi noise.
+THETA_MIN_PHI_DEG = 1.0
+
+KINDS = ("rigid", "compliant", "slide-box", "slide-circle", "eq8")
+
+
+@dataclass(frozen=True)
+class StageProtocol:
+    """How the stage moves and how both clocks sample the run."""
+
+    step_mm: float = 1.0
+    move_s: float = 0.25
+    pause_s: tuple[float, float] = (1.2, 1.8)  # uniform jitter; >= 1 s as in the paper
+    rest_s: float = 3.0
+    approach_steps: int = 3
+    max_travel_mm: float = 40.0
+    phi_stop_deg: float = 30.0
+    stage_rate_hz: float = 20.0
+    fps: float = 30.0
+    offset_range_s: tuple[float, float] = (3.0, 8.0)  # |offset|, sign drawn at random
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Per-frame measurement noise; defaults are the paper's RMSE (Sec. III-A)."""
+
+    phi_deg: float = 0.22
+    dz_mm: float = 0.04
+    dropout: float = 0.01  # fraction of frames with ok = 0 and empty cells
+
+
+@dataclass
+class StageRun:
+    """One simulated run. Arrays are shape (N,) per table; see module docstring."""
+
+    name: str
+    kind: str
+    scene: object
+    offset_s: float
+    travel_sign: float
+    stage: dict
+    signals: dict
+    truth: dict
+    steps: Sweep
+    schedule_t_s: np.ndarray
+    schedule_x_mm: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def _scenes(kind: str):
+    if kind in ("rigid", "eq8"):
+        return [(f"r{r:g}", PegScene(r)) for r in PAPER_RIGID_RADII_MM]
+    if kind == "compliant":
+        return [(f"c{r:g}", PegScene(r, k_obj_n_per_mm=COMPLIANT_K_N_PER_MM))
+                for r in PAPER_COMPLIANT_RADII_MM]
+    if kind == "slide-box":
+        return [("box", BoxScene(75.0))]
+    if kind == "slide-circle":
+        return [("circle", CircleScene(0.0, 80.0, 35.0))]
+    raise ValueError(f"unknown experiment kind {kind!r} (known: {', '.join(KINDS)})")
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_sweep(scene, mech, positions, model):
+    return sweep(scene, mech, np.array(positions), model)
+
+
+def _eq8_sweep(scene: PegScene, mech: WhiskerMechanics, positions, c: float) -> Sweep:
+    xs = np.asarray(positions, float)
+    dx = np.clip(xs - scene.x_mm, 0.0, None)
+    phi = eq8_phi_deg(scene.r_mm, dx, c, mech.length_mm)
+    dz = beam_dz_from_phi(mech, scene.r_mm, np.radians(phi))
+    contact = dx > 0
+    nan = np.where(contact, 0.0, np.nan)
+    return Sweep(
+        base_x_mm=xs, in_contact=contact, phi_deg=phi, dz_mm=dz,
+        r_mm=scene.r_mm + nan, s_contact_mm=scene.r_mm + nan,
+        contact_x_mm=scene.x_mm + nan, contact_y_mm=scene.r_mm + nan,
+        force_n=np.full(xs.size, np.nan), slipping=np.zeros(xs.size, bool),
+        elastica=np.zeros(xs.size, bool),
+    )
+
+
+def _schedule(n_steps, x_start, protocol: StageProtocol, rng):
+    """Breakpoints (t, x) of the piecewise-linear stage motion, true time from 0."""
+    t, x = [0.0, protocol.rest_s], [x_start, x_start]
+    for k in range(n_steps):
+        t.append(t[-1] + protocol.move_s)
+        x.append(x_start + (k + 1) * protocol.step_mm)
+        t.append(t[-1] + rng.uniform(*protocol.pause_s))
+        x.append(x[-1])
+    t.append(t[-1] + protocol.rest_s)
+    x.append(x[-1])
+    return np.array(t), np.array(x)
+
+
+def simulate_run(
+    name: str,
+    kind: str,
+    scene,
+    rng: np.random.Generator,
+    mech: WhiskerMechanics | None = None,
+    protocol: StageProtocol | None = None,
+    noise: NoiseModel | None = None,
+    model: str = "auto",
+    c: float = PAPER_C,
+) -> StageRun:
+    """Simulate one run of one scene (see module docstring)."""
+    mech = mech or WhiskerMechanics()
+    protocol = protocol or StageProtocol()
+    noise = noise or NoiseModel()
+    x_first = scene.first_contact_x(mech)
+    x_start = x_first - protocol.approach_steps * protocol.step_mm
+    n_max = protocol.approach_steps + int(round(protocol.max_travel_mm / protocol.step_mm))
+    positions = tuple(float(v) for v in x_start + protocol.step_mm * np.arange(n_max + 1))
+    if kind == "eq8":
+        steps = _eq8_sweep(scene, mech, positions, c)
+    else:
+        steps = _cached_sweep(scene, mech, positions, model)
+    stop = np.flatnonzero(~(steps.phi_deg < protocol.phi_stop_deg))  # also stops at NaN
+    n_steps = int(stop[0]) if stop.size else n_max
+    sched_t, sched_x = _schedule(n_steps, x_start, protocol, rng)
+    duration = sched_t[-1]
+
+    # Clocks: camera time = true time; stage time = true time - offset.
+    magnitude = rng.uniform(*protocol.offset_range_s)
+    offset_s = float(magnitude if rng.random() < 0.5 else -magnitude)
+    t_stage_true = np.arange(-1.0, duration + 1.0, 1.0 / protocol.stage_rate_hz)
+    x_stage = np.interp(t_stage_true, sched_t, sched_x)
+    stage = {"t_s": t_stage_true - offset_s, "x_mm": x_stage}
+    used = slice(0, n_steps + 1)
+    xs_used = steps.base_x_mm[used]
+    contact_used = steps.in_contact[used]
+
+    def along_x(values, x):
+        v = np.asarray(values, float)[used]
+        good = contact_used & np.isfinite(v)
+        if not good.any():
+            return np.full(np.shape(x), np.nan)
+        out = np.interp(x, xs_used[good], v[good])
+        return np.where(x > x_first, out, np.nan)
+
+    if kind in ("rigid", "eq8"):
+        stage["r_mm"] = along_x(steps.r_mm, x_stage)
+        stage["r_mm"] = np.where(np.isfinite(stage["r_mm"]), stage["r_mm"], scene.r_mm)
+
+    n_frames = int(math.floor(duration * protocol.fps)) + 1
+    t_cam = np.arange(n_frames) / protocol.fps
+    x_cam = np.interp(t_cam, sched_t, sched_x)
+    clean = signal_arrays_from(steps, used, x_cam)
+    truth = {
+        "t_s": t_cam,
+        "x_mm": x_cam,
+        "dx_mm": np.clip(x_cam - x_first, 0.0, None),
+        "phi_deg": clean["phi_deg"],
+        "dz_mm": clean["dz_mm"],
+        "r_mm": along_x(steps.r_mm, x_cam),
+        "contact_x_mm": along_x(steps.contact_x_mm, x_cam),
+        "contact_y_mm": along_x(steps.contact_y_mm, x_cam),
+        "in_contact": (x_cam > x_first).astype(int),
+        "slipping": np.interp(x_cam, xs_used, steps.slipping[used].astype(float)) > 0.5,
+    }
+    signals = _measure(clean["phi_deg"], clean["dz_mm"], noise, rng)
+    signals = {"frame": np.arange(n_frames), "t_s": t_cam, **signals}
+    return StageRun(
+        name=name, kind=kind, scene=scene, offset_s=offset_s, travel_sign=1.0,
+        stage=stage, signals=signals, truth=truth, steps=steps,
+        schedule_t_s=sched_t, schedule_x_mm=sched_x,
+        info={"n_steps": n_steps, "x_first_contact_mm": x_first, "model": model,
+              "noise": noise.__dict__, "protocol": protocol.__dict__, "mechanics": mech.__dict__},
+    )
+
+
+def signal_arrays_from(steps: Sweep, used, x_mm):
+    """Noise-free phi and dz at base positions x (quasi-static: linear between solved steps)."""
+    xs = steps.base_x_mm[used]
+    phi = np.interp(x_mm, xs, np.nan_to_num(steps.phi_deg[used]))
+    dz = np.interp(x_mm, xs, np.nan_to_num(steps.dz_mm[used]))
+    return {"phi_deg": phi, "dz_mm": dz}
+
+
+def signal_arrays(run: StageRun, fps: float):
+    """Noise-free signals of a run on the camera clock at a chosen frame rate.
+
+    For driving a video renderer: the plate pose per frame.
+
+    Returns
+    -------
+    dict of ndarray, shape (N,)
+        ``t_s``, ``phi_deg``, ``dz_mm``, ``theta_deg`` (NaN where phi = 0).
+    """
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    t = np.arange(int(math.floor(run.schedule_t_s[-1] * fps)) + 1) / fps
+    x = np.interp(t, run.schedule_t_s, run.schedule_x_mm)
+    n = run.info["n_steps"] + 1
+    out = signal_arrays_from(run.steps, slice(0, n), x)
+    theta = np.where(out["phi_deg"] > 0.0, THETA_TRUE_DEG, np.nan)
+    return {"t_s": t, "phi_deg": out["phi_deg"], "dz_mm": out["dz_mm"], "theta_deg": theta}
+
+
+def _measure(phi_deg, dz_mm, noise: NoiseModel, rng):
+    """Add the front end's noise: isotropic on the 2D tilt vector, Gaussian on dz."""
+    n = phi_deg.size
+    th = math.radians(THETA_TRUE_DEG)
+    tu = phi_deg * math.cos(th) + noise.phi_deg * rng.standard_normal(n)
+    tv = phi_deg * math.sin(th) + noise.phi_deg * rng.standard_normal(n)
+    phi_m = np.hypot(tu, tv)
+    theta_m = np.where(phi_m >= THETA_MIN_PHI_DEG, np.degrees(np.arctan2(tv, tu)), np.nan)
+    dz_m = dz_mm + noise.dz_mm * rng.standard_normal(n)
+    ok = rng.random(n) >= noise.dropout
+    ok[0] = True  # the rest reference frame
+    bad = ~ok
+    phi_m[bad] = dz_m[bad] = theta_m[bad] = np.nan
+    return {"dz_mm": dz_m, "phi_deg": phi_m, "theta_deg": theta_m, "ok": ok.astype(int)}
+
+
+def simulate_runs(kind: str, seed: int, **kwargs) -> list[StageRun]:
+    """All runs of an experiment kind, each with its own clock offset and noise.
+
+    ``kwargs`` go to :func:`simulate_run` (mech, protocol, noise, model, c).
+    """
+    scenes = _scenes(kind)
+    children = np.random.SeedSequence(seed).spawn(len(scenes))
+    return [
+        simulate_run(name, kind, scene, np.random.default_rng(child), **kwargs)
+        for (name, scene), child in zip(scenes, children, strict=True)
+    ]

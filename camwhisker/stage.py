@@ -1,0 +1,368 @@
+"""Linear-stage logs: parse and validate, find pauses, estimate the clock offset, pause medians.
+
+A stage log (SENSOR.md section 7) is a CSV with header ``t_s,x_mm`` and an
+optional ``r_mm``, on the stage's own clock. The camera's signal table
+(section 6) has its own clock; ``offset_s`` below always means
+
+    t_camera = t_stage + offset_s.
+
+The paper takes, for every pause of the stage (stationary >= 1 s), the median
+of phi and dz over the frames of the pause; :func:`pause_medians` does that.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "StageLogError",
+    "StageLog",
+    "Pauses",
+    "PauseTable",
+    "read_stage_log",
+    "stage_log_from_arrays",
+    "detect_pauses",
+    "estimate_offset",
+    "pause_medians",
+    "pause_index",
+    "contact_onset_x",
+    "MIN_PAUSE_S",
+]
+
+# The paper: "We ensured at least one second between steps."
+MIN_PAUSE_S = 1.0
+# Position changes below this count as standing still: the NRT-150's 0.1 um
+# resolution is far finer; 1 um also absorbs a printed rounding of x_mm.
+STATIONARY_TOL_MM = 1e-3
+# Frames this close to either end of a pause are left out of its median: it
+# covers a residual clock-offset error and the settling of a quasi-static step.
+PAUSE_TRIM_S = 0.1
+# A pause needs this many trusted frames to give a median.
+MIN_PAUSE_FRAMES = 5
+# Offset search: coarse grid then a fine grid around the best coarse value.
+OFFSET_COARSE_STEP_S = 0.1
+OFFSET_FINE_STEP_S = 0.004
+DEFAULT_OFFSET_RANGE_S = 30.0
+# Scores within this of the best count as the best plateau: about the score's
+# noise from one frame's worth of noise moving in or out of a pause.
+OFFSET_PLATEAU = 1e-4
+
+
+class StageLogError(ValueError):
+    """A stage log that cannot be used; the message names the file, row and problem."""
+
+
+@dataclass(frozen=True)
+class StageLog:
+    """A validated stage log: arrays of shape (N,), times strictly increasing."""
+
+    t_s: np.ndarray
+    x_mm: np.ndarray
+    r_mm: np.ndarray | None
+    source: str
+
+    @property
+    def travel_sign(self) -> float:
+        """+1 if the stage travels toward +x over the log, -1 if toward -x."""
+        return 1.0 if self.x_mm[-1] >= self.x_mm[0] else -1.0
+
+    def x_at(self, t_stage_s) -> np.ndarray:
+        """Stage position at stage-clock times; NaN outside the log."""
+        t = np.asarray(t_stage_s, float)
+        x = np.interp(t, self.t_s, self.x_mm)
+        return np.where((t >= self.t_s[0]) & (t <= self.t_s[-1]), x, np.nan)
+
+
+def _number(cell: str, where: str) -> float:
+    try:
+        value = float(cell)
+    except ValueError:
+        raise StageLogError(f"{where}: not a number: {cell!r}") from None
+    if not math.isfinite(value):
+        raise StageLogError(f"{where}: not a finite number: {cell!r}")
+    return value
+
+
+def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog:
+    """Read and validate a stage log CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+    max_gap_s : float
+        Largest allowed interval between consecutive samples; a longer gap
+        could hide a motion, so it is an error.
+
+    Raises
+    ------
+    StageLogError
+        Missing file or columns, a non-numeric or non-finite cell, times not
+        strictly increasing (unsorted or duplicate), a gap, or fewer than two rows.
+        The message names the file and the 1-based row (the header is row 1).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise StageLogError(f"{path}: cannot read stage log ({exc.strerror})") from exc
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise StageLogError(f"{path}: empty file, expected header t_s,x_mm")
+    header = [h.strip() for h in rows[0]]
+    for need in ("t_s", "x_mm"):
+        if need not in header:
+            raise StageLogError(f"{path}: row 1: missing column {need!r} (header: {header})")
+    cols = {name: header.index(name) for name in ("t_s", "x_mm", "r_mm") if name in header}
+    data = {name: [] for name in cols}
+    for i, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise StageLogError(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
+        for name, j in cols.items():
+            data[name].append(_number(row[j].strip(), f"{path}: row {i}, column {name}"))
+    arrays = {k: np.array(v, float) for k, v in data.items()}
+    return stage_log_from_arrays(arrays["t_s"], arrays["x_mm"], arrays.get("r_mm"),
+                                 source=str(path), max_gap_s=max_gap_s, first_row=2)
+
+
+def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN_PAUSE_S,
+                          first_row=0) -> StageLog:
+    """Validate arrays as a stage log (see :func:`read_stage_log`); rows counted from first_row."""
+    t = np.asarray(t_s, float)
+    x = np.asarray(x_mm, float)
+    if t.size < 2:
+        raise StageLogError(f"{source}: needs at least 2 samples, got {t.size}")
+    if x.shape != t.shape or (r_mm is not None and np.shape(r_mm) != t.shape):
+        raise StageLogError(f"{source}: columns have different lengths")
+    for name, v in (("t_s", t), ("x_mm", x)):
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise StageLogError(f"{source}: row {bad[0] + first_row}: {name} is not finite")
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = bad[0]
+        what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
+        raise StageLogError(
+            f"{source}: row {k + 1 + first_row}: {what}: t_s = {t[k + 1]!r} after {t[k]!r}"
+        )
+    gap = np.flatnonzero(dt > max_gap_s)
+    if gap.size:
+        k = gap[0]
+        raise StageLogError(
+            f"{source}: row {k + 1 + first_row}: gap of {dt[k]:.3f} s after t_s = {t[k]!r} "
+            f"(more than {max_gap_s} s without a sample)"
+        )
+    r = None if r_mm is None else np.asarray(r_mm, float)
+    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source)
+
+
+@dataclass(frozen=True)
+class Pauses:
+    """Stationary intervals of a stage log (stage clock), arrays shape (P,)."""
+
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    x_mm: np.ndarray
+
+
+def detect_pauses(log: StageLog, min_pause_s: float = MIN_PAUSE_S,
+                  tol_mm: float = STATIONARY_TOL_MM) -> Pauses:
+    """Intervals where the stage stands still for at least ``min_pause_s``.
+
+    Consecutive samples closer than ``tol_mm`` belong to the same stationary run;
+    a run's duration is from its first to its last sample.
+    """
+    moving = np.abs(np.diff(log.x_mm)) > tol_mm
+    # Run boundaries: a new run starts after every moving interval.
+    starts, ends = [], []
+    i = 0
+    n = log.t_s.size
+    while i < n:
+        j = i
+        while j < n - 1 and not moving[j]:
+            j += 1
+        starts.append(i)
+        ends.append(j)
+        i = j + 1
+    s, e = np.array(starts), np.array(ends)
+    keep = (log.t_s[e] - log.t_s[s]) >= min_pause_s
+    s, e = s[keep], e[keep]
+    return Pauses(t_start_s=log.t_s[s], t_end_s=log.t_s[e], x_mm=log.x_mm[s])
+
+
+def pause_index(t_camera_s, pauses: Pauses, offset_s: float, trim_s: float):
+    """Index of the pause each camera time falls in (-1 for none), ``trim_s`` in from each end."""
+    t_stage = np.asarray(t_camera_s, float) - offset_s
+    k = np.searchsorted(pauses.t_start_s + trim_s, t_stage, side="right") - 1
+    kc = np.clip(k, 0, None)
+    inside = (k >= 0) & (t_stage <= pauses.t_end_s[kc] - trim_s) & np.isfinite(t_stage)
+    return np.where(inside, k, -1)
+
+
+def _explained(signal, pause_idx, n_pauses, x_frames, pause_x):
+    """Share of the signal's variance explained by the quasi-static model.
+
+    The model: the signal is a function of the stage position only, equal to
+    its pause mean at each pause position and linear in x between them (so the
+    frames of a step's ramp are predicted too). NaN-free result in [-inf, 1].
+    """
+    sel = (pause_idx >= 0) & np.isfinite(signal)
+    if sel.sum() < 2 * MIN_PAUSE_FRAMES:
+        return 0.0
+    count = np.bincount(pause_idx[sel], minlength=n_pauses)
+    level = np.bincount(pause_idx[sel], weights=signal[sel], minlength=n_pauses)
+    have = count > 0
+    level = level[have] / count[have]
+    xp = pause_x[have]
+    order = np.argsort(xp, kind="stable")
+    use = np.isfinite(x_frames) & np.isfinite(signal)
+    if use.sum() < 2 * MIN_PAUSE_FRAMES:
+        return 0.0
+    v = signal[use]
+    model = np.interp(x_frames[use], xp[order], level[order])
+    total = float(np.sum((v - v.mean()) ** 2))
+    if total <= 0.0:
+        return 0.0
+    return 1.0 - float(np.sum((v - model) ** 2)) / total
+
+
+def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
+                    search_s: tuple[float, float] = (-DEFAULT_OFFSET_RANGE_S,
+                                                     DEFAULT_OFFSET_RANGE_S)):
+    """Estimate ``offset_s`` (t_camera = t_stage + offset_s) from the signals alone.
+
+    The whisker is quasi-static, so phi and dz are functions of the stage
+    position alone. For a trial offset, every frame gets the stage position at
+    its time; the pause means give the signal at each pause position, linear
+    interpolation in x predicts every other frame (the ramps of the steps
+    included), and the score is the share of the variance of phi (and dz, the
+    two averaged) that this explains. A wrong offset puts steps where the
+    signal is still and vice versa. Pause lengths differ from step to step,
+    which makes the maximum unique. Coarse grid, then a fine grid around the best.
+
+    Returns
+    -------
+    offset_s : float
+        NaN if no offset in the range brings signal frames into the pauses.
+    score : float
+        The explained share at the estimate, in [0, 1]; near 0 means no contact
+        motion was seen and the offset is not determined.
+    """
+    pauses = detect_pauses(log)
+    t = np.asarray(t_camera_s, float)
+    signals = [np.asarray(phi_deg, float)]
+    if dz_mm is not None:
+        signals.append(np.asarray(dz_mm, float))
+
+    def score(offset):
+        idx = pause_index(t, pauses, offset, PAUSE_TRIM_S)
+        x = log.x_at(t - offset)
+        parts = [_explained(s, idx, pauses.t_start_s.size, x, pauses.x_mm) for s in signals]
+        return float(np.mean(parts))
+
+    if pauses.t_start_s.size < 2:
+        return math.nan, 0.0
+    lo, hi = search_s
+    coarse = np.arange(lo, hi + OFFSET_COARSE_STEP_S / 2, OFFSET_COARSE_STEP_S)
+    scores = np.array([score(o) for o in coarse])
+    best = coarse[int(np.argmax(scores))]
+    fine = np.arange(best - 2 * OFFSET_COARSE_STEP_S, best + 2 * OFFSET_COARSE_STEP_S,
+                     OFFSET_FINE_STEP_S)
+    fscores = np.array([score(o) for o in fine])
+    # Near the truth the score is flat up to noise; take the middle of the offsets
+    # within OFFSET_PLATEAU of the best.
+    top = fine[fscores >= fscores.max() - OFFSET_PLATEAU]
+    offset = float(0.5 * (top.min() + top.max()))
+    return offset, float(fscores.max())
+
+
+@dataclass(frozen=True)
+class PauseTable:
+    """Per-pause medians (arrays shape (P,)); times on the camera clock."""
+
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    x_mm: np.ndarray
+    phi_deg: np.ndarray
+    dz_mm: np.ndarray
+    r_mm: np.ndarray
+    n_frames: np.ndarray
+
+
+def pause_medians(log: StageLog, t_camera_s, phi_deg, dz_mm, ok, offset_s: float,
+                  pauses: Pauses | None = None) -> PauseTable:
+    """Median phi and dz of the trusted frames in each stage pause (the paper's data points).
+
+    Pauses with fewer than :data:`MIN_PAUSE_FRAMES` trusted frames get NaN.
+    ``r_mm`` is the median of the log's r_mm over the pause (NaN without it).
+    """
+    pauses = pauses or detect_pauses(log)
+    t = np.asarray(t_camera_s, float)
+    phi = np.asarray(phi_deg, float)
+    dz = np.asarray(dz_mm, float)
+    good = np.asarray(ok).astype(bool) & np.isfinite(phi) & np.isfinite(dz)
+    idx = pause_index(t, pauses, offset_s, PAUSE_TRIM_S)
+    p = pauses.t_start_s.size
+    phi_med, dz_med, r_med = np.full(p, np.nan), np.full(p, np.nan), np.full(p, np.nan)
+    n = np.zeros(p, int)
+    order = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[order], np.arange(p + 1))
+    for k in range(p):
+        frames = order[bounds[k]:bounds[k + 1]]
+        frames = frames[good[frames]]
+        n[k] = frames.size
+        if frames.size >= MIN_PAUSE_FRAMES:
+            phi_med[k] = np.median(phi[frames])
+            dz_med[k] = np.median(dz[frames])
+        if log.r_mm is not None:
+            inside = (log.t_s >= pauses.t_start_s[k]) & (log.t_s <= pauses.t_end_s[k])
+            r_med[k] = np.median(log.r_mm[inside])
+    return PauseTable(
+        t_start_s=pauses.t_start_s + offset_s, t_end_s=pauses.t_end_s + offset_s,
+        x_mm=pauses.x_mm, phi_deg=phi_med, dz_mm=dz_med, r_mm=r_med, n_frames=n,
+    )
+
+
+# Contact onset: pauses with phi above this are in contact (about 20 times the
+# noise of a pause median, 0.22 deg * 1.25 / sqrt(30 frames) ~ 0.05 deg).
+CONTACT_PHI_DEG = 1.0
+# The onset line is fitted through the first few contact pauses, while phi is
+# still linear in travel (< 5 deg, see mechanics.whisker.PHI_LINEAR_MAX_DEG).
+ONSET_FIT_PAUSES = 3
+
+
+def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
+    """Stage position of first contact, from pause medians.
+
+    Fits phi = a (x - x0) through the first :data:`ONSET_FIT_PAUSES` pauses with
+    phi >= :data:`CONTACT_PHI_DEG` and returns x0
+    (where phi extrapolates to zero). A single contact pause gives the midpoint
+    between it and the pause before. NaN if phi never reaches the threshold.
+    """
+    x = np.asarray(x_mm, float)
+    phi = np.asarray(phi_deg, float)
+    order = np.argsort(travel_sign * x, kind="stable")
+    x, phi = x[order], phi[order]
+    finite = np.isfinite(phi)
+    x, phi = x[finite], phi[finite]
+    hit = np.flatnonzero(phi >= CONTACT_PHI_DEG)
+    if hit.size == 0:
+        return math.nan
+    first = hit[0]
+    use = hit[:ONSET_FIT_PAUSES]
+    if use.size < 2:
+        return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))
+    slope, intercept = np.polyfit(x[use], phi[use], 1)
+    if slope * travel_sign <= 0:
+        return float(x[first])
+    x0 = -intercept / slope
+    # The onset lies between the log's first pause and the first contact pause.
+    a, b = sorted((x[0], x[first]))
+    return float(np.clip(x0, a, b))
