@@ -1,0 +1,276 @@
+"""Calibration: fit GM (eq. 8 and a beam alternative), sigma_GM(phi), the MF table, sigma_MF(phi).
+
+Input: calibration runs, each a signal table plus a stage log with ``r_mm``
+(the known contact distance). Output: a human-readable TOML file, with the MF
+table as CSV beside it (``<stem>.mf.csv``)::
+
+    calib = calibrate(runs, l_w_mm=150.0)
+    write_calibration("calib.toml", calib)
+    calib = read_calibration("calib.toml")
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.contact.gm import PHI_MIN_DEG, GMFit, fit_gm, r_gm
+from camwhisker.contact.io import atomic_write_text, write_csv
+from camwhisker.contact.mf import (
+    DZ_SCALE_MM,
+    MF_DOMAIN_RADIUS,
+    MF_K,
+    PHI_SCALE_DEG,
+    MFTable,
+    r_mf,
+)
+from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
+from camwhisker.contact.zscore import SpreadTable, spread_table
+from camwhisker.stage import StageLog
+
+__all__ = ["CalibrationError", "CalibrationRun", "calibrate", "write_calibration",
+           "read_calibration", "mf_table_path"]
+
+
+class CalibrationError(ValueError):
+    """Calibration input or file that cannot be used; the message names the file and key."""
+
+
+@dataclass(frozen=True)
+class CalibrationRun:
+    """One calibration run: its signals, its stage log (with r_mm) and their names."""
+
+    signals: dict
+    log: StageLog
+    signals_source: str = "<signals>"
+    offset_s: float | None = None
+
+
+def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<defaults>",
+              command: str = "") -> tuple[Calibration, list[RunAnalysis], dict]:
+    """Fit the calibration from runs with known r.
+
+    Returns
+    -------
+    calib : Calibration
+    analyses : list of RunAnalysis
+        Per run: estimated offset, pause medians, contact onset.
+    data : dict of ndarray
+        The pooled pause samples used (phi_deg, dz_mm, dx_mm, r_mm, run) and
+        their GM estimates (r_gm_mm).
+    """
+    if not runs:
+        raise CalibrationError("calibration needs at least one run")
+    analyses, cols = [], {k: [] for k in ("phi_deg", "dz_mm", "dx_mm", "r_mm", "run")}
+    for i, run in enumerate(runs):
+        if run.log.r_mm is None:
+            raise CalibrationError(f"{run.log.source}: calibration stage log needs column r_mm")
+        a = analyse_run(run.signals, run.log, run.offset_s)
+        analyses.append(a)
+        p = a.pauses
+        contact = np.isfinite(a.dx_mm) & np.isfinite(p.phi_deg)
+        cols["phi_deg"].append(p.phi_deg[contact])
+        cols["dz_mm"].append(p.dz_mm[contact])
+        cols["dx_mm"].append(a.dx_mm[contact])
+        cols["r_mm"].append(p.r_mm[contact])
+        cols["run"].append(np.full(int(contact.sum()), i))
+    data = {k: np.concatenate(v) for k, v in cols.items()}
+    try:
+        gm = fit_gm(data["dx_mm"], data["phi_deg"], data["r_mm"], l_w_mm)
+        data["r_gm_mm"] = r_gm(gm, data["dx_mm"], data["phi_deg"])
+        gm_spread = spread_table(data["phi_deg"], data["r_mm"] - data["r_gm_mm"])
+        table = MFTable.build(data["phi_deg"], data["dz_mm"], data["r_mm"])
+        # Leave-one-out over the table's own rows gives MF's spread on unseen samples.
+        loo = r_mf(table, table.phi_deg, table.dz_mm, exclude_self=True)
+        mf_err = table.r_mm - loo.r_mm
+        mf_spread = spread_table(table.phi_deg, mf_err)
+    except ValueError as exc:
+        raise CalibrationError(f"calibration from {len(runs)} run(s) failed: {exc}") from exc
+
+    provenance = {
+        "package": "camwhisker",
+        "version": __version__,
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "sensor": sensor_source,
+        "runs": [
+            {"signals": r.signals_source, "stage": r.log.source, "offset_s": a.offset_s,
+             "offset_estimated": a.offset_estimated, "offset_score": a.offset_score,
+             "x_contact_mm": a.x_contact_mm, "pauses_used": int(np.isfinite(a.dx_mm).sum())}
+            for r, a in zip(runs, analyses, strict=True)
+        ],
+    }
+    calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
+                        l_w_mm=float(l_w_mm), provenance=provenance)
+    return calib, analyses, data
+
+
+def mf_table_path(calib_path: str | Path) -> Path:
+    """The MF table CSV beside a calibration file: ``calib.toml`` -> ``calib.mf.csv``."""
+    p = Path(calib_path)
+    return p.with_name(p.stem + ".mf.csv")
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    if isinstance(v, float | np.floating):
+        v = float(v)
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple | np.ndarray):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _spread_lines(name: str, s: SpreadTable, what: str) -> list[str]:
+    lines = [f"[{name}]", f"# {what}: error r - r_hat per phi bin lo <= phi < hi (deg)."]
+    for lo, hi, n, m, sd in s.rows():
+        lines.append(f"#   {lo:5.1f} - {hi:5.1f}: n = {n:4d}  mean = {m:7.2f} mm  "
+                     f"std = {sd:6.2f} mm")
+    lines += [f"edges_deg = {_toml_value(s.edges_deg)}", f"n = {_toml_value(s.n)}",
+              f"mean_mm = {_toml_value(s.mean_mm)}", f"std_mm = {_toml_value(s.std_mm)}", ""]
+    return lines
+
+
+def _gm_lines(fit: GMFit) -> list[str]:
+    lines = []
+    for kind, f in sorted(fit.alternatives.items()):
+        lines.append(f"[gm.{kind}]")
+        for key, value in f.params.items():
+            lines.append(f"{key} = {_toml_value(value)}")
+            lo, hi = f.ci[key]
+            lines.append(f"{key}_ci95 = {_toml_value([lo, hi])}")
+        lines += [f"rmse_mm = {_toml_value(f.rmse_mm)}", f"aic = {_toml_value(f.aic)}",
+                  f"n = {f.n}", ""]
+    return lines
+
+
+def write_calibration(path: str | Path, calib: Calibration) -> None:
+    """Write the TOML file and the MF table CSV beside it (both atomically)."""
+    path = Path(path)
+    mf_path = mf_table_path(path)
+    prov = calib.provenance
+    eq8 = calib.gm.alternatives.get("eq8")
+    lines = [
+        "# camwhisker calibration: GM (eq. 8 and a beam alternative), sigma_GM(phi), MF table.",
+        f"# Made by camwhisker {prov['version']} at {prov['created_utc']}.",
+        f"# Command: {prov.get('command', '')}",
+        f"# MF table (phi_deg, dz_mm, r_mm): {mf_path.name}",
+    ]
+    if eq8 is not None:
+        lo, hi = eq8.ci["c"]
+        lines.append(f"# Eq. (8) constant C = {eq8.params['c']:.2f} (95 % CI {lo:.2f} - {hi:.2f}),"
+                     f" RMSE {eq8.rmse_mm:.2f} mm")
+    lines += [
+        "",
+        "[provenance]",
+        f"package = {_toml_value(prov['package'])}",
+        f"version = {_toml_value(prov['version'])}",
+        f"created_utc = {_toml_value(prov['created_utc'])}",
+        f"command = {_toml_value(prov.get('command', ''))}",
+        f"sensor = {_toml_value(prov.get('sensor', ''))}",
+        "",
+        "[whisker]",
+        f"length_mm = {_toml_value(calib.l_w_mm)}",
+        "",
+        "[gm]",
+        "# The model used for r_gm_mm: the lower AIC of eq. (8) and the beam model.",
+        f"model = {_toml_value(calib.gm.kind)}",
+        f"phi_min_deg = {_toml_value(PHI_MIN_DEG)}",
+        "",
+        *_gm_lines(calib.gm),
+        *_spread_lines("gm_spread", calib.gm_spread, "sigma_GM"),
+        "[mf]",
+        f"table = {_toml_value(mf_path.name)}",
+        f"k = {MF_K}",
+        f"phi_scale_deg = {_toml_value(PHI_SCALE_DEG)}",
+        f"dz_scale_mm = {_toml_value(DZ_SCALE_MM)}",
+        f"domain_radius = {_toml_value(MF_DOMAIN_RADIUS)}",
+        f"rows = {len(calib.mf_table)}",
+        "",
+        *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave-one-out)"),
+    ]
+    for run in prov.get("runs", []):
+        lines.append("[[provenance.runs]]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in run.items()]
+        lines.append("")
+    write_csv(mf_path, {"phi_deg": calib.mf_table.phi_deg, "dz_mm": calib.mf_table.dz_mm,
+                        "r_mm": calib.mf_table.r_mm}, digits=9)
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _get(table: dict, key: str, where: str):
+    if key not in table:
+        raise CalibrationError(f"{where}: missing key {key!r}")
+    return table[key]
+
+
+def _spread_from(doc: dict, name: str, path: Path) -> SpreadTable:
+    t = _get(doc, name, str(path))
+    where = f"{path}: [{name}]"
+    return SpreadTable(np.asarray(_get(t, "edges_deg", where), float),
+                       np.asarray(_get(t, "n", where), int),
+                       np.asarray(_get(t, "mean_mm", where), float),
+                       np.asarray(_get(t, "std_mm", where), float))
+
+
+def read_calibration(path: str | Path) -> Calibration:
+    """Read a calibration file written by :func:`write_calibration`.
+
+    Raises
+    ------
+    CalibrationError
+        Unreadable file, bad TOML, a missing key (named), or a bad MF table.
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CalibrationError(f"{path}: cannot read calibration ({exc.strerror})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationError(f"{path}: not valid TOML ({exc})") from exc
+    l_w = float(_get(_get(doc, "whisker", str(path)), "length_mm", f"{path}: [whisker]"))
+    gm_doc = _get(doc, "gm", str(path))
+    kind = _get(gm_doc, "model", f"{path}: [gm]")
+    fits = {}
+    for k in ("eq8", "beam"):
+        if k not in gm_doc:
+            continue
+        t = gm_doc[k]
+        names = ("c",) if k == "eq8" else ("beta_per_mm", "kappa_per_mm")
+        where = f"{path}: [gm.{k}]"
+        fits[k] = GMFit(kind=k, params={n: float(_get(t, n, where)) for n in names},
+                        ci={n: tuple(_get(t, n + "_ci95", where)) for n in names},
+                        rmse_mm=float(t.get("rmse_mm", math.nan)),
+                        aic=float(t.get("aic", math.nan)), n=int(t.get("n", 0)), l_w_mm=l_w)
+    if kind not in fits:
+        raise CalibrationError(f"{path}: [gm] model = {kind!r} but there is no [gm.{kind}]")
+    gm = GMFit(**{**fits[kind].__dict__, "alternatives": fits})
+    mf_doc = _get(doc, "mf", str(path))
+    mf_path = path.with_name(_get(mf_doc, "table", f"{path}: [mf]"))
+    try:
+        arr = np.genfromtxt(mf_path, delimiter=",", names=True)
+    except (OSError, ValueError) as exc:
+        raise CalibrationError(f"{mf_path}: cannot read MF table ({exc})") from exc
+    try:
+        table = MFTable.build(np.atleast_1d(arr["phi_deg"]), np.atleast_1d(arr["dz_mm"]),
+                              np.atleast_1d(arr["r_mm"]))
+    except (ValueError, KeyError) as exc:
+        raise CalibrationError(f"{mf_path}: bad MF table ({exc})") from exc
+    return Calibration(gm=gm, gm_spread=_spread_from(doc, "gm_spread", path), mf_table=table,
+                       mf_spread=_spread_from(doc, "mf_spread", path), l_w_mm=l_w,
+                       provenance=doc.get("provenance", {}))

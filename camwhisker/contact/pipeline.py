@@ -1,0 +1,165 @@
+"""From a signal table and a stage log to contact estimates, pause by pause or frame by frame.
+
+Data flow: signals + stage log -> clock offset -> pause medians -> contact onset
+-> dx -> GM, MF -> Z -> fusion -> shape. :func:`estimate` is the vectorised core
+that both the pause-level evaluation and the per-frame contact table use.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from camwhisker.contact.fusion import fuse
+from camwhisker.contact.gm import GMFit, r_gm
+from camwhisker.contact.mf import MFTable, r_mf
+from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
+from camwhisker.stage import (
+    PauseTable,
+    StageLog,
+    contact_onset_x,
+    detect_pauses,
+    estimate_offset,
+    pause_index,
+    pause_medians,
+)
+
+__all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_rows"]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything the contact estimates need (see :mod:`camwhisker.calibrate`)."""
+
+    gm: GMFit
+    gm_spread: SpreadTable
+    mf_table: MFTable
+    mf_spread: SpreadTable
+    l_w_mm: float
+    provenance: dict
+
+
+@dataclass(frozen=True)
+class RunAnalysis:
+    """One run on the camera clock: offset, pause medians, contact onset."""
+
+    offset_s: float
+    offset_score: float
+    offset_estimated: bool
+    pauses: PauseTable
+    x_contact_mm: float
+    travel_sign: float
+    dx_mm: np.ndarray  # per pause, NaN before contact
+
+
+def analyse_run(signals: dict, log: StageLog, offset_s: float | None = None) -> RunAnalysis:
+    """Clock offset (estimated unless given), pause medians and first contact of one run."""
+    estimated = offset_s is None
+    score = math.nan
+    if estimated:
+        offset_s, score = estimate_offset(log, signals["t_s"], signals["phi_deg"],
+                                          signals["dz_mm"])
+        if not math.isfinite(offset_s):
+            raise ValueError(f"{log.source}: cannot estimate the clock offset (too few pauses)")
+    pauses = pause_medians(log, signals["t_s"], signals["phi_deg"], signals["dz_mm"],
+                           signals["ok"], offset_s)
+    sign = log.travel_sign
+    x0 = contact_onset_x(pauses.x_mm, pauses.phi_deg, sign)
+    dx = _travel(pauses.x_mm, x0, sign)
+    return RunAnalysis(offset_s=float(offset_s), offset_score=float(score),
+                       offset_estimated=estimated, pauses=pauses, x_contact_mm=x0,
+                       travel_sign=sign, dx_mm=dx)
+
+
+def _travel(x_mm, x0, sign):
+    """Travel since first contact (mm); NaN before contact or without one."""
+    x = np.asarray(x_mm, float)
+    if not math.isfinite(x0):
+        return np.full(x.shape, np.nan)
+    dx = sign * (x - x0)
+    return np.where(dx > 0, dx, np.nan)
+
+
+def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
+             segment=None) -> dict:
+    """GM, MF, both Z scores, fusion and the reconstructed point, vectorised.
+
+    Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside,
+    sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, p_gm_good,
+    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm.
+    Samples of one ``segment`` (contact) must be in time order (see
+    :func:`~camwhisker.contact.fusion.fuse`).
+    """
+    phi = np.asarray(phi_deg, float)
+    dz = np.asarray(dz_mm, float)
+    rg = r_gm(calib.gm, dx_mm, phi)
+    mf = r_mf(calib.mf_table, phi, dz)
+    sg = calib.gm_spread.sigma_at(phi)
+    sm = calib.mf_spread.sigma_at(phi)
+    z = z_dissimilarity(rg, mf.r_mm, sg)
+    zc = z_combined(rg, mf.r_mm, sg, sm)
+    fused, p_good, bias = fuse(rg, mf.r_mm, sg, sm, calib.l_w_mm, segment)
+    x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign)
+    return {
+        "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside,
+        "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,
+        "p_gm_good": p_good, "gm_bias_mm": bias, "r_fused_mm": fused, "r_hat_mm": fused,
+        "x_hat_mm": x_hat, "y_hat_mm": y_hat,
+    }
+
+
+def pause_estimates(calib: Calibration, run: RunAnalysis) -> dict:
+    """:func:`estimate` on the pause medians of a run (the paper's data points)."""
+    p = run.pauses
+    out = estimate(calib, p.x_mm, run.dx_mm, p.phi_deg, p.dz_mm, run.travel_sign)
+    return {"t_s": p.t_start_s, "x_mm": p.x_mm, "dx_mm": run.dx_mm, "phi_deg": p.phi_deg,
+            "dz_mm": p.dz_mm, **out}
+
+
+CONTACT_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_gm_mm", "r_mf_mm", "z_score",
+                   "x_hat_mm", "r_hat_mm")
+EXTRA_COLUMNS = ("y_hat_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm",
+                 "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm", "pause", "ok")
+_PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "z_combined",
+              "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm")
+
+
+def contact_rows(signals: dict, log: StageLog, calib: Calibration,
+                 offset_s: float | None = None) -> tuple[dict, RunAnalysis]:
+    """One row per signal row (SENSOR.md section 7) plus extra columns.
+
+    ``x_mm`` is the stage position at the frame time and ``dx_mm`` the travel
+    since the contact onset; ``phi_deg`` and ``dz_mm`` are the frame's own
+    values. The estimates (r_gm_mm ... r_hat_mm) are those of the stage pause
+    the frame lies in, computed from the pause medians as in the paper ("all
+    data were collected during pauses"); frames while the stage moves, outside
+    the log, or untrusted get empty estimate cells.
+    """
+    run = analyse_run(signals, log, offset_s)
+    t = np.asarray(signals["t_s"], float)
+    x = log.x_at(t - run.offset_s)
+    ok = np.asarray(signals["ok"], bool)
+    phi = np.where(ok, signals["phi_deg"], np.nan)
+    dz = np.where(ok, signals["dz_mm"], np.nan)
+    dx = _travel(x, run.x_contact_mm, run.travel_sign)
+    pe = pause_estimates(calib, run)
+    idx = pause_index(t, detect_pauses(log), run.offset_s, 0.0)
+    inside = (idx >= 0) & ok
+    k = np.clip(idx, 0, None)
+
+    def per_frame(values):
+        v = np.asarray(values, float)
+        return np.where(inside, v[k], np.nan) if v.size else np.full(t.shape, np.nan)
+
+    cols = {"t_s": t, "x_mm": x, "dx_mm": dx, "phi_deg": phi, "dz_mm": dz}
+    for name in _PER_PAUSE:
+        cols[name] = per_frame(pe[name])
+    cols["mf_outside"] = np.where(inside, np.asarray(pe["mf_outside"], bool)[k], False).astype(int)
+    cols["phi_pause_deg"] = per_frame(run.pauses.phi_deg)
+    cols["dz_pause_mm"] = per_frame(run.pauses.dz_mm)
+    cols["pause"] = np.where(idx >= 0, idx, np.nan)
+    cols["ok"] = ok.astype(int)
+    return {name: cols[name] for name in CONTACT_COLUMNS + EXTRA_COLUMNS}, run

@@ -1,0 +1,79 @@
+"""Calibration files and the contact table: round trip, provenance, degenerate inputs."""
+
+import functools
+import tomllib
+
+import numpy as np
+import pytest
+
+from camwhisker.calibrate import (
+    CalibrationError,
+    CalibrationRun,
+    calibrate,
+    mf_table_path,
+    read_calibration,
+    write_calibration,
+)
+from camwhisker.contact.pipeline import CONTACT_COLUMNS, contact_rows
+from camwhisker.mechanics import simulate_runs
+from camwhisker.stage import stage_log_from_arrays
+
+
+@functools.cache
+def calibration():
+    runs = simulate_runs("rigid", 31)
+    cal_runs = [CalibrationRun(r.signals, stage_log_from_arrays(r.stage["t_s"], r.stage["x_mm"],
+                                                                  r.stage["r_mm"]))
+                for r in runs]
+    return calibrate(cal_runs, 150.0, command="test")[0]
+
+
+def test_round_trip(tmp_path):
+    calib = calibration()
+    path = tmp_path / "calib.toml"
+    write_calibration(path, calib)
+    doc = tomllib.loads(path.read_text())
+    assert doc["provenance"]["package"] == "camwhisker"
+    assert len(doc["provenance"]["runs"]) == 8
+    assert mf_table_path(path).exists()
+    back = read_calibration(path)
+    assert back.gm.kind == calib.gm.kind
+    assert back.gm.params == pytest.approx(calib.gm.params, rel=1e-12)
+    assert back.gm.alternatives["eq8"].params["c"] == pytest.approx(
+        calib.gm.alternatives["eq8"].params["c"], rel=1e-12)
+    assert np.allclose(back.gm_spread.std_mm, calib.gm_spread.std_mm, rtol=1e-12)
+    assert np.allclose(back.mf_table.r_mm, calib.mf_table.r_mm, rtol=1e-8)
+    assert not list(tmp_path.glob(".*tmp"))  # atomic writes left no temporaries
+
+
+def test_missing_key_is_named(tmp_path):
+    path = tmp_path / "calib.toml"
+    write_calibration(path, calibration())
+    text = path.read_text().replace("model = ", "modell = ", 1)
+    path.write_text(text)
+    with pytest.raises(CalibrationError, match=r"\[gm\]: missing key 'model'"):
+        read_calibration(path)
+
+
+def test_calibration_needs_r():
+    run = simulate_runs("rigid", 31)[0]
+    log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"], source="L.csv")
+    with pytest.raises(CalibrationError, match="L.csv: calibration stage log needs column r_mm"):
+        calibrate([CalibrationRun(run.signals, log)], 150.0)
+
+
+def test_contact_rows_one_per_signal_row_and_empty_while_moving():
+    calib = calibration()
+    run = simulate_runs("compliant", 32)[0]
+    log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
+    cols, analysis = contact_rows(run.signals, log, calib)
+    n = run.signals["t_s"].size
+    assert all(cols[c].shape == (n,) for c in CONTACT_COLUMNS)
+    moving = np.isnan(cols["pause"])
+    assert moving.sum() > 100
+    assert np.isnan(cols["r_gm_mm"][moving]).all()
+    assert np.isfinite(cols["r_gm_mm"]).sum() > 500
+    # Before contact: no dx, no estimates.
+    before = cols["x_mm"] < analysis.x_contact_mm - 0.5
+    assert before.sum() > 50 and np.isnan(cols["dx_mm"][before]).all()
+    assert np.isnan(cols["r_hat_mm"][before]).all()
