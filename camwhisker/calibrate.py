@@ -82,7 +82,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         cols["run"].append(np.full(int(contact.sum()), i))
     data = {k: np.concatenate(v) for k, v in cols.items()}
     try:
-        gm = fit_gm(data["dx_mm"], data["phi_deg"], data["r_mm"], l_w_mm)
+        gm = fit_gm(data["dx_mm"], data["phi_deg"], data["r_mm"], l_w_mm, groups=data["run"])
         data["r_gm_mm"] = r_gm(gm, data["dx_mm"], data["phi_deg"])
         gm_spread = spread_table(data["phi_deg"], data["r_mm"] - data["r_gm_mm"])
         table = MFTable.build(data["phi_deg"], data["dz_mm"], data["r_mm"])

@@ -126,6 +126,13 @@ def _run_describe(args) -> int:
 # --- contact back end -------------------------------------------------------------------------
 
 
+def _add_contact(sub) -> None:
+    """simulate-stage, calibrate, contact, contact-bench (camwhisker.contact.commands)."""
+    from camwhisker.contact.commands import add_commands
+
+    add_commands(sub, CommandError)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="camwhisker", description=__doc__)
     parser.add_argument("--version", action="version", version=f"camwhisker {__version__}")
@@ -135,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_COMMANDS: list = [_add_render, _add_bound, _add_samples, _add_describe]
+_COMMANDS: list = [_add_render, _add_bound, _add_samples, _add_describe, _add_contact]
 
 
 def main(argv: list[str] | None = None) -> int:

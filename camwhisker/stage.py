@@ -333,16 +333,20 @@ def pause_medians(log: StageLog, t_camera_s, phi_deg, dz_mm, ok, offset_s: float
 # Contact onset: pauses with phi above this are in contact (about 20 times the
 # noise of a pause median, 0.22 deg * 1.25 / sqrt(30 frames) ~ 0.05 deg).
 CONTACT_PHI_DEG = 1.0
-# The onset line is fitted through the first few contact pauses, while phi is
-# still linear in travel (< 5 deg, see mechanics.whisker.PHI_LINEAR_MAX_DEG).
+# The onset line is fitted through the contact pauses while phi is still
+# linear in travel: below 5 deg the small-deflection beam is within 0.02 deg of
+# the elastica (mechanics.whisker.PHI_LINEAR_MAX_DEG).
+ONSET_PHI_MAX_DEG = 5.0
+# ... or through the first few contact pauses when fewer than two are that small.
 ONSET_FIT_PAUSES = 3
 
 
 def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     """Stage position of first contact, from pause medians.
 
-    Fits phi = a (x - x0) through the first :data:`ONSET_FIT_PAUSES` pauses with
-    phi >= :data:`CONTACT_PHI_DEG` and returns x0
+    Fits phi = a (x - x0) through the pauses with :data:`CONTACT_PHI_DEG` <= phi <
+    :data:`ONSET_PHI_MAX_DEG` before phi first leaves that range (or the first
+    :data:`ONSET_FIT_PAUSES` contact pauses if fewer than two) and returns x0
     (where phi extrapolates to zero). A single contact pause gives the midpoint
     between it and the pause before. NaN if phi never reaches the threshold.
     """
@@ -356,7 +360,11 @@ def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     if hit.size == 0:
         return math.nan
     first = hit[0]
-    use = hit[:ONSET_FIT_PAUSES]
+    linear = phi[first:] < ONSET_PHI_MAX_DEG
+    n_linear = int(np.argmin(linear)) if not linear.all() else linear.size
+    use = np.arange(first, first + n_linear)
+    if use.size < 2:
+        use = hit[:ONSET_FIT_PAUSES]
     if use.size < 2:
         return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))
     slope, intercept = np.polyfit(x[use], phi[use], 1)

@@ -15,11 +15,15 @@ import numpy as np
 
 from camwhisker.calibrate import CalibrationRun, calibrate
 from camwhisker.contact.pipeline import Calibration, analyse_run, estimate, pause_estimates
+from camwhisker.contact.shape import reconstruct
 from camwhisker.contact.zscore import flag_rates, roc_auc
 from camwhisker.mechanics.experiment import simulate_runs
 from camwhisker.stage import stage_log_from_arrays
 
-__all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_kind", "summary", "benchmark"]
+__all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_kind", "summary", "benchmark",
+           "run_bench", "format_report"]
+
+EVAL_KINDS = ("rigid", "compliant", "slide-box", "slide-circle")
 
 # A GM estimate this far off counts as a failure (the paper's 15 mm).
 BAD_GM_ERROR_MM = 15.0
@@ -56,18 +60,14 @@ def evaluate_kind(calib: Calibration, kind: str, seed: int, **sim) -> dict:
         e["r_true_mm"] = np.interp(tmid, truth["t_s"], truth["r_mm"])
         e["slipping"] = np.interp(tmid, truth["t_s"], truth["slipping"].astype(float)) > 0.5
         e["profile_dist_mm"] = run.scene.profile_distance(e["x_hat_mm"], e["y_hat_mm"])
-        e["gm_profile_dist_mm"] = run.scene.profile_distance(
-            *_gm_point(e, a.travel_sign))
+        gx, gy = reconstruct(e["x_mm"], e["r_gm_mm"], e["phi_deg"], a.travel_sign)
+        mx, my = reconstruct(e["x_mm"], e["r_mf_mm"], e["phi_deg"], a.travel_sign)
+        e["gm_x_hat_mm"], e["gm_y_hat_mm"], e["mf_x_hat_mm"], e["mf_y_hat_mm"] = gx, gy, mx, my
+        e["gm_profile_dist_mm"] = run.scene.profile_distance(gx, gy)
         e["offset_err_s"] = np.full(tmid.size, a.offset_s - run.offset_s)
         e["run"] = np.full(tmid.size, i)
         parts.append(e)
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-
-
-def _gm_point(e, sign):
-    from camwhisker.contact.shape import reconstruct
-
-    return reconstruct(e["x_mm"], e["r_gm_mm"], e["phi_deg"], sign)
 
 
 def summary(ev: dict) -> dict:
@@ -110,3 +110,53 @@ def benchmark(calib: Calibration, n: int = 100_000, repeats: int = 5, seed: int 
         best = min(best, time.perf_counter() - t0)
     return {"samples": n, "seconds": best, "samples_per_s": n / best,
             "us_per_sample": 1e6 * best / n}
+
+
+def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
+              n_timing: int = 100_000) -> dict:
+    """Calibrate (unless given) on rigid runs of ``seed``, evaluate all kinds on ``seed + 1``.
+
+    Returns {"summaries": {kind: summary}, "pooled": summary, "timing": benchmark,
+    "calib": Calibration}. With ``figures_dir``, writes fig8_errors.png and
+    fig9_shapes.png there.
+    """
+    calib = calib or calibrate_simulated(seed)
+    evs = {k: evaluate_kind(calib, k, seed + 1) for k in EVAL_KINDS}
+    pooled = {k: np.concatenate([e[k] for e in evs.values()]) for k in evs["rigid"]}
+    out = {"summaries": {k: summary(e) for k, e in evs.items()}, "pooled": summary(pooled),
+           "timing": benchmark(calib, n=n_timing), "calib": calib, "evaluations": evs}
+    if figures_dir is not None:
+        from pathlib import Path
+
+        from camwhisker.contact.plots import plot_error_boxes, plot_shapes
+        from camwhisker.mechanics.experiment import _scenes
+
+        how = f"simulated, calibration seed {seed}, evaluation seed {seed + 1}"
+        d = Path(figures_dir)
+        plot_error_boxes({k: evs[k] for k in ("rigid", "compliant")}, d / "fig8_errors.png",
+                         "Fig. 8: " + how)
+        outlines = {k: _scenes(k)[0][1].outline() for k in ("slide-box", "slide-circle")}
+        plot_shapes({k: evs[k] for k in outlines}, outlines, d / "fig9_shapes.png",
+                    "Fig. 9: " + how)
+    return out
+
+
+def format_report(result: dict) -> str:
+    """Error and speed side by side, one line per contact kind plus the pooled scores."""
+    t = result["timing"]
+    lines = [f"back end: {t['samples_per_s']:,.0f} samples/s ({t['us_per_sample']:.2f} us/sample,"
+             f" {t['samples']} samples, vectorised estimate())",
+             f"{'kind':<13}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
+             f"{'bad':>5}{'Z11 AUC':>9}{'Z11 hit':>8}{'Z11 ff':>7}{'Zc AUC':>8}{'Zc hit':>7}"
+             f"{'Zc ff':>6}"]
+    rows = dict(result["summaries"])
+    rows["pooled"] = result["pooled"]
+    for kind, s in rows.items():
+        lines.append(
+            f"{kind:<13}{s['n']:>5}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
+            f"{s['mf_rmse_mm']:>9.2f}{s['fused_rmse_mm']:>8.2f}{s['n_bad']:>5}"
+            f"{s['z_score_auc']:>9.3f}{s['z_score_hit']:>8.2f}{s['z_score_false']:>7.2f}"
+            f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}{s['z_combined_false']:>6.2f}")
+    lines.append("errors in mm (r - r_hat, pause medians); bad: |GM error| > 15 mm; ff: false-flag"
+                 " rate at Z > 1 (paper: 0.26)")
+    return "\n".join(lines)

@@ -100,7 +100,7 @@ def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
     like_good = prior_good * np.exp(-0.5 * np.nan_to_num(m) ** 2 / se2) / np.sqrt(
         2.0 * np.pi * se2)
     like_bad = (1.0 - prior_good) / l_w_mm
-    p_good = np.where(seen, like_good / (like_good + like_bad), np.nan)
+    p_good = np.where(seen & np.isfinite(r_gm), like_good / (like_good + like_bad), np.nan)
     fused = np.where(seen & np.isfinite(r_gm), r_gm - (1.0 - np.nan_to_num(p_good))
                      * np.nan_to_num(m), np.nan)
     fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)

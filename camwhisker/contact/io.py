@@ -19,6 +19,8 @@ __all__ = ["SignalTableError", "read_signal_table", "write_csv", "atomic_write_t
            "atomic_write_bytes", "format_cell"]
 
 SIGNAL_COLUMNS = ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 class SignalTableError(ValueError):
@@ -99,6 +101,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -59,6 +59,10 @@ class PegScene:
     def profile_distance(self, x_mm, y_mm):
         return np.hypot(np.asarray(x_mm) - self.x_mm, np.asarray(y_mm) - self.r_mm)
 
+    def outline(self):
+        """Points (x_mm, y_mm) of the object's outline, for plots."""
+        return np.array([self.x_mm]), np.array([self.r_mm])
+
     def constraint(self, mech: WhiskerMechanics):
         length = mech.length_mm
 
@@ -94,6 +98,10 @@ class BoxScene(PegScene):
         d_bottom = np.hypot(np.minimum(x, 0.0), y)
         return np.minimum(d_left, d_bottom)
 
+    def outline(self, extent_mm: float = 60.0):
+        return (np.array([self.x_mm, self.x_mm, self.x_mm + extent_mm]),
+                np.array([self.r_mm + extent_mm, self.r_mm, self.r_mm]))
+
 
 @dataclass(frozen=True)
 class CircleScene:
@@ -110,6 +118,11 @@ class CircleScene:
     def profile_distance(self, x_mm, y_mm):
         d = np.hypot(np.asarray(x_mm) - self.center_x_mm, np.asarray(y_mm) - self.center_y_mm)
         return np.abs(d - self.radius_mm)
+
+    def outline(self, n: int = 181):
+        a = np.linspace(0.0, 2.0 * np.pi, n)
+        return (self.center_x_mm + self.radius_mm * np.cos(a),
+                self.center_y_mm + self.radius_mm * np.sin(a))
 
     def constraint(self, mech: WhiskerMechanics):
         length = mech.length_mm

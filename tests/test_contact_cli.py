@@ -1,0 +1,105 @@
+"""Commands of the contact back end, end to end, and the vectorised core's degenerate inputs."""
+
+import csv
+import functools
+import tomllib
+
+import numpy as np
+import pytest
+
+from camwhisker.cli import main
+from camwhisker.contact.pipeline import CONTACT_COLUMNS, estimate
+
+
+@functools.cache
+def simulated(tmp_root):
+    """Calibration (eq.-8 runs) and compliant runs written by simulate-stage."""
+    assert main(["simulate-stage", "--kind", "eq8", "--out", f"{tmp_root}/cal", "--seed",
+                 "21"]) == 0
+    assert main(["simulate-stage", "--kind", "compliant", "--out", f"{tmp_root}/comp",
+                 "--seed", "22"]) == 0
+    return tmp_root
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    return simulated(str(tmp_path_factory.mktemp("contact_cli")))
+
+
+def _calibrate(root, out):
+    args = ["calibrate", "--out", out, "--plots", f"{root}/figs"]
+    for r in ("r22.5", "r42.5", "r60", "r90"):
+        args += ["--signals", f"{root}/cal/{r}_signals.csv", "--stage", f"{root}/cal/{r}_stage.csv"]
+    return main(args)
+
+
+def test_simulate_calibrate_contact(root, capsys):
+    calib = f"{root}/calib.toml"
+    assert _calibrate(root, calib) == 0
+    doc = tomllib.loads(open(calib).read())
+    # Four eq.-(8) runs: C back within 2 %, offsets estimated, provenance recorded.
+    assert doc["gm"]["eq8"]["c"] == pytest.approx(132.0, rel=0.02)
+    assert len(doc["provenance"]["runs"]) == 4
+    assert doc["provenance"]["command"].startswith("camwhisker calibrate")
+    out = f"{root}/c35.csv"
+    assert main(["contact", "--signals", f"{root}/comp/c35_signals.csv", "--stage",
+                 f"{root}/comp/c35_stage.csv", "--calib", calib, "--out", out]) == 0
+    with open(out) as fh:
+        rows = list(csv.DictReader(fh))
+    with open(f"{root}/comp/c35_signals.csv") as fh:
+        n_signals = sum(1 for _ in fh) - 1
+    assert len(rows) == n_signals
+    assert list(rows[0])[: len(CONTACT_COLUMNS)] == list(CONTACT_COLUMNS)
+    assert rows[0]["r_gm_mm"] == ""  # at rest: no contact, empty cell
+    r_gm = np.array([float(r["r_gm_mm"]) for r in rows if r["r_gm_mm"]])
+    assert r_gm.size > 500 and np.all((r_gm > 0) & (r_gm < 150))
+    assert (tmp_path_png := __import__("pathlib").Path(f"{root}/figs/gm_model.png")).exists()
+    assert tmp_path_png.read_bytes()[:4] == b"\x89PNG"
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_bad_stage_log_is_a_clean_error(root, tmp_path, capsys):
+    bad = tmp_path / "bad_stage.csv"
+    bad.write_text("t_s,x_mm\n0,0\n0.1,0\n0.1,1\n")
+    code = main(["contact", "--signals", f"{root}/comp/c35_signals.csv", "--stage", str(bad),
+                 "--calib", f"{root}/missing.toml", "--out", str(tmp_path / "c.csv")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "cannot read calibration" in err and "Traceback" not in err
+
+
+def test_mismatched_pairs(root, tmp_path, capsys):
+    code = main(["calibrate", "--signals", "a.csv", "--signals", "b.csv", "--stage", "a.csv",
+                 "--out", str(tmp_path / "c.toml")])
+    assert code == 2
+    assert "one --stage per --signals" in capsys.readouterr().err
+
+
+def test_estimate_degenerate_inputs_defined(root):
+    """phi = 0, dx = 0, negative dx/phi, NaN: NaN cells, no warnings (RuntimeWarning is an
+    error under pytest's configuration), and finite estimates where inputs are good."""
+    from camwhisker.calibrate import read_calibration
+
+    calib_path = f"{root}/calib_degenerate.toml"
+    assert _calibrate(root, calib_path) == 0
+    calib = read_calibration(calib_path)
+    dx = np.array([5.0, 0.0, -2.0, 5.0, np.nan, 5.0, 5.0])
+    phi = np.array([0.0, 5.0, 5.0, -5.0, 5.0, np.nan, 5.0])
+    dz = np.array([0.0, 0.05, 0.05, 0.05, 0.05, 0.05, np.nan])
+    with np.errstate(all="raise"):
+        out = estimate(calib, dx, dx, phi, dz, 1.0)
+    for key in ("r_gm_mm", "z_score", "z_combined"):
+        assert np.isnan(out[key][:6]).all(), key
+    # Without GM (no travel, bad travel) the fused estimate is MF's, where phi is usable.
+    assert np.isnan(out["r_hat_mm"][[0, 3, 5]]).all()
+    assert np.array_equal(out["r_hat_mm"][[1, 2, 4]], out["r_mf_mm"][[1, 2, 4]])
+    assert np.isfinite(out["r_gm_mm"][6]) and np.isnan(out["r_mf_mm"][6])
+    assert out["r_hat_mm"][6] == out["r_gm_mm"][6]  # MF undefined: GM alone
+
+
+def test_bench_command(capsys):
+    assert main(["contact-bench", "--seed", "3", "--samples", "20000"]) == 0
+    out = capsys.readouterr().out
+    assert "samples/s" in out and "pooled" in out
+    speed = float(out.split(" samples/s")[0].split()[-1].replace(",", ""))
+    assert speed > 0
