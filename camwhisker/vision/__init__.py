@@ -1,0 +1,18 @@
+"""The vision front end: frames -> tracked features -> plate pose (dz, phi, theta).
+
+Modules, in the order the data flows:
+
+- :mod:`~camwhisker.vision.colour`  white balance from the cloth, eq. (1), colour unmixing
+- :mod:`~camwhisker.vision.detect`  finding the features without help
+- :mod:`~camwhisker.vision.lk`      Lucas-Kanade with template update and drift correction
+- :mod:`~camwhisker.vision.tip`     the magnifier tip by colour and edge
+- :mod:`~camwhisker.vision.pose`    the pose fit through the exact camera model
+- :mod:`~camwhisker.vision.paper`   the paper's eqs. (2)-(7) as printed
+- :mod:`~camwhisker.vision.tracker` the stateful front end, its generator
+- :mod:`~camwhisker.vision.bench`   speed and accuracy benchmark
+"""
+
+from camwhisker.vision.detect import FeaturesNotFound
+from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions, track
+
+__all__ = ["FeaturesNotFound", "FrameResult", "FrontEnd", "FrontEndOptions", "track"]

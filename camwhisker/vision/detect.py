@@ -1,0 +1,283 @@
+"""Find the tracking features in a frame without help: square, cross, tip.
+
+The blue square and the red cross are the large components of the contrast
+map of eq. (1) above +BLUE_MIN and below -RED_MIN; the tip is the dark blob
+of :mod:`camwhisker.vision.tip`. Corners come from the convex outline of each
+component, are assigned to the model's corners by their direction from the
+component's centre, and are refined to sub-pixel with ``cv2.cornerSubPix``
+on the one-signed contrast map of their own feature.
+
+:func:`detect_features` raises :class:`FeaturesNotFound`, naming every
+feature it could not find.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from camwhisker.vision.colour import contrast_map
+from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel
+from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
+
+__all__ = [
+    "FeaturesNotFound",
+    "Detection",
+    "detect_features",
+    "refine_corners",
+    "BLUE_MIN",
+    "RED_MIN",
+]
+
+#: Contrast-map levels that separate the features from the cloth (G ~ 0): the
+#: square is at ~ +1.4 and the cross at ~ -1.6; half-way is robust to a 30% cast.
+BLUE_MIN = 0.6
+RED_MIN = 0.6
+#: A component is accepted when its area is within this factor range of the model's.
+AREA_RANGE = (0.4, 1.8)
+#: Detected corners farther than this from the model's direction (deg) are rejected.
+ANGLE_TOL_DEG = 12.0
+#: Corner refinement: edge points are sampled along each of a corner's two edges
+#: from EDGE_FROM_PX to EDGE_TO_PX away from it (clear of the rounded blur at the
+#: corner itself), each found as the steepest point of a profile across the edge
+#: within +-EDGE_HALF_PX (3 sigma of a 2.6 px blur); the corner is where the two
+#: fitted lines meet. A blurred corner's saddle point (cornerSubPix) sits ~1.5 px
+#: inside the true corner; the lines' intersection does not.
+EDGE_FROM_PX = 6.0
+EDGE_TO_PX = 22.0
+EDGE_HALF_PX = 8.0
+EDGE_STEP_PX = 0.25
+#: A refined corner farther than this from its polygon vertex is rejected (px): the
+#: polygon cuts a corner blurred by sigma = 2.6 px by up to ~6 px.
+REFINE_MAX_SHIFT_PX = 8.0
+#: Refinement passes (the second starts from the first's corner, so the edge
+#: samples sit where the edges really are).
+REFINE_PASSES = 2
+
+
+class FeaturesNotFound(ValueError):
+    """Detection failed; ``missing`` names the features that were not found."""
+
+    def __init__(self, missing: list[str], detail: str = ""):
+        self.missing = list(missing)
+        msg = "features not found: " + ", ".join(self.missing)
+        super().__init__(msg + (f" ({detail})" if detail else ""))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """uv: ndarray, shape (13, 2), pixels of the points of POINT_NAMES (NaN where
+    not found); found: ndarray of bool, shape (13,)."""
+
+    uv: np.ndarray
+    found: np.ndarray
+
+
+def _component(mask: np.ndarray, area_exp: float, near_uv: np.ndarray | None):
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n < 2:
+        return None
+    areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
+    good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
+    if not good.any():
+        return None
+    score = np.abs(np.log(areas / area_exp))
+    if near_uv is not None:
+        score = score + np.hypot(*(cents[1:] - near_uv).T) / math.sqrt(area_exp)
+    score[~good] = np.inf
+    k = int(np.argmin(score)) + 1
+    return (labels == k).astype(np.uint8), cents[k]
+
+
+def _assign_corners(hull: np.ndarray, centre: np.ndarray, model_dirs_deg: np.ndarray):
+    """For each model direction, the hull vertex nearest in direction and farthest out."""
+    d = hull - centre
+    ang = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    rad = np.hypot(d[:, 0], d[:, 1])
+    out = np.full((len(model_dirs_deg), 2), np.nan)
+    for i, a in enumerate(model_dirs_deg):
+        diff = np.abs((ang - a + 180.0) % 360.0 - 180.0)
+        cand = diff < ANGLE_TOL_DEG
+        if cand.any():
+            j = np.flatnonzero(cand)[np.argmax(rad[cand] - 0.5 * diff[cand])]
+            out[i] = hull[j]
+    return out
+
+
+def _polygon_corners(mask: np.ndarray, n_expected: int) -> np.ndarray | None:
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    c = max(contours, key=cv2.contourArea)
+    poly = c if n_expected != 4 else cv2.convexHull(c)
+    peri = cv2.arcLength(poly, True)
+    approx = cv2.approxPolyDP(poly, 0.01 * peri, True).reshape(-1, 2).astype(float)
+    return approx
+
+
+def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray):
+    """Point and unit direction of the edge leaving ``corner`` along ``along``."""
+    e = along / np.hypot(*along)
+    n = np.array([-e[1], e[0]])
+    t = np.arange(EDGE_FROM_PX, EDGE_TO_PX + 1e-9, 1.0)
+    s = np.arange(-EDGE_HALF_PX, EDGE_HALF_PX + 1e-9, EDGE_STEP_PX)
+    base = corner + t[:, None] * e
+    mx = (base[:, :1] + s[None, :] * n[0]).astype(np.float32)
+    my = (base[:, 1:] + s[None, :] * n[1]).astype(np.float32)
+    prof = cv2.remap(gmap, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    grad = np.abs(np.gradient(prof, axis=1))
+    j = np.clip(grad.argmax(axis=1), 1, len(s) - 2)
+    rows = np.arange(len(t))
+    ym, y0, yp = grad[rows, j - 1], grad[rows, j], grad[rows, j + 1]
+    den = ym - 2 * y0 + yp
+    frac = np.where(den < 0, 0.5 * (ym - yp) / np.where(den < 0, den, -1.0), 0.0)
+    off = s[j] + np.clip(frac, -0.5, 0.5) * EDGE_STEP_PX
+    pts = base + off[:, None] * n
+    m = pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(pts - m)
+    return m, vt[0]
+
+
+def refine_corners(gmap: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray) -> np.ndarray:
+    """Sub-pixel corners as intersections of their two edges.
+
+    Parameters
+    ----------
+    gmap : ndarray, shape (H, W), float32
+        One-signed contrast map of the feature (the feature bright, all else 0).
+    corners : ndarray, shape (K, 2)
+        Approximate corners (NaN rows are passed through).
+    edge_dirs : ndarray, shape (K, 2, 2)
+        Image directions of each corner's two edges, pointing away from it.
+
+    Returns
+    -------
+    ndarray, shape (K, 2)
+        Refined corners; NaN where the refinement moved a corner by more
+        than REFINE_MAX_SHIFT_PX or the edges are parallel.
+    """
+    out = np.full(corners.shape, np.nan)
+    for k, c in enumerate(corners):
+        if not np.isfinite(c).all():
+            continue
+        x = c
+        for _ in range(REFINE_PASSES):
+            p1, d1 = _edge_line(gmap, x, edge_dirs[k, 0])
+            p2, d2 = _edge_line(gmap, x, edge_dirs[k, 1])
+            a = np.column_stack([d1, -d2])
+            if abs(np.linalg.det(a)) < 0.2:
+                x = None
+                break
+            s1, _ = np.linalg.solve(a, p2 - p1)
+            x = p1 + s1 * d1
+        if x is not None and np.hypot(*(x - c)) <= REFINE_MAX_SHIFT_PX:
+            out[k] = x
+    return out
+
+
+def detect_features(
+    frame: np.ndarray,
+    gains: np.ndarray,
+    model: PlateModel,
+    q: np.ndarray | None = None,
+    require: tuple[str, ...] = ("square corners", "cross arm ends", "magnifier tip"),
+) -> Detection:
+    """Detect the square's corners, the cross's arm-end corners and the tip.
+
+    Parameters
+    ----------
+    frame : ndarray, shape (H, W, 3), uint8
+        BGR frame; not modified.
+    gains : ndarray, shape (3,)
+        White-balance gains.
+    model : PlateModel
+        Gives the expected sizes and corner directions.
+    q : ndarray, shape (5,), optional
+        Approximate pose for the expected sizes; rest pose if omitted.
+    require : tuple of str
+        Features whose absence raises.
+
+    Returns
+    -------
+    Detection
+
+    Raises
+    ------
+    FeaturesNotFound
+        Naming each required feature that was not found.
+    """
+    q = np.zeros(5) if q is None else np.asarray(q, float)
+    uv_model, _, rim = model.project(q, jacobian=False)
+    g = contrast_map(frame, gains)
+    found_uv = np.full((TIP + 1, 2), np.nan)
+    missing = []
+
+    sq_model = uv_model[:N_SQUARE]
+    sq_area = _poly_area(sq_model)
+    comp = _component((g > BLUE_MIN).astype(np.uint8), sq_area, sq_model.mean(axis=0))
+    if comp is not None:
+        mask, centre = comp
+        hull = _polygon_corners(mask, 4)
+        dirs = _dirs(sq_model, sq_model.mean(axis=0))
+        corners = _assign_corners(hull, centre, dirs) if hull is not None else None
+        if corners is not None:
+            found_uv[:N_SQUARE] = refine_corners(
+                np.maximum(g, 0.0), corners, model.edge_directions(q)[:N_SQUARE]
+            )
+    if not np.isfinite(found_uv[:N_SQUARE]).all():
+        missing.append("square corners")
+
+    cr_model = uv_model[N_SQUARE:TIP]
+    outline = _cross_outline_uv(model, q)
+    comp = _component((g < -RED_MIN).astype(np.uint8), _poly_area(outline) * 0.85,
+                      cr_model.mean(axis=0))  # fmt: skip
+    if comp is not None:
+        mask, centre = comp
+        poly = _polygon_corners(mask, 12)
+        if poly is not None:
+            corners = _assign_corners(poly, centre, _dirs(cr_model, cr_model.mean(axis=0)))
+            found_uv[N_SQUARE:TIP] = refine_corners(
+                np.maximum(-g, 0.0), corners, model.edge_directions(q)[N_SQUARE:TIP]
+            )
+    if not np.isfinite(found_uv[N_SQUARE:TIP]).all():
+        missing.append("cross arm ends")
+
+    radius = math.sqrt(abs(_poly_area(rim)) / math.pi)
+    h, w = frame.shape[:2]
+    edges, _ = tip_edge_points(frame, gains, uv_model[TIP], radius, search_px=0.25 * max(h, w))
+    tip = None if edges is None else ellipse_centre(edges)
+    if tip is not None and tip.ok:
+        # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).
+        shift = tip.centre_uv - uv_model[TIP]
+        tip = rim_centre(edges, rim + shift, model.rod_outline(q) + shift)
+    if tip is not None and tip.ok:
+        found_uv[TIP] = tip.centre_uv
+    else:
+        missing.append("magnifier tip")
+
+    need = [m for m in missing if m in require]
+    if need:
+        raise FeaturesNotFound(need)
+    return Detection(found_uv, np.isfinite(found_uv).all(axis=1))
+
+
+def _dirs(uv: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    d = uv - centre
+    return np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+
+
+def _poly_area(uv: np.ndarray) -> float:
+    x, y = uv[:, 0], uv[:, 1]
+    return float(abs((x * np.roll(y, -1) - np.roll(x, -1) * y).sum()) / 2)
+
+
+def _cross_outline_uv(model: PlateModel, q: np.ndarray) -> np.ndarray:
+    from camwhisker.camera import project
+    from camwhisker.plate import cross_outline, plate_to_camera
+    from camwhisker.vision.pose import q_to_pose
+
+    plate = model.sensor.plate
+    return project(plate_to_camera(cross_outline(plate), q_to_pose(q), plate), model.sensor.camera)

@@ -1,0 +1,343 @@
+"""The magnifier tip: the black end face, found by colour and located by its edge.
+
+1. Segmentation. In a window around the expected tip, the brightness of the
+   white-balanced pixel's brightest channel, V = max(B, G, R), is low only on
+   the black face: about 0.1 of the cloth, against >= 0.4 on the shaded red rod
+   and >= 0.8 on the red cross, the blue square and the cloth. A threshold
+   between the window's dark and bright levels, and the connected component
+   nearest the expected position, give a seed centre and radius.
+2. Sub-pixel edge. Along rays from the seed, the face's edge is where V rises
+   fastest, searched near the threshold crossing. Unlike a threshold, the
+   steepest point of a blurred step does not depend on how bright the other
+   side is (red, blue, cloth or the rod's shaded flank), so the edge is
+   unbiased wherever the face lies.
+3. An ellipse fitted to the edge points gives the face's centroid, which the
+   pose fit compares with the model's projected-rim centroid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "TipMeasurement",
+    "find_tip",
+    "tip_edge_points",
+    "ellipse_centre",
+    "rim_centre",
+    "brightness_max",
+]
+
+#: Threshold between the window's dark (face) and bright levels. Relative to the
+#: cloth, the face is at ~0.1, the rod's darkest flank at ~0.4 and the grey springs
+#: at ~0.65, and vignetting takes up to 30% off locally: 0.15 of the way from dark
+#: to bright (~0.25 of the cloth) keeps the face apart from both at 5 DN noise.
+TIP_THRESHOLD_FRACTION = 0.15
+#: The dark level is the percentile of V that falls this deep inside the expected
+#: face area (a quarter of it), however large the window; the bright level is the
+#: BRIGHT_PERCENTILE of the window (red, blue or cloth, never the face).
+DARK_AREA_FRACTION = 0.25
+BRIGHT_PERCENTILE = 90.0
+#: Subsampling step for the level percentiles (speed; levels are smooth).
+LEVEL_STEP_PX = 3
+#: Rays for the edge search; 48 keeps the ellipse centre's noise ~0.02 px.
+N_RAYS = 48
+#: The edge is searched within this many pixels of the threshold crossing (3 sigma
+#: of the strongest blur we expect, 2.6 px) at this radial step.
+EDGE_SEARCH_PX = 8.0
+EDGE_STEP_PX = 0.5
+#: A rise counts as the face's edge when it is at least this fraction of the
+#: strongest rise near the threshold crossing.
+INNER_PEAK_FRACTION = 0.5
+#: Component area accepted relative to the expected face area.
+AREA_RANGE = (0.35, 2.5)
+#: A ray's edge is kept when its rise is at least this fraction of the median rise.
+MIN_RISE_FRACTION = 0.3
+#: A ray is dropped when the point BODY_PROBE_PX beyond the model's rim (in its
+#: direction) lies inside the rod's outline or within BODY_MARGIN_PX of it: the
+#: body shows there beside the face, its shaded flank merges with the face's edge
+#: under the blur and moves the steepest point by up to 3 px. Where the body hides
+#: behind the face the outline runs along the rim and the probe lies outside it.
+BODY_PROBE_PX = 1.0
+BODY_MARGIN_PX = 0.0
+#: Fewest rays for the model-rim fit, and its iterations.
+MIN_RIM_RAYS = 12
+RIM_FIT_ITER = 5
+FIT_EDGE_OFFSET = False
+#: Ellipse refit drops edge points farther than this from the first fit (px).
+OUTLIER_PX = 1.5
+
+
+@dataclass(frozen=True)
+class TipMeasurement:
+    """centre_uv: ndarray, shape (2,), the end face's centroid (NaN if not found);
+    radius_px: mean radius; ok: found whole and inside the image; reason: why not."""
+
+    centre_uv: np.ndarray
+    radius_px: float
+    ok: bool
+    reason: str = ""
+
+
+def brightness_max(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """max(gB B, gG G, gR R) per pixel, float32, shape (h, w)."""
+    b, g, r = cv2.split(np.asarray(bgr))
+    f32 = cv2.CV_32F
+    vb = cv2.multiply(b, float(gains[0]), dtype=f32)
+    vg = cv2.multiply(g, float(gains[1]), dtype=f32)
+    vr = cv2.multiply(r, float(gains[2]), dtype=f32)
+    return cv2.max(cv2.max(vb, vg), vr)
+
+
+def _not_found(reason: str) -> TipMeasurement:
+    return TipMeasurement(np.full(2, np.nan), math.nan, False, reason)
+
+
+def find_tip(
+    frame: np.ndarray,
+    gains: np.ndarray,
+    guess_uv: np.ndarray,
+    radius_px: float,
+    search_px: float,
+    rim_uv: np.ndarray | None = None,
+    body_hull_uv: np.ndarray | None = None,
+) -> TipMeasurement:
+    """Locate the tip's end face near an expected position.
+
+    Parameters
+    ----------
+    frame : ndarray, shape (H, W, 3), uint8
+        BGR frame; not modified.
+    gains : ndarray, shape (3,)
+        White-balance gains.
+    guess_uv : ndarray, shape (2,)
+        Expected centre of the face.
+    radius_px : float
+        Expected radius of the face.
+    search_px : float
+        How far the face may be from ``guess_uv``.
+    rim_uv, body_hull_uv : ndarray, optional
+        The model's rim and rod outline, see :func:`rim_centre`; without them
+        an ellipse is fitted to the edge.
+
+    Returns
+    -------
+    TipMeasurement
+    """
+    pts, reason = tip_edge_points(frame, gains, guess_uv, radius_px, search_px)
+    if pts is None:
+        return _not_found(reason)
+    if rim_uv is None:
+        return ellipse_centre(pts)
+    return rim_centre(pts, rim_uv, body_hull_uv)
+
+
+def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
+    """Sub-pixel edge points of the end face, shape (N, 2), or (None, reason).
+
+    See :func:`find_tip` for the parameters.
+    """
+    h, w = frame.shape[:2]
+    half = radius_px * 1.4 + search_px
+    u0 = max(int(guess_uv[0] - half), 0)
+    v0 = max(int(guess_uv[1] - half), 0)
+    u1 = min(int(guess_uv[0] + half) + 1, w)
+    v1 = min(int(guess_uv[1] + half) + 1, h)
+    if u1 - u0 < 8 or v1 - v0 < 8:
+        return None, "tip window outside the frame"
+    val = brightness_max(frame[v0:v1, u0:u1], gains)
+    sub = val[::LEVEL_STEP_PX, ::LEVEL_STEP_PX]
+    area_exp = math.pi * radius_px**2
+    dark_pct = min(100.0 * DARK_AREA_FRACTION * area_exp / val.size, 50.0)
+    dark, bright = np.percentile(sub, [dark_pct, BRIGHT_PERCENTILE])
+    if bright - dark <= 0:
+        return None, "no contrast in the tip window"
+    thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
+    mask = (val < thr).astype(np.uint8)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n < 2:
+        return None, "no dark blob near the expected tip"
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
+    if not good.any():
+        return None, "no dark blob of the tip's size near the expected tip"
+    gxy = np.array([guess_uv[0] - u0, guess_uv[1] - v0])
+    dist = np.hypot(*(cents[1:] - gxy).T)
+    dist[~good] = np.inf
+    k = int(np.argmin(dist)) + 1
+    x, y, bw, bh = stats[k, :4]
+    touches = (x == 0 and u0 > 0) or (y == 0 and v0 > 0) or (
+        x + bw == val.shape[1] and u1 < w) or (y + bh == val.shape[0] and v1 < h)  # fmt: skip
+    if touches:
+        return None, "dark blob reaches the tip window's edge"
+    if x == 0 or y == 0 or x + bw == val.shape[1] or y + bh == val.shape[0]:
+        return None, "tip touches the image border"
+    seed = cents[k]
+    r_seed = math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi)
+    pts = _edge_points(val, seed, r_seed, thr)
+    if pts is None or len(pts) < N_RAYS // 2:
+        return None, "tip edge not found on enough rays"
+    return pts + (u0, v0), ""
+
+
+def ellipse_centre(pts: np.ndarray) -> TipMeasurement:
+    """Face centroid as the centre of an ellipse fitted to edge points (N, 2)."""
+    centre, r_mean = _fit_ellipse_centre(pts)
+    if centre is None:
+        return _not_found("tip edge is not an ellipse")
+    return TipMeasurement(centre, r_mean, True)
+
+
+def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | None = None):
+    """Face centroid from edge points (N, 2) and the model's rim polygon (M, 2).
+
+    The model rim is shifted (and its edge offset uniformly) to fit the edge
+    points; the result is the shifted rim's area centroid. This needs only part
+    of the edge, so rays where the face borders the rod's own body (outline
+    ``body_hull_uv``, shape (L, 2)) are left out.
+    """
+    pts = np.asarray(pts, float)
+    rim = np.asarray(rim_uv, float)
+    if body_hull_uv is not None:
+        # Probe just outside the model's rim along each edge point's direction.
+        from camwhisker.vision.pose import polygon_centroid
+
+        hull = cv2.convexHull(np.asarray(body_hull_uv, np.float32))
+        c0 = polygon_centroid(rim)
+        rel = rim - c0
+        ang_r = np.arctan2(rel[:, 1], rel[:, 0])
+        order = np.argsort(ang_r)
+        d = pts - c0
+        ang = np.arctan2(d[:, 1], d[:, 0])
+        r_m = np.interp(ang, ang_r[order], np.hypot(*rel.T)[order], period=2 * np.pi)
+        probe = c0 + (r_m + BODY_PROBE_PX)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+        keep = np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), True) < -BODY_MARGIN_PX
+                         for x, y in probe])  # fmt: skip
+        pts = pts[keep]
+    if len(pts) < MIN_RIM_RAYS:
+        return _not_found("too little of the tip's edge is clear of the rod")
+    centre, r_mean = _fit_rim_shift(pts, rim)
+    if centre is None:
+        return _not_found("tip edge does not fit the model's rim")
+    return TipMeasurement(centre, r_mean, True)
+
+
+def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
+    """Shift t and uniform edge offset dr that best put the model rim on the edge points.
+
+    Linearised radial residuals about the rim's centroid, iterated; returns
+    (rim centroid + t, mean radius) or (None, nan).
+    """
+    from camwhisker.vision.pose import polygon_centroid
+
+    c0 = polygon_centroid(rim)
+    rel = rim - c0
+    ang_r = np.arctan2(rel[:, 1], rel[:, 0])
+    rad_r = np.hypot(rel[:, 0], rel[:, 1])
+    order = np.argsort(ang_r)
+    ang_r, rad_r = ang_r[order], rad_r[order]
+    t = np.zeros(2)
+    for _ in range(RIM_FIT_ITER):
+        d = pts - (c0 + t)
+        rho = np.hypot(d[:, 0], d[:, 1])
+        u = d / rho[:, None]
+        model_r = np.interp(np.arctan2(d[:, 1], d[:, 0]), ang_r, rad_r, period=2 * np.pi)
+        res = rho - model_r
+        a = np.column_stack([u, np.ones(len(u))]) if FIT_EDGE_OFFSET else u
+        sol, *_ = np.linalg.lstsq(a, res, rcond=None)
+        bad = np.abs(res - a @ sol) > OUTLIER_PX
+        if bad.any() and (~bad).sum() >= MIN_RIM_RAYS:
+            sol, *_ = np.linalg.lstsq(a[~bad], res[~bad], rcond=None)
+        t = t + sol[:2]
+        if np.abs(sol[:2]).max() < 1e-4:
+            break
+    if not np.isfinite(t).all():
+        return None, math.nan
+    return c0 + t, float(rad_r.mean() + (sol[2] if FIT_EDGE_OFFSET else 0.0))
+
+
+def _edge_points(val, seed, r_seed, thr):
+    ang = np.linspace(0.0, 2 * np.pi, N_RAYS, endpoint=False)
+    dirs = np.column_stack([np.cos(ang), np.sin(ang)])
+    lo = max(r_seed - EDGE_SEARCH_PX - 2, 1.0)
+    radii = np.arange(lo, r_seed + EDGE_SEARCH_PX + 2, EDGE_STEP_PX)
+    mx = (seed[0] + dirs[:, :1] * radii).astype(np.float32)
+    my = (seed[1] + dirs[:, 1:] * radii).astype(np.float32)
+    prof = cv2.remap(val, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # Threshold crossing per ray: first sample at or above thr.
+    above = prof >= thr
+    first = np.where(above.any(axis=1), above.argmax(axis=1), -1)
+    rise = np.zeros_like(prof)
+    rise[:, 1:-1] = (prof[:, 2:] - prof[:, :-2]) / (2 * EDGE_STEP_PX)
+    win = int(round(EDGE_SEARCH_PX / 2 / EDGE_STEP_PX))
+    idx = np.arange(len(radii))
+    near = np.abs(idx[None, :] - first[:, None]) <= win
+    near[:, 0] = near[:, -1] = False
+    masked = np.where(near, rise, -np.inf)
+    # The innermost local maximum of the rise that reaches half the window's
+    # largest: the face's own edge, not the rod body's outline just beyond it.
+    top = masked.max(axis=1, keepdims=True)
+    local = np.zeros_like(near)
+    local[:, 1:-1] = (masked[:, 1:-1] >= masked[:, :-2]) & (masked[:, 1:-1] > masked[:, 2:])
+    local &= near & (masked >= INNER_PEAK_FRACTION * top)
+    j = np.where(local.any(axis=1), local.argmax(axis=1), masked.argmax(axis=1))
+    rows = np.arange(N_RAYS)
+    peak = masked[rows, j]
+    valid = (first > 0) & np.isfinite(peak) & (j > 0) & (j < len(radii) - 1)
+    if valid.sum() < N_RAYS // 2:
+        return None
+    med = np.median(peak[valid])
+    valid &= peak >= MIN_RISE_FRACTION * med
+    jj = np.clip(j, 1, len(radii) - 2)
+    ym, y0, yp = rise[rows, jj - 1], rise[rows, jj], rise[rows, jj + 1]
+    den = ym - 2 * y0 + yp
+    frac = np.where(den < 0, 0.5 * (ym - yp) / np.where(den < 0, den, -1.0), 0.0)
+    r_edge = radii[jj] + np.clip(frac, -0.5, 0.5) * EDGE_STEP_PX
+    pts = seed + dirs * r_edge[:, None]
+    return pts[valid]
+
+
+def _fit_ellipse_centre(pts: np.ndarray):
+    """Centre of a least-squares ellipse, with one round of outlier rejection."""
+    for _ in range(2):
+        if len(pts) < 6:
+            return None, math.nan
+        (cx, cy), (da, db), ang = cv2.fitEllipse(pts.astype(np.float32))
+        if not (np.isfinite(cx) and da > 0 and db > 0):
+            return None, math.nan
+        # Distance of each point from the ellipse, approximately (radial).
+        t = math.radians(ang)
+        c, s = math.cos(t), math.sin(t)
+        d = pts - (cx, cy)
+        xr, yr = d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c
+        rho = np.hypot(xr / (da / 2), yr / (db / 2))
+        res = (rho - 1.0) * (da + db) / 4
+        keep = np.abs(res) < OUTLIER_PX
+        if keep.all():
+            break
+        pts = pts[keep]
+    # fitEllipse works in float32 coordinates; refit the centre in float64 by
+    # a linear conic fit for full sub-pixel precision.
+    centre = _conic_centre(pts)
+    if centre is None:
+        centre = np.array([cx, cy])
+    return centre, (da + db) / 4
+
+
+def _conic_centre(pts: np.ndarray):
+    """Centre of the conic a x^2 + b xy + c y^2 + d x + e y = 1 through pts (centred)."""
+    m = pts.mean(axis=0)
+    x, y = (pts - m).T
+    A = np.column_stack([x * x, x * y, y * y, x, y])
+    coef, *_ = np.linalg.lstsq(A, np.ones(len(x)), rcond=None)
+    a, b, c, d, e = coef
+    det = 4 * a * c - b * b
+    if det <= 0:
+        return None
+    xc = (b * e - 2 * c * d) / det
+    yc = (b * d - 2 * a * e) / det
+    return m + (xc, yc)

@@ -1,0 +1,552 @@
+"""The front end: frames in, plate pose out. A tracker object, a generator, a batch driver.
+
+:class:`FrontEnd` holds the state. :meth:`FrontEnd.start` takes the rest
+frame: it white-balances it, detects every feature (no clicking), stores the
+rest patches (the first templates) and the rest offsets of the points against
+the model. :meth:`FrontEnd.update` then does, per frame:
+
+1. white balance from the cloth (or the locked rest gains);
+2. the tip, segmented near where the last pose puts it (a wide search if not
+   there), and a first tilt guess from the tip alone;
+3. the square and cross corners: pyramidal LK from the last updated
+   templates, with a forward-backward check (:func:`~camwhisker.vision.lk.track_updated`);
+4. drift correction of each corner against its rest patch, warped by the
+   model's rest-to-current affine map (:func:`~camwhisker.vision.lk.refine_first_template`),
+   leaving out corners the rod covers;
+5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`),
+   and the paper's eqs. (2)-(7) on the same points;
+6. the template update rule of Matthews et al.: a corner's updated template
+   moves on only when the drift correction agreed with step 3.
+
+When a frame cannot be trusted (tip not found, too few corners, a poor fit)
+the next frame re-detects the features from scratch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from camwhisker.sensor import Sensor
+from camwhisker.vision.colour import (
+    cloth_level,
+    cloth_samples,
+    contrast_map,
+    unmixed_maps,
+    unmixing_weights,
+    white_balance_gains,
+)
+from camwhisker.vision.detect import FeaturesNotFound, detect_features
+from camwhisker.vision.lk import (
+    PATCH_HALF_PX,
+    refine_first_template,
+    to_uint8,
+    track_updated,
+    warp_templates,
+)
+from camwhisker.vision.paper import PaperGeometry
+from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, PoseFit, fit_pose
+from camwhisker.vision.tip import TipMeasurement, ellipse_centre, rim_centre, tip_edge_points
+
+__all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_THETA_DEG"]
+
+#: theta is reported only where phi exceeds this. The tip moves 9.4 px per degree
+#: of tilt and is located to ~0.03 px, so phi's noise is ~0.004 deg (nominal) to
+#: ~0.01 deg (hard); theta's error is ~sigma_phi / phi rad, which is <= 1 deg at
+#: 0.6 deg of tilt in the hard scene. Below this theta is left empty.
+PHI_MIN_FOR_THETA_DEG = 0.6
+#: Forward-backward error above which a step-3 track is dropped (px): a good track
+#: comes back within ~0.05 px; a jump onto another edge does not.
+FB_MAX_PX = 1.0
+#: Step-4 result must correlate with its warped rest patch at least this well: a
+#: corner found right scores >= 0.99 even at 5 DN noise and 2.6 px blur; a corner
+#: half covered or caught on another edge scores 0.93-0.97.
+QUALITY_MIN = 0.98
+#: The updated template follows a corner only when drift correction moved it less
+#: than this (Matthews et al.'s epsilon, px).
+UPDATE_EPS_PX = 0.5
+#: Corners needed for a trusted pose (of 12), and the largest trusted fit residual.
+MIN_CORNERS = 6
+MAX_RMS_PX = 0.6
+#: Search radius for the tip around its predicted position (px), and the margin
+#: of the corners' region for the updated-template LK (px).
+TIP_SEARCH_PX = 40.0
+REGION_MARGIN_PX = 40
+#: The corners' spread grows by up to ~8% (dz = 1 mm brings them 4% closer; a tilt
+#: spreads the near side): the region is this much larger than at rest.
+REGION_GROWTH = 1.15
+#: A corner is left out when its window comes this close to the rod's outline (px).
+OCCLUSION_MARGIN_PX = 4.0
+#: The rod can reach this far from the principal point (px): no cloth sampled inside.
+CLOTH_EXCLUDE_FACTOR = 1.3
+#: Weight of the tip in the pose fit relative to a corner: its centroid rests on
+#: ~48 edge points against a corner's ~25 rows of a 25 x 25 window.
+TIP_WEIGHT = 4.0
+#: Rest-frame colours are medians over pixels with |G| above this, eroded by
+#: COLOUR_ERODE_PX so that no blurred edge pixel enters.
+COLOUR_G_MIN = 1.0
+COLOUR_ERODE_PX = 4
+
+
+@dataclass(frozen=True)
+class FrontEndOptions:
+    """How the front end runs (all recorded in the batch sidecar).
+
+    mode : "model" (exact camera model, default) or "paper" (eqs. 2-7 as printed).
+    fit_shift : fit the lateral shift (sx, sy) too.
+    lock_gains : keep the rest frame's white-balance gains.
+    updated_template : run step 3 (pyramidal LK from the updated template).
+    refine_passes : drift-correction passes (each re-warps at the newest pose).
+    """
+
+    mode: str = "model"
+    fit_shift: bool = True
+    lock_gains: bool = False
+    updated_template: bool = True
+    refine_passes: int = 2
+
+    def __post_init__(self):
+        if self.mode not in ("model", "paper"):
+            raise ValueError(f"mode must be 'model' or 'paper', got {self.mode!r}")
+        if self.refine_passes < 1:
+            raise ValueError("refine_passes must be >= 1")
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One frame's estimate. Values are NaN where untrusted; theta also where
+    phi < PHI_MIN_FOR_THETA_DEG. ``points_uv`` (13, 2) and ``quality`` (13,)
+    are the tracked points; ``paper`` holds (dz_mm, phi_deg, theta_deg) of eqs. 2-7."""
+
+    frame: int
+    dz_mm: float
+    phi_deg: float
+    theta_deg: float
+    ok: bool
+    model: tuple[float, float, float]
+    paper: tuple[float, float, float]
+    sx_mm: float = math.nan
+    sy_mm: float = math.nan
+    phi_sigma_deg: float = math.nan
+    rms_px: float = math.nan
+    n_corners: int = 0
+    reason: str = ""
+    points_uv: np.ndarray = field(default_factory=lambda: np.full((TIP + 1, 2), np.nan))
+    quality: np.ndarray = field(default_factory=lambda: np.full(TIP + 1, np.nan))
+
+
+class FrontEnd:
+    """Stateful front end for one sensor. See the module notes.
+
+    Parameters
+    ----------
+    sensor : Sensor
+    options : FrontEndOptions, optional
+    """
+
+    def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
+        self.sensor = sensor
+        self.options = options or FrontEndOptions()
+        self.model = PlateModel(sensor)
+        self.paper = PaperGeometry.from_sensor(sensor)
+        cam, plate = sensor.camera, sensor.plate
+        reach_px = cam.fx_px * plate.h_r_mm / (plate.z_i_mm - plate.h_r_mm)
+        #: How far the tip can get from its rest position (px): tilts to 45 deg, 1 mm
+        #: of dz and 0.5 mm of shift, with room for the face's own radius.
+        self._reach_px = (cam.fx_px * (plate.h_r_mm * math.sin(math.radians(45)) + 0.5)
+                          / (plate.z_i_mm - plate.h_r_mm - 1.0))  # fmt: skip
+        self._cloth = cloth_samples(
+            (cam.height_px, cam.width_px), np.array([cam.cx_px, cam.cy_px]),
+            CLOTH_EXCLUDE_FACTOR * reach_px,
+        )  # fmt: skip
+        self._started = False
+        self._lost = False
+        self._index = -1
+
+    # ------------------------------------------------------------------ start
+    def start(self, frame: np.ndarray, index: int = 0) -> FrameResult:
+        """Take ``frame`` as the rest reference (pose zero) and detect the features.
+
+        Raises
+        ------
+        FeaturesNotFound
+            Naming what was not found.
+        """
+        self._check_frame(frame)
+        gains = white_balance_gains(frame, *self._cloth)
+        det = detect_features(frame, gains, self.model)
+        self.gains_rest = gains
+        self.rest_uv = det.uv.copy()
+        model_uv, _, _ = self.model.project(np.zeros(5), jacobian=False)
+        self.offsets = det.uv - model_uv
+        self.tip_radius_rest = None
+        # Rest contrast maps over the corners' region: the first templates.
+        g, origin = self._region_map(frame, gains, det.uv[:TIP])
+        self.rest_origin = origin
+        self._measure_colours(frame, gains, g, origin)
+        self.rest_red, self.rest_blue = self._shares(frame, gains, origin, g.shape)
+        u8 = to_uint8(g)
+        # Updated templates: one image per corner (shared until they diverge).
+        self._tmpl_img = [(u8, origin)] * TIP
+        self._tmpl_uv = det.uv[:TIP].copy()
+        self.q = np.zeros(5)
+        self._q_hist = [np.zeros(5)]
+        self._started = True
+        self._lost = False
+        self._index = index
+        b_u = self._paper_width(det.uv)
+        self._paper_rest = (b_u, det.uv[TIP].copy())
+        return FrameResult(
+            index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
+            0.0, 0.0, 0.0, 0.0, TIP, "", det.uv.copy(), np.ones(TIP + 1),
+        )  # fmt: skip
+
+    rezero = start
+
+    def redetect(self, frame: np.ndarray) -> bool:
+        """Find the features again from scratch at the current frame; True if found.
+
+        The pose is re-estimated from the detected tip and square corners
+        (the cross is not needed, the rod may cover it).
+        """
+        gains = self._gains(frame)
+        try:
+            det = detect_features(frame, gains, self.model, q=self.q,
+                                  require=("magnifier tip",))  # fmt: skip
+        except FeaturesNotFound:
+            return False
+        use = det.found.copy()
+        w = np.where(use, 1.0, 0.0)
+        w[TIP] *= TIP_WEIGHT
+        fit = fit_pose(self.model, det.uv, self.offsets, self.q, w, self.options.fit_shift)
+        if not fit.converged or fit.n_points < 3:
+            return False
+        self.q = fit.q.copy()
+        self._q_hist = [self.q.copy()]
+        self._tmpl_img = [None] * TIP
+        self._lost = False
+        return True
+
+    # ----------------------------------------------------------------- update
+    def update(self, frame: np.ndarray, index: int | None = None) -> FrameResult:
+        """Estimate the pose in the next frame."""
+        if not self._started:
+            raise RuntimeError("FrontEnd.update before start(): no rest frame")
+        self._check_frame(frame)
+        self._index = self._index + 1 if index is None else index
+        if self._lost and not self.redetect(frame):
+            return self._fail("features lost; re-detection failed")
+        opts = self.options
+        gains = self._gains(frame)
+        q_pred = self._predict()
+
+        # Tip, then a first tilt guess from the tip alone.
+        uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
+        radius = math.sqrt(_area(rim) / math.pi)
+        tip_guess = uv_pred[TIP] + self.offsets[TIP]
+        edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX)
+        if edges is None:  # search all the tip can reach, around its rest position
+            edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
+        q_guess = q_pred.copy()
+        tip = None
+        if edges is not None:
+            rough = ellipse_centre(edges)
+            if rough.ok:
+                q_guess = self._tilt_from_tip(q_pred, rough.centre_uv)
+                tip = self._tip_at(edges, q_guess)
+                if tip.ok:
+                    q_guess = self._tilt_from_tip(q_guess, tip.centre_uv)
+            why = why or rough.reason
+        if tip is None:
+            tip = TipMeasurement(np.full(2, np.nan), math.nan, False, why)
+
+        # Corners: region map around where they should be.
+        uv_guess = self.model.project(q_guess, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+        if not np.isfinite(uv_guess).all():
+            return self._fail("pose prediction failed")
+        g, origin = self._region_map(frame, gains, uv_guess)
+        if g is None:
+            return self._fail("corners' region outside the frame")
+        occluded = self._occluded(q_guess, uv_guess)
+        start_uv = uv_guess.copy()
+        fb_ok = np.zeros(TIP, bool)
+        u8 = None
+        if opts.updated_template:
+            u8 = to_uint8(g)
+            start_uv, fb_ok = self._updated_step(u8, origin, uv_guess)
+            start_uv[~fb_ok] = uv_guess[~fb_ok]
+
+        red, blue = self._shares(frame, gains, origin, g.shape)
+        measured = np.full((TIP + 1, 2), np.nan)
+        measured[TIP] = tip.centre_uv if tip.ok else np.nan
+        quality = np.full(TIP + 1, np.nan)
+        quality[TIP] = 1.0 if tip.ok else np.nan
+        q_cur = q_guess
+        uv_cur = start_uv
+        fit = None
+        for _ in range(opts.refine_passes):
+            tmpl = self._templates(q_cur)
+            active = ~occluded
+            sq = slice(0, N_SQUARE)
+            cr = slice(N_SQUARE, TIP)
+            uv_sq, q_sq = refine_first_template(blue, origin, tmpl[sq], uv_cur[sq], active[sq])
+            uv_cr, q_cr = refine_first_template(red, origin, tmpl[cr], uv_cur[cr], active[cr])
+            uv_ref = np.concatenate([uv_sq, uv_cr])
+            qual = np.concatenate([q_sq, q_cr])
+            good = np.isfinite(qual) & (qual >= QUALITY_MIN)
+            measured[:TIP] = np.where(good[:, None], uv_ref, np.nan)
+            quality[:TIP] = qual
+            fit = self._fit(measured, q_cur)
+            if not fit.converged:
+                break
+            q_cur = fit.q
+            if edges is not None:
+                tip = self._tip_at(edges, q_cur)
+                measured[TIP] = tip.centre_uv if tip.ok else np.nan
+                fit = self._fit(measured, q_cur)
+                if not fit.converged:
+                    break
+                q_cur = fit.q
+            uv_cur = np.where(good[:, None], uv_ref, start_uv)
+        n_corners = int(np.isfinite(measured[:TIP]).all(axis=1).sum())
+
+        # Template update rule (Matthews et al. 2004, strategy 3).
+        if opts.updated_template and u8 is not None:
+            agree = (np.hypot(*(measured[:TIP] - start_uv).T) < UPDATE_EPS_PX) & fb_ok
+            for k in np.flatnonzero(agree | (np.isfinite(measured[:TIP]).all(axis=1)
+                                             & (self._tmpl_img_missing()))):  # fmt: skip
+                self._tmpl_img[k] = (u8, origin)
+                self._tmpl_uv[k] = measured[k]
+
+        reason = ""
+        if not tip.ok:
+            reason = f"tip: {tip.reason}"
+        elif fit is None or not fit.converged:
+            reason = "pose fit failed"
+        elif n_corners < MIN_CORNERS:
+            reason = f"only {n_corners} corners tracked"
+        elif fit.rms_px > MAX_RMS_PX:
+            reason = f"poor fit (rms {fit.rms_px:.2f} px)"
+        ok = reason == ""
+        if fit is not None and fit.converged and n_corners >= 3:
+            self.q = fit.q.copy()
+            self._q_hist = (self._q_hist + [self.q.copy()])[-2:]
+        if not ok and (not tip.ok or n_corners < 3):
+            self._lost = True
+        return self._result(fit, measured, quality, n_corners, ok, reason)
+
+    # ---------------------------------------------------------------- helpers
+    def _check_frame(self, frame: np.ndarray) -> None:
+        cam = self.sensor.camera
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise ValueError(
+                f"expected a uint8 BGR frame (H, W, 3), got {frame.dtype} {frame.shape}"
+            )
+        if frame.shape[:2] != (cam.height_px, cam.width_px):
+            raise ValueError(
+                f"frame is {frame.shape[1]}x{frame.shape[0]} px but the sensor file says "
+                f"{cam.width_px}x{cam.height_px}"
+            )
+
+    def _gains(self, frame):
+        if self.options.lock_gains:
+            return self.gains_rest
+        return white_balance_gains(frame, *self._cloth)
+
+    def _measure_colours(self, frame, gains, g, origin) -> None:
+        """Colours of cross, square and cloth at the rest frame -> unmixing weights."""
+        u0, v0 = origin.astype(int)
+        h, w = g.shape
+        region = frame[v0 : v0 + h, u0 : u0 + w].astype(np.float32) * gains
+        kernel = np.ones((2 * COLOUR_ERODE_PX + 1,) * 2, np.uint8)
+        red = cv2.erode((g < -COLOUR_G_MIN).astype(np.uint8), kernel).astype(bool)
+        blue = cv2.erode((g > COLOUR_G_MIN).astype(np.uint8), kernel).astype(bool)
+        if red.sum() < 10 or blue.sum() < 10:
+            raise FeaturesNotFound(["square colour" if blue.sum() < 10 else "cross colour"])
+        rows, cols = self._cloth
+        cloth = (frame[rows, cols].astype(np.float32) * gains).mean(axis=0)
+        self.weights = unmixing_weights(
+            np.median(region[red], axis=0), np.median(region[blue], axis=0), cloth
+        )
+        self.cloth_rest = cloth_level(frame, rows, cols, gains)
+
+    def _shares(self, frame, gains, origin, shape):
+        """Red and blue share maps over the region at ``origin`` of the given shape."""
+        u0, v0 = origin.astype(int)
+        h, w = shape
+        scale = 1.0
+        if hasattr(self, "cloth_rest"):
+            scale = cloth_level(frame, *self._cloth, gains) / self.cloth_rest
+        return unmixed_maps(frame[v0 : v0 + h, u0 : u0 + w], self.weights, gains, scale)
+
+    def _predict(self) -> np.ndarray:
+        return self._q_hist[-1].copy()
+
+    def _tmpl_img_missing(self) -> np.ndarray:
+        return np.array([t is None for t in self._tmpl_img])
+
+    def _region_map(self, frame, gains, uv):
+        """Contrast map over a fixed-size region centred on the points (OpenCV's
+        pyramidal LK wants equal sizes); returns (map, origin (u, v)) or (None, None)."""
+        h, w = frame.shape[:2]
+        ok = np.isfinite(uv).all(axis=1)
+        if not ok.any():
+            return None, None
+        if not hasattr(self, "_region_size"):
+            ext = uv[ok].max(axis=0) - uv[ok].min(axis=0)
+            size = np.ceil(ext * REGION_GROWTH).astype(int) + 2 * (PATCH_HALF_PX + REGION_MARGIN_PX)
+            self._region_size = (min(int(size[0]), w), min(int(size[1]), h))
+        rw, rh = self._region_size
+        c = (uv[ok].min(axis=0) + uv[ok].max(axis=0)) / 2
+        u0 = int(np.clip(round(c[0] - rw / 2), 0, w - rw))
+        v0 = int(np.clip(round(c[1] - rh / 2), 0, h - rh))
+        return contrast_map(frame[v0 : v0 + rh, u0 : u0 + rw], gains), np.array([u0, v0], float)
+
+    def _tip_at(self, edges, q) -> TipMeasurement:
+        """The tip's centroid from its edge points, with the model's rim at pose q."""
+        _, _, rim = self.model.project(q, jacobian=False)
+        return rim_centre(
+            edges, rim + self.offsets[TIP], self.model.rod_outline(q) + self.offsets[TIP]
+        )
+
+    def _tilt_from_tip(self, q: np.ndarray, tip_uv: np.ndarray) -> np.ndarray:
+        """Solve (a, b) so the model's tip meets the measured one, dz and shift held."""
+        q = q.copy()
+        target = tip_uv - self.offsets[TIP]
+        for _ in range(8):
+            uv, jac, _ = self.model.project(q)
+            r = target - uv[TIP]
+            j = jac[TIP][:, 1:3]
+            try:
+                step = np.linalg.solve(j, r)
+            except np.linalg.LinAlgError:
+                break
+            q[1:3] += step
+            if np.abs(step).max() < 1e-6:
+                break
+        return q
+
+    def _updated_step(self, u8, origin, uv_guess):
+        uv = uv_guess.copy()
+        ok = np.zeros(TIP, bool)
+        groups: dict[int, list[int]] = {}
+        for k, t in enumerate(self._tmpl_img):
+            if t is not None:
+                groups.setdefault(id(t[0]), []).append(k)
+        for ks in groups.values():
+            ks = np.array(ks)
+            img, org = self._tmpl_img[ks[0]]
+            res, fb = track_updated(img, org, self._tmpl_uv[ks], u8, origin, uv_guess[ks])
+            good = fb < FB_MAX_PX
+            uv[ks[good]] = res[good]
+            ok[ks[good]] = True
+        return uv, ok
+
+    def _templates(self, q):
+        """Rest patches warped to pose q, shape (12, n, n)."""
+        d0 = self.model.edge_directions(np.zeros(5), step_mm=0.05)
+        d1 = self.model.edge_directions(q, step_mm=0.05)
+        # A maps rest-image directions to current-image directions: A d0 = d1.
+        a = np.einsum("kij,kjl->kil", np.swapaxes(d1, 1, 2), np.linalg.inv(np.swapaxes(d0, 1, 2)))
+        sq = warp_templates(self.rest_blue, self.rest_origin, self.rest_uv[:N_SQUARE], a[:N_SQUARE])
+        cr = warp_templates(self.rest_red, self.rest_origin, self.rest_uv[N_SQUARE:TIP],
+                            a[N_SQUARE:TIP])  # fmt: skip
+        return np.concatenate([sq, cr])
+
+    def _occluded(self, q, uv):
+        """Corners whose window the rod covers (or nearly) at pose q, shape (12,)."""
+        hull = cv2.convexHull(self.model.rod_outline(q).astype(np.float32))
+        reach = PATCH_HALF_PX * math.sqrt(2) + OCCLUSION_MARGIN_PX
+        out = np.zeros(TIP, bool)
+        for k in range(TIP):
+            d = cv2.pointPolygonTest(hull, (float(uv[k, 0]), float(uv[k, 1])), True)
+            out[k] = d > -reach
+        return out
+
+    def _fit(self, measured, q0) -> PoseFit:
+        w = np.ones(TIP + 1)
+        w[TIP] = TIP_WEIGHT
+        return fit_pose(self.model, measured, self.offsets, q0, w, self.options.fit_shift)
+
+    def _paper_width(self, uv):
+        """Cross width b_u (px) between the +x and -x arm ends, else b_v; NaN if neither."""
+        px, py, mx, my = (
+            uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)
+        )
+        b_u = px[0] - mx[0]
+        if np.isfinite(b_u):
+            return ("u", b_u)
+        return ("v", py[1] - my[1])
+
+    def _paper_solve(self, uv):
+        (axis_i, b_i), tip_i = self._paper_rest
+        px, py, mx, my = (
+            uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)
+        )
+        b_n = px[0] - mx[0] if axis_i == "u" else py[1] - my[1]
+        if not (np.isfinite(b_n) and np.isfinite(uv[TIP]).all()):
+            return (math.nan, math.nan, math.nan)
+        dz, phi, theta = self.paper.solve(b_i, np.array([b_n]), tip_i, uv[TIP][None, :])
+        return float(dz[0]), math.degrees(phi[0]), math.degrees(theta[0])
+
+    def _result(self, fit, measured, quality, n_corners, ok, reason) -> FrameResult:
+        paper = self._paper_solve(measured)
+        if fit is None or not fit.converged:
+            return FrameResult(self._index, math.nan, math.nan, math.nan, False,
+                               (math.nan,) * 3, paper, reason=reason, points_uv=measured,
+                               quality=quality, n_corners=n_corners)  # fmt: skip
+        pose = fit.pose
+        phi_deg = pose.phi_deg
+        theta_deg = pose.theta_deg if phi_deg >= PHI_MIN_FOR_THETA_DEG else math.nan
+        model = (pose.dz_mm, phi_deg, theta_deg)
+        paper_theta = paper[2] if paper[1] >= PHI_MIN_FOR_THETA_DEG else math.nan
+        paper = (paper[0], paper[1], paper_theta)
+        chosen = model if self.options.mode == "model" else paper
+        if ok:
+            dz, phi, theta = chosen
+        else:
+            dz = phi = theta = math.nan
+        return FrameResult(
+            self._index, dz, phi, theta, ok, model, paper, pose.sx_mm, pose.sy_mm,
+            math.degrees(fit.phi_sigma_rad), fit.rms_px, n_corners, reason, measured, quality,
+        )  # fmt: skip
+
+    def _fail(self, reason: str) -> FrameResult:
+        self._lost = True
+        return FrameResult(self._index, math.nan, math.nan, math.nan, False,
+                           (math.nan,) * 3, (math.nan,) * 3, reason=reason)  # fmt: skip
+
+
+def _area(uv: np.ndarray) -> float:
+    x, y = uv[:, 0], uv[:, 1]
+    return float(abs((x * np.roll(y, -1) - np.roll(x, -1) * y).sum()) / 2)
+
+
+def track(
+    frames: Iterable[np.ndarray],
+    sensor: Sensor,
+    options: FrontEndOptions | None = None,
+    rest_index: int = 0,
+) -> Iterator[FrameResult]:
+    """Yield one :class:`FrameResult` per frame; frame ``rest_index`` is the rest reference.
+
+    Frames before the rest frame are yielded as untrusted rows.
+
+    Raises
+    ------
+    FeaturesNotFound
+        The rest frame lacks a feature.
+    """
+    fe = FrontEnd(sensor, options)
+    for i, frame in enumerate(frames):
+        if i < rest_index:
+            yield FrameResult(i, math.nan, math.nan, math.nan, False, (math.nan,) * 3,
+                              (math.nan,) * 3, reason="before the rest frame")  # fmt: skip
+        elif i == rest_index:
+            yield fe.start(frame, i)
+        else:
+            yield fe.update(frame, i)

@@ -1,0 +1,278 @@
+"""Unit tests of the front end's parts, on hand-worked values and synthetic images.
+
+Tolerances (and why):
+
+| quantity | tol | reason |
+|---|---|---|
+| paper equations | 1e-9 relative | closed-form arithmetic |
+| eq. (1) | 1e-6 | float32 arithmetic |
+| pose round trip | 1e-9 mm / rad | Gauss-Newton to GN_STEP_TOL on exact data |
+| LK, noise-free shift | 0.02 px | bilinear interpolation of a blurred edge |
+| LK, zero motion | 1e-6 px | template == image: the first step is exactly 0 |
+| tip centre, noise-free | 0.05 px | 48 edge points on an antialiased disc |
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from camwhisker.plate import Pose, feature_pixels
+from camwhisker.sensor import Sensor
+from camwhisker.vision import paper
+from camwhisker.vision.colour import (
+    cloth_samples,
+    contrast_map,
+    unmixed_maps,
+    unmixing_weights,
+    white_balance_gains,
+)
+from camwhisker.vision.lk import refine_first_template, warp_templates
+from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_centroid
+from camwhisker.vision.tip import find_tip
+
+# ------------------------------------------------------------------ paper eqs
+
+
+def test_eq2_axial_deflection_hand_value():
+    # 25 * (1 - 200 / 210) = 25 * 10 / 210
+    assert paper.axial_deflection(25.0, 200.0, 210.0) == pytest.approx(250.0 / 210.0, rel=1e-12)
+    assert paper.axial_deflection(25.0, 200.0, 200.0) == 0.0
+
+
+def test_eqs3_4_tip_shift_hand_value():
+    # (25 - 7.5) * 10 / (17.5 - 0.5) - 10 = 175 / 17 - 10
+    got = paper.tip_shift_from_dz(25.0, 7.5, np.array([10.0, -4.0]), 0.5)
+    np.testing.assert_allclose(got, [175.0 / 17.0 - 10.0, -70.0 / 17.0 + 4.0], rtol=1e-12)
+
+
+def test_eq5_eq6_table_one_values():
+    u_aov, v_aov = math.radians(26.95), math.radians(16.26)
+    # tan(26.95 deg) = 0.5084267153, tan(16.26 deg) = 0.2916627899
+    # mu = (720 / 1280) * 0.5084267153 / 0.2916627899 = 0.98055027
+    mu = paper.v_u_corrector(25.0, 7.5, 1280, 720, u_aov, v_aov)
+    assert mu == pytest.approx(0.98055027, rel=1e-7)
+    # rho = 0.5 * 17.5 * (0.5084267153 / 1280 + 0.2916627899 / 720) = 0.0070200863
+    rho = paper.mm_per_px(25.0, 7.5, 1280, 720, u_aov, v_aov)
+    assert rho == pytest.approx(0.0070200863, rel=1e-7)
+
+
+def test_eq7_rotation_magnitude_hand_value():
+    # atan(0.007 * sqrt(30^2 + 40^2) / 7.5) = atan(0.0466667) = 2.6718646 deg
+    phi = paper.rotation_magnitude(0.007, 30.0, 40.0, 1.0, 7.5)
+    assert math.degrees(phi) == pytest.approx(2.6718646, rel=1e-7)
+    # mu scales the v component: sqrt(30^2 + 39.2^2) = 49.3628...
+    phi = paper.rotation_magnitude(0.007, 30.0, 40.0, 0.98, 7.5)
+    assert math.degrees(phi) == pytest.approx(2.6378379, rel=1e-7)
+
+
+def test_paper_geometry_defaults_reproduce_table_one():
+    g = paper.PaperGeometry.from_sensor(Sensor())
+    # The default intrinsics are rounded to 0.01 px: mu and rho agree to ~1e-5.
+    assert g.mu == pytest.approx(0.98055, abs=2e-5)
+    assert g.rho_mm_per_px == pytest.approx(0.00702009, rel=1e-5)
+    dz, phi, theta = g.solve(200.0, np.array([200.0]), np.array([639.5, 359.5]),
+                             np.array([[669.5, 319.5]]))  # fmt: skip
+    assert dz[0] == 0.0
+    expected = math.atan(g.rho_mm_per_px * math.hypot(30.0, 40.0 * g.mu) / 7.5)
+    assert phi[0] == pytest.approx(expected, rel=1e-12)
+    assert math.degrees(theta[0]) == pytest.approx(math.degrees(math.atan2(-40, 30)), abs=1e-9)
+
+
+# ------------------------------------------------------------------ colour
+
+
+def test_eq1_contrast_values_and_black_pixel():
+    px = np.array([[[185, 80, 40], [45, 50, 200], [0, 0, 0], [100, 100, 100]]], np.uint8)
+    g = contrast_map(px)
+    p_blue, p_red = (185 + 80 + 40) / 3, (45 + 50 + 200) / 3
+    np.testing.assert_allclose(g[0], [(185 - 40) / p_blue, (45 - 200) / p_red, 0.0, 0.0], atol=1e-6)
+    assert np.isfinite(g).all()
+
+
+def test_eq1_does_not_touch_input_and_gains_apply():
+    px = np.array([[[100, 120, 140]]], np.uint8)
+    before = px.copy()
+    g = contrast_map(px, np.array([1.4, 1.0, 1.0]))
+    # B' = 140, R = 140 -> G = 0
+    assert abs(g[0, 0]) < 1e-6
+    np.testing.assert_array_equal(px, before)
+
+
+def test_white_balance_undoes_a_cast():
+    rng = np.random.default_rng(3)
+    img = np.full((72, 128, 3), 200.0) * (1 + 0.02 * rng.standard_normal((72, 128, 1)))
+    cast = img * np.array([0.8, 1.0, 1.25])
+    frame = np.clip(cast, 0, 255).astype(np.uint8)
+    rows, cols = cloth_samples(frame.shape[:2], np.array([64.0, 36.0]), 10.0, grid_px=4)
+    gains = white_balance_gains(frame, rows, cols)
+    balanced = frame[rows, cols].astype(float) * gains
+    spread = np.ptp(balanced.mean(axis=0)) / balanced.mean()
+    assert spread < 0.005  # the cast was 45% between B and R
+
+
+def test_unmixing_reads_mixing_fractions_linearly():
+    red, blue, cloth = (
+        np.array([45, 50, 200.0]),
+        np.array([185, 80, 40.0]),
+        np.array([222, 226, 230.0]),
+    )
+    w = unmixing_weights(red, blue, cloth)
+    alpha = 0.3
+    mix_rc = alpha * red + (1 - alpha) * cloth
+    mix_rb = alpha * red + (1 - alpha) * blue
+    img = np.array([[mix_rc, mix_rb, blue]], np.float32)
+    r, b = unmixed_maps(img, w)
+    np.testing.assert_allclose(r[0], [0.3, 0.3, 0.0], atol=1e-5)
+    np.testing.assert_allclose(b[0], [0.0, 0.7, 1.0], atol=1e-5)
+    with pytest.raises(ValueError, match="singular"):
+        unmixing_weights(red, 2 * red, cloth)
+
+
+# ------------------------------------------------------------------ pose model
+
+
+def _q(dz, phi_deg, theta_deg, sx=0.0, sy=0.0):
+    p, t = math.radians(phi_deg), math.radians(theta_deg)
+    return np.array([dz, p * math.cos(t), p * math.sin(t), sx, sy])
+
+
+def test_model_matches_plate_forward_model():
+    s = Sensor()
+    m = PlateModel(s)
+    pose = Pose.from_degrees(0.4, 17.0, -120.0, 0.1, 0.2)
+    uv, jac, rim = m.project(_q(0.4, 17.0, -120.0, 0.1, 0.2))
+    fp = feature_pixels(pose, s)
+    np.testing.assert_allclose(uv[:4], fp["square_corners"], atol=1e-9)
+    np.testing.assert_allclose(uv[4:TIP], fp["cross_arm_edges"].reshape(-1, 2), atol=1e-9)
+    # The face centroid is not the projected disc centre (0.1-0.5 px apart at this tilt).
+    gap = np.hypot(*(uv[TIP] - fp["tip"]))
+    assert 0.05 < gap < 1.0
+    assert jac.shape == (TIP + 1, 2, 5)
+
+
+def test_polygon_centroid_of_a_square_and_triangle():
+    sq = np.array([[0, 0], [2, 0], [2, 2], [0, 2.0]])
+    np.testing.assert_allclose(polygon_centroid(sq), [1, 1], atol=1e-12)
+    tri = np.array([[0, 0], [3, 0], [0, 3.0]])
+    np.testing.assert_allclose(polygon_centroid(tri), [1, 1], atol=1e-12)
+
+
+@pytest.mark.parametrize("shift", [True, False])
+def test_fit_recovers_pose_exactly(shift):
+    m = PlateModel(Sensor())
+    q = _q(0.7, 23.0, 41.0, 0.15 if shift else 0.0, -0.1 if shift else 0.0)
+    uv, _, _ = m.project(q)
+    offsets = np.full((TIP + 1, 2), 0.3)
+    fit = fit_pose(m, uv + offsets, offsets, np.zeros(5), fit_shift=shift)
+    assert fit.converged
+    np.testing.assert_allclose(fit.q, q, atol=1e-9)
+    assert fit.rms_px < 1e-8
+
+
+def test_fit_rejects_one_outlier():
+    m = PlateModel(Sensor())
+    q = _q(0.2, 10.0, 100.0)
+    uv, _, _ = m.project(q)
+    rng = np.random.default_rng(0)
+    meas = uv + 0.05 * rng.standard_normal(uv.shape)
+    meas[2] += (3.0, -2.0)
+    fit = fit_pose(m, meas, np.zeros_like(uv), np.zeros(5))
+    assert not fit.used[2]
+    assert abs(math.degrees(math.hypot(*fit.q[1:3])) - 10.0) < 0.01
+
+
+def test_fit_with_too_few_points_is_not_converged():
+    m = PlateModel(Sensor())
+    meas = np.full((TIP + 1, 2), np.nan)
+    meas[0] = (500, 240)
+    fit = fit_pose(m, meas, np.zeros((TIP + 1, 2)), np.zeros(5))
+    assert not fit.converged
+
+
+# ------------------------------------------------------------------ LK
+
+
+def _corner_image(shape=(90, 120), corner=(52.375, 41.625), blur=1.4):
+    """A bright quadrant with its corner at ``corner`` (u, v), antialiased by 8x
+    supersampling: corners must lie on the 1/8 px grid to be drawn exactly."""
+    k = 8
+    h, w = shape
+    v, u = np.mgrid[0 : h * k, 0 : w * k]
+    u = (u + 0.5) / k - 0.5
+    v = (v + 0.5) / k - 0.5
+    big = ((u >= corner[0]) & (v >= corner[1])).astype(np.float32)
+    img = cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)
+    return cv2.GaussianBlur(img, (0, 0), blur)
+
+
+def test_lk_zero_motion_is_exactly_zero():
+    img = _corner_image()
+    pts = np.array([[52.0, 42.0]])
+    tmpl = warp_templates(img, np.zeros(2), pts, np.eye(2)[None])
+    uv, quality = refine_first_template(img, np.zeros(2), tmpl, pts, np.array([True]))
+    np.testing.assert_allclose(uv, pts, atol=1e-6)
+    assert quality[0] > 0.9999
+
+
+def test_lk_recovers_subpixel_shift_on_non_square_image():
+    rest = _corner_image(corner=(52.375, 41.625))
+    moved = _corner_image(corner=(55.0, 39.375))
+    pts = np.array([[52.375, 41.625]])
+    tmpl = warp_templates(rest, np.zeros(2), pts, np.eye(2)[None])
+    uv, quality = refine_first_template(moved, np.zeros(2), tmpl, pts + 1.0, np.array([True]))
+    np.testing.assert_allclose(uv[0], [55.0, 39.375], atol=0.02)
+    assert quality[0] > 0.99
+
+
+def test_lk_float32_and_float64_inputs_agree():
+    rest = _corner_image()
+    moved = _corner_image(corner=(53.125, 42.25))
+    pts = np.array([[52.375, 41.625]])
+    tmpl = warp_templates(rest, np.zeros(2), pts, np.eye(2)[None])
+    a, _ = refine_first_template(moved, np.zeros(2), tmpl, pts, np.array([True]))
+    b, _ = refine_first_template(moved.astype(np.float64).astype(np.float32), np.zeros(2),
+                                 tmpl.astype(np.float64).astype(np.float32), pts.astype(np.float32),
+                                 np.array([True]))  # fmt: skip
+    np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_lk_inactive_points_come_back_nan():
+    img = _corner_image()
+    pts = np.array([[52.0, 42.0]])
+    tmpl = warp_templates(img, np.zeros(2), pts, np.eye(2)[None])
+    uv, q = refine_first_template(img, np.zeros(2), tmpl, pts, np.array([False]))
+    assert np.isnan(uv).all() and np.isnan(q).all()
+
+
+# ------------------------------------------------------------------ tip
+
+
+def test_tip_centre_of_a_synthetic_disc_on_two_backgrounds():
+    h, w = 200, 260
+    k = 8
+    v, u = np.mgrid[0 : h * k, 0 : w * k]
+    u = (u + 0.5) / k - 0.5
+    v = (v + 0.5) / k - 0.5
+    centre = (131.37, 96.81)
+    disc = ((u - centre[0]) ** 2 + (v - centre[1]) ** 2 <= 30.0**2).astype(np.float32)
+    cover = cv2.resize(disc, (w, h), interpolation=cv2.INTER_AREA)[..., None]
+    back = np.zeros((h, w, 3), np.float32)
+    back[:, : w // 2] = (45, 50, 200)  # red on the left
+    back[:, w // 2 :] = (185, 80, 40)  # blue on the right
+    img = back * (1 - cover) + cover * np.array([24, 24, 26], np.float32)
+    img = cv2.GaussianBlur(img, (0, 0), 1.4)
+    frame = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
+    assert got.ok
+    np.testing.assert_allclose(got.centre_uv, centre, atol=0.05)
+    assert got.radius_px == pytest.approx(30.0, abs=0.3)
+
+
+def test_tip_not_found_on_blank_frame():
+    frame = np.full((200, 260, 3), 200, np.uint8)
+    got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
+    assert not got.ok and "blob" in got.reason or "contrast" in got.reason
