@@ -88,12 +88,21 @@ def test_scores_separate_failures():
           f"{s['z_combined_auc']:.3f} hit {s['z_combined_hit']:.2f} false "
           f"{s['z_combined_false']:.2f} | paper false {PAPER_FALSE_FLAG:.2f}")
     print(f"compliant only: eq.11 AUC {comp['z_score_auc']:.3f}, combined AUC "
-          f"{comp['z_combined_auc']:.3f}")
+          f"{comp['z_combined_auc']:.3f}, fusion P(GM failed) AUC {comp['p_bad_auc']:.3f}")
     assert s["z_score_auc"] >= 0.9
     assert s["z_combined_auc"] >= 0.9
     assert s["z_score_hit"] >= 0.8
     # Dividing by the spread of the difference cuts false flags below eq. (11)'s.
     assert s["z_combined_false"] < s["z_score_false"]
+
+
+def test_fusion_evidence_separates_compliant_failures():
+    """Within compliant contact alone, eq. (11) ranks failures poorly (AUC ~0.78: sigma_GM
+    shrinks with phi while the GM bias shrinks too); the fusion's run-level posterior
+    P(GM failed) separates them (AUC >= 0.9) with few false flags."""
+    s = summary(evaluation("compliant"))
+    assert s["p_bad_auc"] >= 0.9
+    assert s["p_bad_hit"] >= 0.8
 
 
 @pytest.mark.parametrize("kind", ["rigid", "compliant", "slide-circle", "slide-box"])

@@ -88,6 +88,10 @@ def summary(ev: dict) -> dict:
         out[f"{z}_auc"] = roc_auc(s, bad)
         out[f"{z}_hit"] = hit
         out[f"{z}_false"] = false
+    # The fusion's run-level evidence: posterior probability that GM failed, flagged > 0.5.
+    p_bad = np.where(both, 1.0 - ev["p_gm_good"], np.nan)
+    out["p_bad_auc"] = roc_auc(p_bad, bad)
+    out["p_bad_hit"], out["p_bad_false"] = flag_rates(p_bad, bad, 0.5)
     return out
 
 
@@ -148,7 +152,7 @@ def format_report(result: dict) -> str:
              f" {t['samples']} samples, vectorised estimate())",
              f"{'kind':<13}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
              f"{'bad':>5}{'Z11 AUC':>9}{'Z11 hit':>8}{'Z11 ff':>7}{'Zc AUC':>8}{'Zc hit':>7}"
-             f"{'Zc ff':>6}"]
+             f"{'Zc ff':>6}{'Pb AUC':>8}{'Pb hit':>7}{'Pb ff':>6}"]
     rows = dict(result["summaries"])
     rows["pooled"] = result["pooled"]
     for kind, s in rows.items():
@@ -156,7 +160,15 @@ def format_report(result: dict) -> str:
             f"{kind:<13}{s['n']:>5}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
             f"{s['mf_rmse_mm']:>9.2f}{s['fused_rmse_mm']:>8.2f}{s['n_bad']:>5}"
             f"{s['z_score_auc']:>9.3f}{s['z_score_hit']:>8.2f}{s['z_score_false']:>7.2f}"
-            f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}{s['z_combined_false']:>6.2f}")
+            f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}{s['z_combined_false']:>6.2f}"
+            f"{s['p_bad_auc']:>8.3f}{s['p_bad_hit']:>7.2f}{s['p_bad_false']:>6.2f}")
     lines.append("errors in mm (r - r_hat, pause medians); bad: |GM error| > 15 mm; ff: false-flag"
-                 " rate at Z > 1 (paper: 0.26)")
+                 " rate at Z > 1 (paper: 0.26); Z11: eq. (11); Zc: combined spread;"
+                 " Pb: fusion's P(GM failed) > 0.5")
+    calib = result["calib"]
+    lines.append("calibration (rigid), Table II style: phi bin  n  mu_GM sigma_GM  mu_MF sigma_MF"
+                 f"  [GM model: {calib.gm.kind}]")
+    for g, m in zip(calib.gm_spread.rows(), calib.mf_spread.rows(), strict=True):
+        lines.append(f"  {g[0]:4.1f}-{g[1]:<4.1f} {g[2]:>4d} {g[3]:6.2f} {g[4]:6.2f}  "
+                     f"{m[3]:6.2f} {m[4]:6.2f}")
     return "\n".join(lines)
