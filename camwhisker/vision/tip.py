@@ -6,11 +6,11 @@
    and >= 0.8 on the red cross, the blue square and the cloth. A threshold
    between the window's dark and bright levels, and the connected component
    nearest the expected position, give a seed centre and radius.
-2. Sub-pixel edge. Along rays from the seed, the face's edge is where V rises
-   fastest, searched near the threshold crossing. Unlike a threshold, the
-   steepest point of a blurred step does not depend on how bright the other
-   side is (red, blue, cloth or the rod's shaded flank), so the edge is
-   unbiased wherever the face lies.
+2. Sub-pixel edge. Along rays from the seed, the face's edge is where the
+   luma rises fastest (see :func:`luma`), searched near V's threshold
+   crossing. Unlike a threshold, the steepest point of a blurred step does
+   not depend on how bright the other side is (red, blue or cloth), so the
+   edge is unbiased wherever the face lies.
 3. An ellipse fitted to the edge points gives the face's centroid, which the
    pose fit compares with the model's projected-rim centroid.
 """
@@ -30,6 +30,7 @@ __all__ = [
     "ellipse_centre",
     "rim_centre",
     "brightness_max",
+    "luma",
 ]
 
 #: Threshold between the window's dark (face) and bright levels. Relative to the
@@ -66,7 +67,10 @@ BODY_PROBE_PX = 1.0
 BODY_MARGIN_PX = 0.0
 #: Fewest rays for the model-rim fit, and its iterations.
 MIN_RIM_RAYS = 12
-RIM_FIT_ITER = 5
+RIM_FIT_ITER = 10
+#: The rim fit stops when its step is below this (px): converged to rounding, so
+#: the result does not depend on where it started.
+RIM_FIT_TOL_PX = 1e-9
 FIT_EDGE_OFFSET = False
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
@@ -81,6 +85,19 @@ class TipMeasurement:
     radius_px: float
     ok: bool
     reason: str = ""
+
+
+def luma(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """Rec. 601 luma of the white-balanced pixels, float32, shape (h, w).
+
+    JPEG (and so MJPG) keeps luma at full resolution but halves the chroma; the
+    brightest channel of a red or blue pixel is mostly chroma, and its edges
+    come back from the codec ~0.7 px off and blocky. Edges are located in luma.
+    """
+    b, g, r = cv2.split(np.asarray(bgr))
+    f32 = cv2.CV_32F
+    y = cv2.addWeighted(b, 0.114 * float(gains[0]), g, 0.587 * float(gains[1]), 0.0, dtype=f32)
+    return cv2.scaleAdd(r.astype(np.float32), 0.299 * float(gains[2]), y)
 
 
 def brightness_max(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
@@ -178,7 +195,7 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
         return None, "tip touches the image border"
     seed = cents[k]
     r_seed = math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi)
-    pts = _edge_points(val, seed, r_seed, thr)
+    pts = _edge_points(val, luma(frame[v0:v1, u0:u1], gains), seed, r_seed, thr)
     if pts is None or len(pts) < N_RAYS // 2:
         return None, "tip edge not found on enough rays"
     return pts + (u0, v0), ""
@@ -253,14 +270,16 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
         if bad.any() and (~bad).sum() >= MIN_RIM_RAYS:
             sol, *_ = np.linalg.lstsq(a[~bad], res[~bad], rcond=None)
         t = t + sol[:2]
-        if np.abs(sol[:2]).max() < 1e-4:
+        if np.abs(sol[:2]).max() < RIM_FIT_TOL_PX:
             break
     if not np.isfinite(t).all():
         return None, math.nan
     return c0 + t, float(rad_r.mean() + (sol[2] if FIT_EDGE_OFFSET else 0.0))
 
 
-def _edge_points(val, seed, r_seed, thr):
+def _edge_points(val, lum, seed, r_seed, thr):
+    """Edge points (N, 2) in window pixels: along rays from ``seed``, the steepest
+    rise of ``lum`` near where ``val`` crosses ``thr``; None if too few."""
     ang = np.linspace(0.0, 2 * np.pi, N_RAYS, endpoint=False)
     dirs = np.column_stack([np.cos(ang), np.sin(ang)])
     lo = max(r_seed - EDGE_SEARCH_PX - 2, 1.0)
@@ -268,11 +287,12 @@ def _edge_points(val, seed, r_seed, thr):
     mx = (seed[0] + dirs[:, :1] * radii).astype(np.float32)
     my = (seed[1] + dirs[:, 1:] * radii).astype(np.float32)
     prof = cv2.remap(val, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    lprof = cv2.remap(lum, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     # Threshold crossing per ray: first sample at or above thr.
     above = prof >= thr
     first = np.where(above.any(axis=1), above.argmax(axis=1), -1)
     rise = np.zeros_like(prof)
-    rise[:, 1:-1] = (prof[:, 2:] - prof[:, :-2]) / (2 * EDGE_STEP_PX)
+    rise[:, 1:-1] = (lprof[:, 2:] - lprof[:, :-2]) / (2 * EDGE_STEP_PX)
     win = int(round(EDGE_SEARCH_PX / 2 / EDGE_STEP_PX))
     idx = np.arange(len(radii))
     near = np.abs(idx[None, :] - first[:, None]) <= win

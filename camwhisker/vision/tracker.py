@@ -86,6 +86,8 @@ CLOTH_EXCLUDE_FACTOR = 1.3
 #: Weight of the tip in the pose fit relative to a corner: its centroid rests on
 #: ~48 edge points against a corner's ~25 rows of a 25 x 25 window.
 TIP_WEIGHT = 4.0
+#: Passes of the rest frame's tip measurement (each re-centres its window).
+REST_TIP_PASSES = 3
 #: Rest-frame colours are medians over pixels with |G| above this, eroded by
 #: COLOUR_ERODE_PX so that no blurred edge pixel enters.
 COLOUR_G_MIN = 1.0
@@ -180,10 +182,18 @@ class FrontEnd:
         gains = white_balance_gains(frame, *self._cloth)
         det = detect_features(frame, gains, self.model)
         self.gains_rest = gains
-        self.rest_uv = det.uv.copy()
         model_uv, _, _ = self.model.project(np.zeros(5), jacobian=False)
         self.offsets = det.uv - model_uv
-        self.tip_radius_rest = None
+        # Measure the tip exactly as update() will, until its window stops moving.
+        for _ in range(REST_TIP_PASSES):
+            radius = math.sqrt(_area(self.model.project(np.zeros(5), jacobian=False)[2]) / math.pi)
+            edges, why = tip_edge_points(frame, gains, det.uv[TIP], radius, TIP_SEARCH_PX)
+            tip = None if edges is None else self._tip_at(edges, np.zeros(5))
+            if tip is None or not tip.ok:
+                raise FeaturesNotFound(["magnifier tip"], why or tip.reason)
+            det.uv[TIP] = tip.centre_uv
+            self.offsets[TIP] = tip.centre_uv - model_uv[TIP]
+        self.rest_uv = det.uv.copy()
         # Rest contrast maps over the corners' region: the first templates.
         g, origin = self._region_map(frame, gains, det.uv[:TIP])
         self.rest_origin = origin
@@ -198,8 +208,7 @@ class FrontEnd:
         self._started = True
         self._lost = False
         self._index = index
-        b_u = self._paper_width(det.uv)
-        self._paper_rest = (b_u, det.uv[TIP].copy())
+        self._paper_rest = (self._paper_widths(det.uv), det.uv[TIP].copy())
         return FrameResult(
             index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
             0.0, 0.0, 0.0, 0.0, TIP, "", det.uv.copy(), np.ones(TIP + 1),
@@ -472,25 +481,32 @@ class FrontEnd:
         w[TIP] = TIP_WEIGHT
         return fit_pose(self.model, measured, self.offsets, q0, w, self.options.fit_shift)
 
-    def _paper_width(self, uv):
-        """Cross width b_u (px) between the +x and -x arm ends, else b_v; NaN if neither."""
-        px, py, mx, my = (
-            uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)
-        )
-        b_u = px[0] - mx[0]
-        if np.isfinite(b_u):
-            return ("u", b_u)
-        return ("v", py[1] - my[1])
+    @staticmethod
+    def _paper_widths(uv) -> np.ndarray:
+        """Projected widths (px) for eq. (2): cross b_u, b_v, square t_u, t_v, shape (4,).
+
+        Each is NaN where one of its points is not tracked."""
+        arm = [uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)]
+        sq = uv[:N_SQUARE]
+        return np.array([
+            arm[0][0] - arm[2][0],
+            arm[1][1] - arm[3][1],
+            (sq[1, 0] + sq[2, 0] - sq[0, 0] - sq[3, 0]) / 2,
+            (sq[2, 1] + sq[3, 1] - sq[0, 1] - sq[1, 1]) / 2,
+        ])  # fmt: skip
 
     def _paper_solve(self, uv):
-        (axis_i, b_i), tip_i = self._paper_rest
-        px, py, mx, my = (
-            uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)
-        )
-        b_n = px[0] - mx[0] if axis_i == "u" else py[1] - my[1]
-        if not (np.isfinite(b_n) and np.isfinite(uv[TIP]).all()):
+        """Eqs. (2)-(7) on tracked points: (dz_mm, phi_deg, theta_deg); NaN if untracked.
+
+        Eq. (2) takes b_u; where an arm end is hidden it substitutes b_v, then the
+        square's t_u, t_v ("any can be substituted", section II.B)."""
+        widths_i, tip_i = self._paper_rest
+        widths_n = self._paper_widths(uv)
+        usable = np.isfinite(widths_n) & np.isfinite(widths_i)
+        if not (usable.any() and np.isfinite(uv[TIP]).all()):
             return (math.nan, math.nan, math.nan)
-        dz, phi, theta = self.paper.solve(b_i, np.array([b_n]), tip_i, uv[TIP][None, :])
+        k = int(np.argmax(usable))
+        dz, phi, theta = self.paper.solve(widths_i[k], widths_n[k : k + 1], tip_i, uv[TIP][None, :])
         return float(dz[0]), math.degrees(phi[0]), math.degrees(theta[0])
 
     def _result(self, fit, measured, quality, n_corners, ok, reason) -> FrameResult:

@@ -1,0 +1,183 @@
+"""Frame sources with timestamps, shared by the batch command and a live loop.
+
+:func:`open_source` gives a :class:`VideoSource` for any file OpenCV can
+decode, or an :class:`ImageFolderSource` for a folder of images. Iterating a
+source yields :class:`Frame` objects (index, t_s, BGR uint8 image) in order.
+
+Timestamps come from the container: PyAV reads every packet's presentation
+time without decoding (OpenCV's ``CAP_PROP_POS_MSEC`` is unreliable for
+MJPG AVI and variable-rate files). Where the container has none, t_s is
+index / fps. A file that ends early (truncated, corrupt) stops the iteration
+at the last readable frame and sets :attr:`VideoSource.problem`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["Frame", "SourceError", "VideoSource", "ImageFolderSource", "open_source"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: Frame rate assumed for an image folder, or a video that states none.
+DEFAULT_FPS = 30.0
+
+
+class SourceError(ValueError):
+    """The input cannot be read as frames (not a video, empty folder, ...)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """index: 0-based frame number; t_s: time (s); image: ndarray, shape (H, W, 3), uint8 BGR."""
+
+    index: int
+    t_s: float
+    image: np.ndarray
+
+
+def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int | None]:
+    """Presentation times (s) of the first video stream's packets, sorted; its frame
+    rate and stated frame count. (None, None, None) where PyAV cannot read the file."""
+    try:
+        import av
+    except ImportError:  # pragma: no cover - av is a dependency
+        return None, None, None
+    times = []
+    fps = count = None
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                return None, None, None
+            stream = container.streams.video[0]
+            rate = stream.average_rate or stream.base_rate
+            fps = float(rate) if rate else None
+            count = int(stream.frames) or None
+            tb = stream.time_base
+            start = stream.start_time or 0
+            for packet in container.demux(stream):
+                if packet.pts is not None and packet.size > 0:
+                    times.append(float((packet.pts - start) * tb))
+    except (av.error.FFmpegError, ValueError, OSError):
+        if not times:
+            return None, fps, count
+    return (np.sort(np.array(times)) if times else None), fps, count
+
+
+class VideoSource:
+    """Frames of a video file, decoded by OpenCV, timed by the container.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    SourceError
+        OpenCV cannot decode it as video.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"{self.path}: no such file")
+        if self.path.is_dir():
+            raise SourceError(f"{self.path}: is a folder, not a video")
+        cap = cv2.VideoCapture(str(self.path))
+        ok = cap.isOpened()
+        first = cap.read()[1] if ok else None
+        cap.release()
+        if first is None:
+            raise SourceError(f"{self.path}: not a video OpenCV can read")
+        self.shape = first.shape
+        times, fps, count = _container_times(self.path)
+        self._times = times
+        self.fps = fps or DEFAULT_FPS
+        #: Frame count the container states (None if unknown).
+        self.expected_frames = count
+        #: "container" or "index / fps": where t_s comes from.
+        self.time_source = "container" if times is not None else "index / fps"
+        #: Why the video ended early, or "" (set after iterating).
+        self.problem = ""
+        self.frames_read = 0
+
+    def __len__(self) -> int:
+        return self.expected_frames or (len(self._times) if self._times is not None else 0)
+
+    def time_of(self, index: int) -> float:
+        if self._times is not None and index < len(self._times):
+            return float(self._times[index])
+        return index / self.fps
+
+    def __iter__(self) -> Iterator[Frame]:
+        cap = cv2.VideoCapture(str(self.path))
+        i = 0
+        try:
+            while True:
+                ok, image = cap.read()
+                if not ok or image is None:
+                    break
+                yield Frame(i, self.time_of(i), image)
+                i += 1
+        finally:
+            cap.release()
+            self.frames_read = i
+            n_times = len(self._times) if self._times is not None else 0
+            known = max(self.expected_frames or 0, n_times)
+            if known and i < known:
+                self.problem = (
+                    f"video ended after {i} of {known} frames (truncated or corrupt); "
+                    "the readable part was processed"
+                )
+
+
+class ImageFolderSource:
+    """Frames from the image files of a folder, in name order, at a given rate.
+
+    Raises
+    ------
+    SourceError
+        The folder holds no image, or an image cannot be read.
+    """
+
+    def __init__(self, path: str | Path, fps: float | None = None):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise FileNotFoundError(f"{self.path}: no such folder")
+        self.files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.files:
+            raise SourceError(f"{self.path}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        self.fps = float(fps) if fps else DEFAULT_FPS
+        if not math.isfinite(self.fps) or self.fps <= 0:
+            raise SourceError(f"fps must be positive, got {fps}")
+        self.time_source = "index / fps"
+        self.expected_frames = len(self.files)
+        self.problem = ""
+        self.frames_read = 0
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i, f in enumerate(self.files):
+            image = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if image is None:
+                self.problem = f"{f}: cannot read image; stopped after {i} frames"
+                return
+            self.frames_read = i + 1
+            yield Frame(i, i / self.fps, image)
+
+
+def open_source(path: str | Path, fps: float | None = None):
+    """A :class:`VideoSource` for a file, an :class:`ImageFolderSource` for a folder."""
+    path = Path(path)
+    if path.is_dir():
+        return ImageFolderSource(path, fps)
+    return VideoSource(path)

@@ -1,0 +1,62 @@
+"""Frame sources: container timestamps, image folders, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camwhisker.sources import ImageFolderSource, SourceError, VideoSource, open_source
+from camwhisker.synth.video import write_video
+
+
+def _frames(n, h=72, w=128):
+    rng = np.random.default_rng(0)
+    return [rng.integers(0, 255, (h, w, 3), dtype=np.uint8) for _ in range(n)]
+
+
+@pytest.mark.parametrize("suffix,fps", [(".avi", 20.0), (".mp4", 25.0)])
+def test_video_timestamps_come_from_the_container(tmp_path, suffix, fps):
+    path = tmp_path / f"v{suffix}"
+    write_video(path, _frames(5), fps)
+    src = open_source(path)
+    assert isinstance(src, VideoSource)
+    assert src.time_source == "container"
+    frames = list(src)
+    assert [f.index for f in frames] == list(range(5))
+    np.testing.assert_allclose([f.t_s for f in frames], np.arange(5) / fps, atol=1e-6)
+    assert frames[0].image.shape == (72, 128, 3) and src.problem == ""
+
+
+def test_truncated_video_reports_a_problem(tmp_path):
+    path = tmp_path / "v.avi"
+    write_video(path, _frames(8), 30.0, jpeg_quality=90)
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.5)])
+    src = open_source(cut)
+    frames = list(src)
+    assert 1 <= len(frames) < 8
+    assert "truncated" in src.problem and f"after {len(frames)} of 8" in src.problem
+
+
+def test_missing_and_non_video_inputs(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        open_source(tmp_path / "nope.mp4")
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(b"\x00" * 100)
+    with pytest.raises(SourceError, match="not a video"):
+        open_source(junk)
+
+
+def test_image_folder(tmp_path):
+    import cv2
+
+    for i, img in enumerate(_frames(3)):
+        cv2.imwrite(str(tmp_path / f"{i:02d}.png"), img)
+    (tmp_path / "readme.txt").write_text("not an image")
+    src = open_source(tmp_path, fps=4.0)
+    assert isinstance(src, ImageFolderSource) and len(src) == 3
+    assert [f.t_s for f in src] == [0.0, 0.25, 0.5]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(SourceError, match="no images"):
+        open_source(empty)
