@@ -123,6 +123,38 @@ def _run_describe(args) -> int:
 # --- vision front end ------------------------------------------------------------------------
 
 
+def _add_batch(sub) -> None:
+    p = sub.add_parser("batch", help="video -> signal table (dz, phi, theta per frame)")
+    p.add_argument("video", help="video file OpenCV can read, or a folder of images")
+    p.add_argument("--out", required=True, metavar="OUT.csv", help="signal table (CSV)")
+    p.add_argument("--mode", choices=("model", "paper"), default="model",
+                   help="exact camera model (default) or the paper's eqs. 2-7")  # fmt: skip
+    p.add_argument("--no-shift", action="store_true", help="do not fit the lateral shift")
+    p.add_argument("--lock-gains", action="store_true", help="keep the rest frame's white balance")
+    p.add_argument("--rest-frame", type=int, default=0, metavar="N", help="rest reference frame")
+    p.add_argument("--fps", type=float, help="frame rate of an image folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _sensor_arg(p)
+    p.set_defaults(func=_run_batch)
+
+
+def _run_batch(args) -> int:
+    from camwhisker.batch import run_batch
+    from camwhisker.sources import SourceError
+    from camwhisker.vision import FeaturesNotFound, FrontEndOptions
+
+    options = FrontEndOptions(args.mode, not args.no_shift, args.lock_gains)
+    try:
+        report = run_batch(args.video, load_sensor(args.sensor), args.out, options,
+                           args.rest_frame, args.fps, not args.quiet)  # fmt: skip
+    except (SourceError, FeaturesNotFound) as exc:
+        raise CommandError(str(exc)) from exc
+    print(f"{report.frames} frames, {report.frames_ok} ok -> {report.out_csv}, {report.sidecar}")
+    for problem in report.problems:
+        print(f"camwhisker batch: problem: {problem}", file=sys.stderr)
+    return 3 if report.problems else 0
+
+
 # --- contact back end -------------------------------------------------------------------------
 
 
@@ -142,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_COMMANDS: list = [_add_render, _add_bound, _add_samples, _add_describe, _add_contact]
+_COMMANDS: list = [_add_render, _add_bound, _add_samples, _add_describe, _add_contact, _add_batch]
 
 
 def main(argv: list[str] | None = None) -> int:
