@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camwhisker.plate import Pose, cross_arm_edges, rod_ends, square_corners
+from camwhisker.plate import Pose, cross_arm_edges, cross_outline, rod_ends, square_corners
 from camwhisker.sensor import Sensor
 
 __all__ = [
@@ -104,6 +104,7 @@ class PlateModel:
         )  # arms +x +y -x -y
         cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
         self._edge_dirs_plate = np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
+        self._cross_outline = cross_outline(plate)
         self.K = cam.matrix
         self.dist = cam.dist_coeffs
         self.z_i_mm = plate.z_i_mm
@@ -120,6 +121,14 @@ class PlateModel:
         uv, _ = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
         uv = uv.reshape(-1, 2)
         return uv[TIP:].reshape(TIP, 2, 2) - uv[:TIP, None]
+
+    def cross_outline(self, q: np.ndarray) -> np.ndarray:
+        """The red cross's outline in the image, shape (12, 2)."""
+        q = np.asarray(q, dtype=float)
+        sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
+        uv, _ = cv2.projectPoints(self._cross_outline, np.array([q[2], -q[1], 0.0]),
+                                  np.array([sx, sy, self.z_i_mm - q[0]]), self.K, self.dist)
+        return uv.reshape(-1, 2)
 
     def rod_outline(self, q: np.ndarray, n: int = 24) -> np.ndarray:
         """Projected rims of the rod's two ends, shape (2 n, 2); their convex hull

@@ -51,20 +51,20 @@ N_RAYS = 48
 #: of the strongest blur we expect, 2.6 px) at this radial step.
 EDGE_SEARCH_PX = 8.0
 EDGE_STEP_PX = 0.5
-#: A rise counts as the face's edge when it is at least this fraction of the
-#: strongest rise near the threshold crossing.
-INNER_PEAK_FRACTION = 0.5
+#: Smoothing of the radial luma profiles before their derivative (px).
+EDGE_SMOOTH_PX = 1.0
 #: Component area accepted relative to the expected face area.
 AREA_RANGE = (0.35, 2.5)
 #: A ray's edge is kept when its rise is at least this fraction of the median rise.
 MIN_RISE_FRACTION = 0.3
-#: A ray is dropped when the point BODY_PROBE_PX beyond the model's rim (in its
-#: direction) lies inside the rod's outline or within BODY_MARGIN_PX of it: the
-#: body shows there beside the face, its shaded flank merges with the face's edge
-#: under the blur and moves the steepest point by up to 3 px. Where the body hides
-#: behind the face the outline runs along the rim and the probe lies outside it.
-BODY_PROBE_PX = 1.0
-BODY_MARGIN_PX = 0.0
+#: Rays beside the rod's body are not used: where the body's outline reaches more
+#: than BODY_PROTRUSION_PX beyond the face's rim, and BODY_BLUR_PX (along the rim)
+#: around that: the body's shaded flank merges with the face's edge under the
+#: blur (3 sigma of the hard scene's 2.6 px) and pulls the steepest point outward
+#: by up to 3 px. Directions are tested at BODY_ANGLES points around the rim.
+BODY_PROTRUSION_PX = 0.5
+BODY_BLUR_PX = 8.0
+BODY_ANGLES = 180
 #: Fewest rays for the model-rim fit, and its iterations.
 MIN_RIM_RAYS = 12
 RIM_FIT_ITER = 10
@@ -220,27 +220,44 @@ def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | N
     pts = np.asarray(pts, float)
     rim = np.asarray(rim_uv, float)
     if body_hull_uv is not None:
-        # Probe just outside the model's rim along each edge point's direction.
-        from camwhisker.vision.pose import polygon_centroid
-
-        hull = cv2.convexHull(np.asarray(body_hull_uv, np.float32))
-        c0 = polygon_centroid(rim)
-        rel = rim - c0
-        ang_r = np.arctan2(rel[:, 1], rel[:, 0])
-        order = np.argsort(ang_r)
-        d = pts - c0
-        ang = np.arctan2(d[:, 1], d[:, 0])
-        r_m = np.interp(ang, ang_r[order], np.hypot(*rel.T)[order], period=2 * np.pi)
-        probe = c0 + (r_m + BODY_PROBE_PX)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
-        keep = np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), True) < -BODY_MARGIN_PX
-                         for x, y in probe])  # fmt: skip
-        pts = pts[keep]
+        pts = pts[~_beside_body(pts, rim, body_hull_uv)]
     if len(pts) < MIN_RIM_RAYS:
         return _not_found("too little of the tip's edge is clear of the rod")
     centre, r_mean = _fit_rim_shift(pts, rim)
     if centre is None:
         return _not_found("tip edge does not fit the model's rim")
     return TipMeasurement(centre, r_mean, True)
+
+
+def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> np.ndarray:
+    """Edge points whose ray passes where the rod's body shows beside the face.
+
+    In polar coordinates about the rim's centroid, the rod's outline reaches
+    beyond the rim where the body shows (by more than BODY_PROTRUSION_PX); rays
+    within BODY_BLUR_PX (as an arc on the rim) of such a direction are flagged,
+    since the blur spreads the body's shaded flank that far.
+    """
+    from camwhisker.vision.pose import polygon_centroid
+
+    c0 = polygon_centroid(rim)
+    hull = cv2.convexHull(np.asarray(body_hull_uv, np.float32)).reshape(-1, 2).astype(float)
+    rel_h = hull - c0
+    ang_h = np.arctan2(rel_h[:, 1], rel_h[:, 0])
+    o = np.argsort(ang_h)
+    rel_r = rim - c0
+    ang_r = np.arctan2(rel_r[:, 1], rel_r[:, 0])
+    orr = np.argsort(ang_r)
+    probe = np.linspace(-np.pi, np.pi, BODY_ANGLES, endpoint=False)
+    r_hull = np.interp(probe, ang_h[o], np.hypot(*rel_h[o].T), period=2 * np.pi)
+    r_rim = np.interp(probe, ang_r[orr], np.hypot(*rel_r[orr].T), period=2 * np.pi)
+    body = r_hull - r_rim > BODY_PROTRUSION_PX
+    if not body.any():
+        return np.zeros(len(pts), bool)
+    margin = BODY_BLUR_PX / max(float(r_rim.mean()), 1.0)
+    d = pts - c0
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    diff = np.abs((ang[:, None] - probe[None, body] + np.pi) % (2 * np.pi) - np.pi)
+    return diff.min(axis=1) <= margin + np.pi / BODY_ANGLES
 
 
 def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
@@ -277,6 +294,17 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
     return c0 + t, float(rad_r.mean() + (sol[2] if FIT_EDGE_OFFSET else 0.0))
 
 
+def _dog_kernel() -> np.ndarray:
+    """Derivative-of-Gaussian kernel along a ray, per pixel of radius, shape (1, k)."""
+    sig = EDGE_SMOOTH_PX / EDGE_STEP_PX
+    half = int(math.ceil(3 * sig))
+    x = np.arange(-half, half + 1, dtype=float)
+    k = -x * np.exp(-0.5 * (x / sig) ** 2)
+    k /= -(k * x).sum() * EDGE_STEP_PX  # unit response to a unit ramp per pixel
+    # filter2D correlates: flip so the output is the derivative, not its negative.
+    return k[::-1].reshape(1, -1).astype(np.float32)
+
+
 def _edge_points(val, lum, seed, r_seed, thr):
     """Edge points (N, 2) in window pixels: along rays from ``seed``, the steepest
     rise of ``lum`` near where ``val`` crosses ``thr``; None if too few."""
@@ -291,20 +319,15 @@ def _edge_points(val, lum, seed, r_seed, thr):
     # Threshold crossing per ray: first sample at or above thr.
     above = prof >= thr
     first = np.where(above.any(axis=1), above.argmax(axis=1), -1)
-    rise = np.zeros_like(prof)
-    rise[:, 1:-1] = (lprof[:, 2:] - lprof[:, :-2]) / (2 * EDGE_STEP_PX)
+    # Derivative of Gaussian along each ray (sigma EDGE_SMOOTH_PX): unbiased for a
+    # symmetric edge, and it keeps the 5 DN noise from making false peaks.
+    rise = cv2.filter2D(lprof, -1, _dog_kernel(), borderType=cv2.BORDER_REPLICATE)
     win = int(round(EDGE_SEARCH_PX / 2 / EDGE_STEP_PX))
     idx = np.arange(len(radii))
     near = np.abs(idx[None, :] - first[:, None]) <= win
     near[:, 0] = near[:, -1] = False
     masked = np.where(near, rise, -np.inf)
-    # The innermost local maximum of the rise that reaches half the window's
-    # largest: the face's own edge, not the rod body's outline just beyond it.
-    top = masked.max(axis=1, keepdims=True)
-    local = np.zeros_like(near)
-    local[:, 1:-1] = (masked[:, 1:-1] >= masked[:, :-2]) & (masked[:, 1:-1] > masked[:, 2:])
-    local &= near & (masked >= INNER_PEAK_FRACTION * top)
-    j = np.where(local.any(axis=1), local.argmax(axis=1), masked.argmax(axis=1))
+    j = masked.argmax(axis=1)
     rows = np.arange(N_RAYS)
     peak = masked[rows, j]
     valid = (first > 0) & np.isfinite(peak) & (j > 0) & (j < len(radii) - 1)

@@ -70,7 +70,9 @@ QUALITY_MIN = 0.98
 #: than this (Matthews et al.'s epsilon, px).
 UPDATE_EPS_PX = 0.5
 #: Corners needed for a trusted pose (of 12), and the largest trusted fit residual.
-MIN_CORNERS = 6
+#: With the tip, 4 corners give 10 equations for 5 unknowns; at tilts near 30 deg
+#: the rod and the cross hide up to 6 corners, so more would flag good rows.
+MIN_CORNERS = 4
 MAX_RMS_PX = 0.6
 #: Search radius for the tip around its predicted position (px), and the margin
 #: of the corners' region for the updated-template LK (px).
@@ -109,7 +111,7 @@ class FrontEndOptions:
     fit_shift: bool = True
     lock_gains: bool = False
     updated_template: bool = True
-    refine_passes: int = 2
+    refine_passes: int = 1
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -467,13 +469,19 @@ class FrontEnd:
         return np.concatenate([sq, cr])
 
     def _occluded(self, q, uv):
-        """Corners whose window the rod covers (or nearly) at pose q, shape (12,)."""
+        """Corners whose window something nearer covers (or nearly) at pose q, shape (12,).
+
+        The rod can cover any corner; the cross can cover the square's corners
+        (at large tilts its arm ends pass over them)."""
         hull = cv2.convexHull(self.model.rod_outline(q).astype(np.float32))
+        cross = self.model.cross_outline(q).astype(np.float32)
         reach = PATCH_HALF_PX * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
         for k in range(TIP):
-            d = cv2.pointPolygonTest(hull, (float(uv[k, 0]), float(uv[k, 1])), True)
-            out[k] = d > -reach
+            pt = (float(uv[k, 0]), float(uv[k, 1]))
+            out[k] = cv2.pointPolygonTest(hull, pt, True) > -reach
+            if k < N_SQUARE:
+                out[k] |= cv2.pointPolygonTest(cross, pt, True) > -reach
         return out
 
     def _fit(self, measured, q0) -> PoseFit:
