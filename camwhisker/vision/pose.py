@@ -67,11 +67,9 @@ def q_to_pose(q: np.ndarray) -> Pose:
 
 def polygon_centroid(uv: np.ndarray) -> np.ndarray:
     """Area centroid of a closed polygon, shape (N, 2) -> (2,) (shoelace formula)."""
-    x, y = uv[:, 0], uv[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    area = cross.sum() / 2.0
-    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
+    nxt = np.concatenate([uv[1:], uv[:1]])
+    cross = uv[:, 0] * nxt[:, 1] - nxt[:, 0] * uv[:, 1]
+    return cross @ (uv + nxt) / (3.0 * cross.sum())
 
 
 class PlateModel:
@@ -310,7 +308,10 @@ def _fit_once(
         uv, jac, _ = model.project(q)
         r = ((target[use] - uv[use]) * sw).reshape(-1)
         J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
-        step, *_ = np.linalg.lstsq(J, r, rcond=None)
+        try:
+            step = np.linalg.solve(J.T @ J, J.T @ r)
+        except np.linalg.LinAlgError:
+            break
         q[:n_par] += step
         if np.abs(step).max() < GN_STEP_TOL:
             converged = True

@@ -45,6 +45,10 @@ DARK_AREA_FRACTION = 0.25
 BRIGHT_PERCENTILE = 90.0
 #: Subsampling step for the level percentiles (speed; levels are smooth).
 LEVEL_STEP_PX = 3
+#: Searches wider than this (px) start on a grid of every COARSE_STEP_PX-th pixel
+#: (the face is still ~18 grid pixels across): 16 times fewer pixels to look at.
+COARSE_ABOVE_PX = 80.0
+COARSE_STEP_PX = 4
 #: Rays for the edge search; 48 keeps the ellipse centre's noise ~0.02 px.
 N_RAYS = 48
 #: The edge is searched within this many pixels of the threshold crossing (3 sigma
@@ -68,9 +72,9 @@ BODY_ANGLES = 180
 #: Fewest rays for the model-rim fit, and its iterations.
 MIN_RIM_RAYS = 12
 RIM_FIT_ITER = 10
-#: The rim fit stops when its step is below this (px): converged to rounding, so
+#: The rim fit stops when its step is below this (px): far below the noise, so
 #: the result does not depend on where it started.
-RIM_FIT_TOL_PX = 1e-9
+RIM_FIT_TOL_PX = 1e-6
 FIT_EDGE_OFFSET = False
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
@@ -156,8 +160,15 @@ def find_tip(
 def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
     """Sub-pixel edge points of the end face, shape (N, 2), or (None, reason).
 
-    See :func:`find_tip` for the parameters.
+    See :func:`find_tip` for the parameters. A search wider than
+    COARSE_ABOVE_PX first finds the face on a grid of every COARSE_STEP_PX-th
+    pixel, then searches the full-resolution pixels around it.
     """
+    if search_px > COARSE_ABOVE_PX:
+        found = _coarse_blob(frame, gains, guess_uv, radius_px, search_px)
+        if found is None:
+            return None, "no dark blob of the tip's size where the tip can be"
+        guess_uv, search_px = found, 2.0 * COARSE_STEP_PX + 4.0
     h, w = frame.shape[:2]
     half = radius_px * 1.4 + search_px
     u0 = max(int(guess_uv[0] - half), 0)
@@ -166,39 +177,77 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
     v1 = min(int(guess_uv[1] + half) + 1, h)
     if u1 - u0 < 8 or v1 - v0 < 8:
         return None, "tip window outside the frame"
-    val = brightness_max(frame[v0:v1, u0:u1], gains)
-    sub = val[::LEVEL_STEP_PX, ::LEVEL_STEP_PX]
-    area_exp = math.pi * radius_px**2
-    dark_pct = min(100.0 * DARK_AREA_FRACTION * area_exp / val.size, 50.0)
-    dark, bright = np.percentile(sub, [dark_pct, BRIGHT_PERCENTILE])
-    if bright - dark <= 0:
-        return None, "no contrast in the tip window"
-    thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
-    mask = (val < thr).astype(np.uint8)
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n < 2:
-        return None, "no dark blob near the expected tip"
-    areas = stats[1:, cv2.CC_STAT_AREA]
-    good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
-    if not good.any():
-        return None, "no dark blob of the tip's size near the expected tip"
-    gxy = np.array([guess_uv[0] - u0, guess_uv[1] - v0])
-    dist = np.hypot(*(cents[1:] - gxy).T)
-    dist[~good] = np.inf
-    k = int(np.argmin(dist)) + 1
-    x, y, bw, bh = stats[k, :4]
+    val, lum = _brightness(frame[v0:v1, u0:u1], gains)
+    found = _dark_blob(val, guess_uv - (u0, v0), radius_px, LEVEL_STEP_PX)
+    if isinstance(found, str):
+        return None, found
+    seed, r_seed, thr, (x, y, bw, bh) = found
     touches = (x == 0 and u0 > 0) or (y == 0 and v0 > 0) or (
         x + bw == val.shape[1] and u1 < w) or (y + bh == val.shape[0] and v1 < h)  # fmt: skip
     if touches:
         return None, "dark blob reaches the tip window's edge"
     if x == 0 or y == 0 or x + bw == val.shape[1] or y + bh == val.shape[0]:
         return None, "tip touches the image border"
-    seed = cents[k]
-    r_seed = math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi)
-    pts = _edge_points(val, luma(frame[v0:v1, u0:u1], gains), seed, r_seed, thr)
+    pts = _edge_points(val, lum, seed, r_seed, thr)
     if pts is None or len(pts) < N_RAYS // 2:
         return None, "tip edge not found on enough rays"
     return pts + (u0, v0), ""
+
+
+def _brightness(bgr, gains):
+    """(max channel, luma) of the white-balanced pixels, float32 each."""
+    b, g, r = cv2.split(np.asarray(bgr))
+    f32 = cv2.CV_32F
+    vb = cv2.multiply(b, float(gains[0]), dtype=f32)
+    vg = cv2.multiply(g, float(gains[1]), dtype=f32)
+    vr = cv2.multiply(r, float(gains[2]), dtype=f32)
+    lum = cv2.addWeighted(vb, 0.114, vg, 0.587, 0.0)
+    lum = cv2.scaleAdd(vr, 0.299, lum)
+    return cv2.max(cv2.max(vb, vg), vr), lum
+
+
+def _dark_blob(val, guess_xy, radius_px, level_step):
+    """The dark component of the face's size nearest ``guess_xy`` in ``val``.
+
+    Returns (centroid, radius, threshold, bbox) or the reason it failed.
+    """
+    sub = val[::level_step, ::level_step] if level_step > 1 else val
+    area_exp = math.pi * radius_px**2
+    dark_pct = min(100.0 * DARK_AREA_FRACTION * area_exp / val.size, 50.0)
+    dark, bright = np.percentile(sub, [dark_pct, BRIGHT_PERCENTILE])
+    if bright - dark <= 0:
+        return "no contrast in the tip window"
+    thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
+    mask = (val < thr).astype(np.uint8)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n < 2:
+        return "no dark blob near the expected tip"
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
+    if not good.any():
+        return "no dark blob of the tip's size near the expected tip"
+    dist = np.hypot(*(cents[1:] - guess_xy).T)
+    dist[~good] = np.inf
+    k = int(np.argmin(dist)) + 1
+    return cents[k], math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi), thr, stats[k, :4]
+
+
+def _coarse_blob(frame, gains, guess_uv, radius_px, search_px):
+    """Centre (u, v) of the face found on a coarse pixel grid, or None."""
+    h, w = frame.shape[:2]
+    s = COARSE_STEP_PX
+    half = radius_px * 1.4 + search_px
+    u0 = max(int(guess_uv[0] - half), 0)
+    v0 = max(int(guess_uv[1] - half), 0)
+    u1 = min(int(guess_uv[0] + half) + 1, w)
+    v1 = min(int(guess_uv[1] + half) + 1, h)
+    if u1 - u0 < 8 * s or v1 - v0 < 8 * s:
+        return None
+    val, _ = _brightness(frame[v0:v1:s, u0:u1:s], gains)
+    found = _dark_blob(val, (guess_uv - (u0, v0)) / s, radius_px / s, 1)
+    if isinstance(found, str):
+        return None
+    return found[0] * s + (u0, v0)
 
 
 def ellipse_centre(pts: np.ndarray) -> TipMeasurement:
@@ -282,10 +331,14 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
         model_r = np.interp(np.arctan2(d[:, 1], d[:, 0]), ang_r, rad_r, period=2 * np.pi)
         res = rho - model_r
         a = np.column_stack([u, np.ones(len(u))]) if FIT_EDGE_OFFSET else u
-        sol, *_ = np.linalg.lstsq(a, res, rcond=None)
-        bad = np.abs(res - a @ sol) > OUTLIER_PX
-        if bad.any() and (~bad).sum() >= MIN_RIM_RAYS:
-            sol, *_ = np.linalg.lstsq(a[~bad], res[~bad], rcond=None)
+        try:
+            sol = np.linalg.solve(a.T @ a, a.T @ res)
+            bad = np.abs(res - a @ sol) > OUTLIER_PX
+            if bad.any() and (~bad).sum() >= MIN_RIM_RAYS:
+                a, res = a[~bad], res[~bad]
+                sol = np.linalg.solve(a.T @ a, a.T @ res)
+        except np.linalg.LinAlgError:
+            return None, math.nan
         t = t + sol[:2]
         if np.abs(sol[:2]).max() < RIM_FIT_TOL_PX:
             break
