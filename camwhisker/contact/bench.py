@@ -5,6 +5,8 @@ runs the pause-level pipeline on the runs of one experiment kind and attaches
 the truth; :func:`summary` computes the numbers of issue #4 (RMSE and bias of
 GM, MF and fused estimates, AUC and flag rates of both Z scores);
 :func:`benchmark` times the vectorised core and prints samples/s beside the error.
+:func:`run_bench` does all of it at each noise level of
+:data:`~camwhisker.mechanics.experiment.NOISE_LEVELS` (the paper's, our front end's).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from camwhisker.calibrate import CalibrationRun, calibrate
 from camwhisker.contact.pipeline import Calibration, analyse_run, estimate, pause_estimates
 from camwhisker.contact.shape import reconstruct
 from camwhisker.contact.zscore import flag_rates, roc_auc
-from camwhisker.mechanics.experiment import simulate_runs
+from camwhisker.mechanics.experiment import NOISE_LEVELS, simulate_runs
 from camwhisker.stage import stage_log_from_arrays
 
 __all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_kind", "summary", "benchmark",
@@ -117,25 +119,37 @@ def benchmark(calib: Calibration, n: int = 100_000, repeats: int = 5, seed: int 
 
 
 def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
-              n_timing: int = 100_000) -> dict:
-    """Calibrate (unless given) on rigid runs of ``seed``, evaluate all kinds on ``seed + 1``.
+              n_timing: int = 100_000, noise_levels: dict | None = None) -> dict:
+    """Calibrate on rigid runs of ``seed``, evaluate all kinds on ``seed + 1``, per noise level.
 
-    Returns {"summaries": {kind: summary}, "pooled": summary, "timing": benchmark,
-    "calib": Calibration}. With ``figures_dir``, writes fig8_errors.png and
-    fig9_shapes.png there.
+    Each level of ``noise_levels`` (default :data:`~camwhisker.mechanics.experiment.NOISE_LEVELS`:
+    the paper's noise and our front end's) gets its own calibration (unless
+    ``calib`` is given) and evaluation, as a sensor with that noise would.
+
+    Returns {"levels": {level: {"noise", "summaries", "calib", "evaluations"}},
+    "timing": benchmark}. With ``figures_dir``, writes fig8_errors.png and
+    fig9_shapes.png (first level) there.
     """
-    calib = calib or calibrate_simulated(seed)
-    evs = {k: evaluate_kind(calib, k, seed + 1) for k in EVAL_KINDS}
-    pooled = {k: np.concatenate([e[k] for e in evs.values()]) for k in evs["rigid"]}
-    out = {"summaries": {k: summary(e) for k, e in evs.items()}, "pooled": summary(pooled),
-           "timing": benchmark(calib, n=n_timing), "calib": calib, "evaluations": evs}
+    levels = noise_levels or NOISE_LEVELS
+    out = {"levels": {}}
+    for name, noise in levels.items():
+        cal = calib or calibrate_simulated(seed, noise=noise)
+        evs = {k: evaluate_kind(cal, k, seed + 1, noise=noise) for k in EVAL_KINDS}
+        out["levels"][name] = {"noise": noise, "summaries": {k: summary(e) for k, e in evs.items()},
+                               "calib": cal, "evaluations": evs}
+    first = next(iter(out["levels"].values()))
+    out["timing"] = benchmark(first["calib"], n=n_timing)
     if figures_dir is not None:
         from pathlib import Path
 
         from camwhisker.contact.plots import plot_error_boxes, plot_shapes
         from camwhisker.mechanics.experiment import _scenes
 
-        how = f"simulated, calibration seed {seed}, evaluation seed {seed + 1}"
+        name = next(iter(out["levels"]))
+        noise = first["noise"]
+        evs = first["evaluations"]
+        how = (f"simulated, {name} noise (phi {noise.phi_deg} deg, dz {noise.dz_mm} mm), "
+               f"calibration seed {seed}, evaluation seed {seed + 1}")
         d = Path(figures_dir)
         plot_error_boxes({k: evs[k] for k in ("rigid", "compliant")}, d / "fig8_errors.png",
                          "Fig. 8: " + how)
@@ -146,29 +160,35 @@ def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
 
 
 def format_report(result: dict) -> str:
-    """Error and speed side by side, one line per contact kind plus the pooled scores."""
+    """Error and speed side by side: per noise level, one line per contact kind."""
     t = result["timing"]
     lines = [f"back end: {t['samples_per_s']:,.0f} samples/s ({t['us_per_sample']:.2f} us/sample,"
-             f" {t['samples']} samples, vectorised estimate())",
-             f"{'kind':<13}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
-             f"{'bad':>5}{'Z11 AUC':>9}{'Z11 hit':>8}{'Z11 ff':>7}{'Zc AUC':>8}{'Zc hit':>7}"
-             f"{'Zc ff':>6}{'Pb AUC':>8}{'Pb hit':>7}{'Pb ff':>6}"]
-    rows = dict(result["summaries"])
-    rows["pooled"] = result["pooled"]
-    for kind, s in rows.items():
-        lines.append(
-            f"{kind:<13}{s['n']:>5}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
-            f"{s['mf_rmse_mm']:>9.2f}{s['fused_rmse_mm']:>8.2f}{s['n_bad']:>5}"
-            f"{s['z_score_auc']:>9.3f}{s['z_score_hit']:>8.2f}{s['z_score_false']:>7.2f}"
-            f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}{s['z_combined_false']:>6.2f}"
-            f"{s['p_bad_auc']:>8.3f}{s['p_bad_hit']:>7.2f}{s['p_bad_false']:>6.2f}")
-    lines.append("errors in mm (r - r_hat, pause medians); bad: |GM error| > 15 mm; ff: false-flag"
-                 " rate at Z > 1 (paper: 0.26); Z11: eq. (11); Zc: combined spread;"
-                 " Pb: fusion's P(GM failed) > 0.5")
-    calib = result["calib"]
-    lines.append("calibration (rigid), Table II style: phi bin  n  mu_GM sigma_GM  mu_MF sigma_MF"
-                 f"  [GM model: {calib.gm.kind}]")
-    for g, m in zip(calib.gm_spread.rows(), calib.mf_spread.rows(), strict=True):
-        lines.append(f"  {g[0]:4.1f}-{g[1]:<4.1f} {g[2]:>4d} {g[3]:6.2f} {g[4]:6.2f}  "
-                     f"{m[3]:6.2f} {m[4]:6.2f}")
+             f" {t['samples']} samples, vectorised estimate())"]
+    for name, level in result["levels"].items():
+        noise = level["noise"]
+        lines.append("")
+        lines.append(f"noise level '{name}': phi {noise.phi_deg} deg, dz {noise.dz_mm} mm"
+                     " per frame")
+        lines.append(f"{'kind':<13}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
+                     f"{'bad':>5}{'Z11 AUC':>9}{'Z11 hit':>8}{'Z11 ff':>7}{'Zc AUC':>8}"
+                     f"{'Zc hit':>7}{'Zc ff':>6}{'Pb AUC':>8}{'Pb hit':>7}{'Pb ff':>6}")
+        for kind, s in level["summaries"].items():
+            lines.append(
+                f"{kind:<13}{s['n']:>5}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
+                f"{s['mf_rmse_mm']:>9.2f}{s['fused_rmse_mm']:>8.2f}{s['n_bad']:>5}"
+                f"{s['z_score_auc']:>9.3f}{s['z_score_hit']:>8.2f}{s['z_score_false']:>7.2f}"
+                f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}"
+                f"{s['z_combined_false']:>6.2f}{s['p_bad_auc']:>8.3f}{s['p_bad_hit']:>7.2f}"
+                f"{s['p_bad_false']:>6.2f}")
+        calib = level["calib"]
+        lines.append("  calibration (rigid), Table II style: phi bin  n  mu_GM sigma_GM  mu_MF"
+                     f" sigma_MF  [GM model: {calib.gm.kind}]")
+        for g, m in zip(calib.gm_spread.rows(), calib.mf_spread.rows(), strict=True):
+            lines.append(f"    {g[0]:4.1f}-{g[1]:<4.1f} {g[2]:>4d} {g[3]:6.2f} {g[4]:6.2f}  "
+                         f"{m[3]:6.2f} {m[4]:6.2f}")
+    lines.append("")
+    lines.append("errors in mm (r - r_hat, pause medians); bad: |GM error| > 15 mm; hit / ff:"
+                 " share of bad / good samples flagged (Z > 1; Pb > 0.5); paper's ff: 0.26;"
+                 " Z11: eq. (11); Zc: combined spread; Pb: fusion's P(GM failed); nan: no bad"
+                 " samples in that scene")
     return "\n".join(lines)

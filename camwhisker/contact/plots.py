@@ -77,20 +77,35 @@ def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
 
 
 def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
-    """Reconstructed points (GM r, eq. 12) coloured by eq.-(11) Z, MF points grey, outline."""
+    """Fig. 9: reconstructed points (GM r, eq. 12) coloured by eq.-(11) Z, MF points grey.
+
+    The colour bands are the paper's reading of Z (< 0.5 expected, 0.5-1, > 1 probable
+    error); points where the simulated contact truly slips are ringed in black.
+    """
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    cmap = ListedColormap(["#2c7bb6", "#fdae61", "#d7191c"])
+    norm = BoundaryNorm([-1e9, 0.5, 1.0, 1e9], cmap.N)
     n = len(evaluations)
-    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 4.8), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 5.2), squeeze=False, layout="constrained")
     for ax, (kind, ev) in zip(axes[0], evaluations.items(), strict=True):
         ox, oy = outlines[kind]
         ax.plot(ox, oy, "k-", lw=1, label="true outline")
         ax.scatter(ev["mf_x_hat_mm"], ev["mf_y_hat_mm"], s=8, c="0.7", label="MF")
-        sc = ax.scatter(ev["gm_x_hat_mm"], ev["gm_y_hat_mm"], s=14,
-                        c=np.clip(np.abs(ev["z_score"]), 0, 3), cmap="autumn_r", vmin=0, vmax=3,
-                        label="GM (colour: |Z|)")
+        sc = ax.scatter(ev["gm_x_hat_mm"], ev["gm_y_hat_mm"], s=16, c=ev["z_score"], cmap=cmap,
+                        norm=norm, zorder=3)
+        for colour, band in zip(cmap.colors, ("Z < 0.5", "0.5 <= Z < 1", "Z >= 1"), strict=True):
+            ax.scatter([], [], s=16, c=colour, label=f"GM, {band}")
+        slip = np.asarray(ev["slipping"], bool) & np.isfinite(ev["gm_x_hat_mm"])
+        if slip.any():
+            ax.scatter(ev["gm_x_hat_mm"][slip], ev["gm_y_hat_mm"][slip], s=60,
+                       facecolors="none", edgecolors="k", lw=0.8, zorder=4,
+                       label="contact slipping (truth)")
         ax.set_aspect("equal")
         ax.set_title(kind)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.legend(loc="upper left", fontsize=7)
-        fig.colorbar(sc, ax=ax, label="|Z| (eq. 11), clipped at 3")
+        cb = fig.colorbar(sc, ax=ax, ticks=[0.5, 1.0], label="Z, eq. (11)")
+        cb.ax.set_yticklabels(["0.5", "1"])
     _save(fig, path, how or "shape reconstruction (Fig. 9)")

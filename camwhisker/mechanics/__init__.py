@@ -2,14 +2,18 @@
 
 - :mod:`~camwhisker.mechanics.whisker`: the tapered whisker on its spring base
   (small-deflection beam in closed form, elastica by shooting).
-- :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant), a box corner, a
-  circle; quasi-static sweeps of the base.
+- :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant); a tilted box and
+  a bottle with Coulomb friction (stick, then slip or snap-off); quasi-static
+  sweeps of the base.
 - :mod:`~camwhisker.mechanics.experiment`: stage runs with clocks, noise, truth.
 - :mod:`~camwhisker.mechanics.files`: writing runs to CSV files.
 """
 
 from camwhisker.mechanics.experiment import (
+    FRONT_END_NOISE,
     KINDS,
+    NOISE_LEVELS,
+    PAPER_NOISE,
     NoiseModel,
     StageProtocol,
     StageRun,
@@ -21,7 +25,10 @@ from camwhisker.mechanics.scenes import BoxScene, CircleScene, PegScene, sweep
 from camwhisker.mechanics.whisker import WhiskerMechanics, beam_peg_response, solve_elastica
 
 __all__ = [
+    "FRONT_END_NOISE",
     "KINDS",
+    "NOISE_LEVELS",
+    "PAPER_NOISE",
     "BoxScene",
     "CircleScene",
     "NoiseModel",

@@ -5,11 +5,14 @@ A scene is what the whisker touches while its base travels along +x:
 - :class:`PegScene`: a point peg at (x_mm, r_mm), rigid or on a spring (the
   compliant "pipe cleaner" of the paper). The object point stays fixed (or
   moves with its spring), so the GM assumption holds for the rigid peg.
-- :class:`BoxScene`: the lower-left corner of a box; the whisker pivots on
-  the corner (a rigid point contact) and the box outline is two rays.
+- :class:`BoxScene`: a tilted box; the whisker sticks at its lowest corner
+  (Coulomb friction), then slides up the face next to it with phi steady, so
+  the GM overestimates r more and more (the paper's Fig. 9 failure).
 - :class:`CircleScene`: a circular cross-section (a water bottle); the
-  whisker stays tangent to it, so the contact point slides along the circle as
-  the whisker turns: the GM's fixed-contact assumption fails more and more.
+  whisker sticks where it first touches it, and once the load leaves the
+  friction cone it snaps off (on a convex surface there is no steady slip).
+
+See :class:`_FrictionContact` for the contact model and its limits.
 
 :func:`sweep` solves one equilibrium per base position, continuing each solve
 from the last one.
@@ -35,6 +38,10 @@ __all__ = ["PegScene", "BoxScene", "CircleScene", "Sweep", "sweep", "SLIP_TOL_MM
 # The contact point counts as slipping once it has moved this far along the
 # object since first contact: a third of the paper's 3 mm GM precision.
 SLIP_TOL_MM = 1.0
+# Search step along the profile for the end of an unstable slide, and the
+# bisection that follows: 0.5 mm / 2^10 is far below the sensor's resolution.
+SLIP_SEARCH_MM = 0.5
+SLIP_BISECT_ITERATIONS = 10
 
 
 def _wrap(angle: float) -> float:
@@ -83,37 +90,195 @@ class PegScene:
         return (phi, phi * mech.length_mm / self.r_mm, math.pi + phi, self.r_mm / mech.length_mm)
 
 
-@dataclass(frozen=True)
-class BoxScene(PegScene):
-    """The lower-left corner (x_mm, r_mm) of a box that extends to +x and +y."""
+def _polyline_distance(x_mm, y_mm, xs, ys):
+    """Distance of points to a closed polyline through (xs, ys) (vertices, shape (V,))."""
+    x = np.asarray(x_mm, float)[..., None]
+    y = np.asarray(y_mm, float)[..., None]
+    ax, ay = np.asarray(xs, float), np.asarray(ys, float)
+    bx, by = np.roll(ax, -1), np.roll(ay, -1)
+    ex, ey = bx - ax, by - ay
+    t = np.clip(((x - ax) * ex + (y - ay) * ey) / (ex * ex + ey * ey), 0.0, 1.0)
+    return np.min(np.hypot(x - ax - t * ex, y - ay - t * ey), axis=-1)
 
+
+class _FrictionContact:
+    """Point contact with Coulomb friction on a 2D profile (shared by box and circle).
+
+    The contact is a point load that a point of the whisker puts on the object's
+    profile, normal to the whisker (the whisker slides freely along its own
+    length, as on a peg). With n_out the profile's outward normal and t the
+    direction in which the contact would slide (both at the contact point), the
+    load on the whisker is F = N n_out + T t.
+
+    - *Stick* while -T <= mu N (the load on the object lies in the friction
+      cone): the object point stays where it is, the whisker pivots on it like
+      on a rigid peg, and the GM's fixed-contact assumption holds.
+    - *Slip* once the stuck load would leave the cone: the contact point slides
+      along the profile with the load on the cone's edge, F || n_out - mu t.
+      Together with "F normal to the whisker" this fixes the whisker's slope at
+      the contact relative to the profile, so phi stops growing (it stabilises
+      or falls) while the base keeps travelling; the GM then overestimates r.
+
+    Modelling choice: the profile is taken as the locus of contact points; the
+    whisker's body away from the contact is not checked against the object. In
+    a 2D model a whisker side can only slide along a convex object while
+    tangent to it; this load-on-the-cone-edge model is a stand-in for the slip
+    of the real (3D) whisker that the paper reports in Fig. 9.
+    """
+
+    mu: float
+
+    def frame_at(self, x_mm: float, y_mm: float):
+        """(n_out, t_slide) unit vectors at the profile point nearest (x, y)."""
+        raise NotImplementedError
+
+    def signed_distance(self, x_mm: float, y_mm: float) -> float:
+        raise NotImplementedError
+
+    def on_profile(self, x_mm: float, y_mm: float) -> bool:
+        """Whether (x, y) lies on the part of the profile that the model covers."""
+        raise NotImplementedError
+
+    def arc_at(self, x_mm: float, y_mm: float) -> float:
+        """Position (mm) along the profile, increasing in the sliding direction."""
+        raise NotImplementedError
+
+    def point_at(self, arc_mm: float):
+        raise NotImplementedError
+
+    def cone_ratio(self, force_angle_rad: float, x_mm: float, y_mm: float) -> float:
+        """-T / N of a load on the whisker at angle alpha (inf when it does not push)."""
+        (nx, ny), (tx, ty) = self.frame_at(x_mm, y_mm)
+        fx, fy = math.cos(force_angle_rad), math.sin(force_angle_rad)
+        normal = fx * nx + fy * ny
+        if normal <= 0.0:
+            return math.inf
+        return -(fx * tx + fy * ty) / normal
+
+    def slip_constraint(self, mech: WhiskerMechanics):
+        length = mech.length_mm
+        mu = self.mu
+
+        def residuals(st, u):
+            (nx, ny), (tx, ty) = self.frame_at(st["xc"], st["yc"])
+            edge = math.atan2(ny - mu * ty, nx - mu * tx)  # load on the cone's edge
+            return (
+                self.signed_distance(st["xc"], st["yc"]) / length,
+                _wrap(u[2] - (st["bc"] + 0.5 * math.pi)),  # normal to the whisker
+                _wrap(u[2] - edge),
+            )
+
+        return residuals
+
+
+@dataclass(frozen=True)
+class BoxScene(_FrictionContact):
+    """A box, tilted so that its face next to the lowest corner rises at ``face_angle_deg``.
+
+    The whisker (travelling in +x) first meets the box at the corner
+    (corner_x_mm, corner_y_mm), where it sticks; once the load leaves the
+    friction cone of the face it slides up that face (an L-shaped cross-section
+    seen edge-on, like the paper's box). Sides: ``face_length_mm`` along the
+    face, ``depth_mm`` along the bottom.
+    """
+
+    corner_x_mm: float
+    corner_y_mm: float
+    face_angle_deg: float = 75.0
+    mu: float = 0.4
+    face_length_mm: float = 60.0
+    depth_mm: float = 40.0
     kind: str = field(default="box", init=False)
 
-    def profile_distance(self, x_mm, y_mm):
-        # Distance to the outline: the left face (x = x0, y >= y0) and the
-        # bottom face (y = y0, x >= x0).
-        x = np.asarray(x_mm, float) - self.x_mm
-        y = np.asarray(y_mm, float) - self.r_mm
-        d_left = np.hypot(x, np.minimum(y, 0.0))
-        d_bottom = np.hypot(np.minimum(x, 0.0), y)
-        return np.minimum(d_left, d_bottom)
+    @property
+    def _d(self):
+        a = math.radians(self.face_angle_deg)
+        return math.cos(a), math.sin(a)
 
-    def outline(self, extent_mm: float = 60.0):
-        return (np.array([self.x_mm, self.x_mm, self.x_mm + extent_mm]),
-                np.array([self.r_mm + extent_mm, self.r_mm, self.r_mm]))
+    def first_contact_x(self, mech: WhiskerMechanics) -> float:
+        return self.corner_x_mm
+
+    def first_point(self):
+        return self.corner_x_mm, self.corner_y_mm
+
+    def frame_at(self, x_mm, y_mm):
+        dx, dy = self._d
+        return (-dy, dx), (dx, dy)
+
+    def signed_distance(self, x_mm, y_mm):
+        (nx, ny), _ = self.frame_at(x_mm, y_mm)
+        return (x_mm - self.corner_x_mm) * nx + (y_mm - self.corner_y_mm) * ny
+
+    def arc_at(self, x_mm, y_mm) -> float:
+        """Distance (mm) along the face from the corner to the foot of (x, y)."""
+        dx, dy = self._d
+        return (x_mm - self.corner_x_mm) * dx + (y_mm - self.corner_y_mm) * dy
+
+    def point_at(self, arc_mm: float):
+        dx, dy = self._d
+        return self.corner_x_mm + arc_mm * dx, self.corner_y_mm + arc_mm * dy
+
+    def on_profile(self, x_mm, y_mm):
+        return -1e-6 <= self.arc_at(x_mm, y_mm) <= self.face_length_mm
+
+    def outline(self):
+        """Closed outline (x_mm, y_mm) of the box: corner, up the face, across, down."""
+        dx, dy = self._d
+        ex, ey = dy, -dx  # along the bottom, into the box
+        c = np.array([self.corner_x_mm, self.corner_y_mm])
+        pts = [c, c + self.face_length_mm * np.array([dx, dy]),
+               c + self.face_length_mm * np.array([dx, dy]) + self.depth_mm * np.array([ex, ey]),
+               c + self.depth_mm * np.array([ex, ey]), c]
+        pts = np.array(pts)
+        return pts[:, 0], pts[:, 1]
+
+    def profile_distance(self, x_mm, y_mm):
+        ox, oy = self.outline()
+        return _polyline_distance(x_mm, y_mm, ox[:-1], oy[:-1])
 
 
 @dataclass(frozen=True)
-class CircleScene:
-    """A circle of ``radius_mm`` centred at (center_x_mm, center_y_mm)."""
+class CircleScene(_FrictionContact):
+    """A circle of ``radius_mm`` centred at (center_x_mm, center_y_mm): a water bottle.
+
+    First contact is at the circle's leftmost point; once the load leaves the
+    friction cone the contact slides up and over the bottle (clockwise), where
+    the surface turns toward the direction of travel, as in the paper's Fig. 9.
+    """
 
     center_x_mm: float
     center_y_mm: float
     radius_mm: float
+    mu: float = 0.4
     kind: str = field(default="circle", init=False)
 
     def first_contact_x(self, mech: WhiskerMechanics) -> float:
         return self.center_x_mm - self.radius_mm
+
+    def first_point(self):
+        return self.center_x_mm - self.radius_mm, self.center_y_mm
+
+    def frame_at(self, x_mm, y_mm):
+        a = math.atan2(y_mm - self.center_y_mm, x_mm - self.center_x_mm)
+        c, s = math.cos(a), math.sin(a)
+        return (c, s), (s, -c)  # outward normal; clockwise tangent (up the left side)
+
+    def signed_distance(self, x_mm, y_mm):
+        return math.hypot(x_mm - self.center_x_mm, y_mm - self.center_y_mm) - self.radius_mm
+
+    def arc_at(self, x_mm, y_mm) -> float:
+        """Arc length (mm) clockwise from the leftmost point to the direction of (x, y)."""
+        a = math.atan2(y_mm - self.center_y_mm, x_mm - self.center_x_mm)
+        return self.radius_mm * (math.pi - (a if a > -0.5 * math.pi else a + 2.0 * math.pi))
+
+    def point_at(self, arc_mm: float):
+        a = math.pi - arc_mm / self.radius_mm
+        return (self.center_x_mm + self.radius_mm * math.cos(a),
+                self.center_y_mm + self.radius_mm * math.sin(a))
+
+    def on_profile(self, x_mm, y_mm):
+        # The upper-left quarter, from the leftmost point to the top.
+        return -1e-6 <= self.arc_at(x_mm, y_mm) <= 0.5 * math.pi * self.radius_mm
 
     def profile_distance(self, x_mm, y_mm):
         d = np.hypot(np.asarray(x_mm) - self.center_x_mm, np.asarray(y_mm) - self.center_y_mm)
@@ -123,29 +288,6 @@ class CircleScene:
         a = np.linspace(0.0, 2.0 * np.pi, n)
         return (self.center_x_mm + self.radius_mm * np.cos(a),
                 self.center_y_mm + self.radius_mm * np.sin(a))
-
-    def constraint(self, mech: WhiskerMechanics):
-        length = mech.length_mm
-        cx, cy, rad = self.center_x_mm, self.center_y_mm, self.radius_mm
-
-        def residuals(st, u):
-            ex, ey = st["xc"] - cx, st["yc"] - cy
-            return (
-                (math.hypot(ex, ey) - rad) / length,
-                (ex * math.cos(st["bc"]) + ey * math.sin(st["bc"])) / length,  # tangent
-                _wrap(u[2] - (st["bc"] + 0.5 * math.pi)),
-            )
-
-        return residuals
-
-    def guess(self, mech: WhiskerMechanics, base_x_mm: float):
-        # A straight whisker from the base tangent to the circle's left side.
-        dxc, dyc = self.center_x_mm - base_x_mm, self.center_y_mm
-        d = math.hypot(dxc, dyc)
-        beta = math.atan2(dyc, dxc) + math.asin(min(self.radius_mm / d, 1.0))
-        phi = beta - 0.5 * math.pi
-        t = math.sqrt(max(d * d - self.radius_mm**2, 1e-6))
-        return (phi, max(phi, 1e-4) * mech.length_mm / t, beta + 0.5 * math.pi, t / mech.length_mm)
 
 
 @dataclass(frozen=True)
@@ -163,6 +305,121 @@ class Sweep:
     force_n: np.ndarray
     slipping: np.ndarray
     elastica: np.ndarray
+    sliding: np.ndarray | None = None  # friction scenes: the contact slid at this step
+
+
+def _solve(mech, xb, constraint, guesses):
+    """Solve from the first guess that converges; re-raise the last failure."""
+    err = None
+    for g in guesses:
+        if g is None:
+            continue
+        try:
+            return solve_elastica(mech, xb, constraint, g)
+        except ElasticaError as exc:
+            err = exc
+    raise err
+
+
+def _stuck(scene, mech, xb, point, guesses):
+    """The whisker held at an object point (a rigid peg there) and its -T / N ratio."""
+    peg = PegScene(point[1], point[0])
+    try:
+        sol = _solve(mech, xb, peg.constraint(mech), (*guesses, peg.guess(mech, xb)))
+    except ElasticaError:
+        return None, math.inf
+    return sol, scene.cone_ratio(sol.unknowns[2], *point)
+
+
+def _stick_or_slip(scene, mech, xb, anchor, slip_c, prev):
+    """Equilibrium at base position xb from the contact's current object point.
+
+    Returns (solution or None if contact is lost, slid). Slip is solved with the
+    load on the cone's edge; a solution that moved against the sliding
+    direction (or none) means the cone-edge state is unstable there, and the
+    contact is followed along the profile in steps of :data:`SLIP_SEARCH_MM`
+    to the first point where it can stick again (the quasi-static end of a
+    fast slide); with none on the profile, contact is lost (the whisker snaps
+    off the object).
+    """
+    guess = prev.unknowns if prev is not None else None
+    sol, ratio = _stuck(scene, mech, xb, anchor, (guess,))
+    if sol is not None and ratio <= scene.mu:
+        return sol, False
+    q0 = scene.arc_at(*anchor)
+    try:
+        slip = _solve(mech, xb, slip_c, (sol.unknowns if sol else None, guess))
+        if scene.arc_at(*slip.contact_xy_mm) >= q0 - 1e-6:
+            return slip, True
+    except ElasticaError:
+        pass
+    # Follow the profile to where the load is back inside the cone.
+    q_prev, last = q0, sol
+    q = q0 + SLIP_SEARCH_MM
+    while scene.on_profile(*scene.point_at(q)):
+        cand, r = _stuck(scene, mech, xb, scene.point_at(q), (last.unknowns if last else None,))
+        if cand is None:
+            return None, True
+        if r <= scene.mu:
+            lo, hi, best = q_prev, q, cand
+            for _ in range(SLIP_BISECT_ITERATIONS):
+                mid = 0.5 * (lo + hi)
+                c2, r2 = _stuck(scene, mech, xb, scene.point_at(mid), (best.unknowns,))
+                if c2 is not None and r2 <= scene.mu:
+                    hi, best = mid, c2
+                else:
+                    lo = mid
+            return best, True
+        q_prev, last = q, cand
+        q += SLIP_SEARCH_MM
+    return None, True
+
+
+def _sweep_friction(scene, mech: WhiskerMechanics, xs: np.ndarray) -> Sweep:
+    """Quasi-static stick / slip sweep of a friction scene (see :class:`_FrictionContact`).
+
+    At each base position the contact is first held at its current object
+    point (stick, a rigid peg there). If that load lies outside the friction
+    cone, the contact slides instead (load on the cone's edge). Contact ends
+    (NaN from there on) when it leaves the modelled profile or the whisker, or
+    the load stops pushing.
+    """
+    n = xs.size
+    out = {k: np.full(n, np.nan) for k in ("phi", "dz", "r", "s", "cx", "cy", "f")}
+    in_contact = np.zeros(n, bool)
+    sliding = np.zeros(n, bool)
+    x_first = scene.first_contact_x(mech)
+    first = scene.first_point()
+    anchor = first
+    slip_c = scene.slip_constraint(mech)
+    prev = None
+    lost = False
+    for i, xb in enumerate(xs):
+        if xb - x_first <= 0.0:
+            out["phi"][i] = out["dz"][i] = 0.0
+            continue
+        if lost:
+            continue
+        sol, slid = _stick_or_slip(scene, mech, xb, anchor, slip_c, prev)
+        if (sol is None or sol.s_contact_mm > mech.length_mm or sol.force_n <= 0.0
+                or not scene.on_profile(*sol.contact_xy_mm)):
+            out["phi"][i] = out["dz"][i] = np.nan
+            lost = True
+            continue
+        prev = sol
+        anchor = sol.contact_xy_mm
+        in_contact[i] = True
+        sliding[i] = slid
+        out["phi"][i], out["dz"][i], out["f"][i] = sol.phi_deg, sol.dz_mm, sol.force_n
+        out["cx"][i], out["cy"][i] = sol.contact_xy_mm
+        out["r"][i], out["s"][i] = sol.r_mm, sol.s_contact_mm
+    moved = np.hypot(out["cx"] - first[0], out["cy"] - first[1])
+    slipping = np.where(in_contact, moved > SLIP_TOL_MM, False)
+    return Sweep(
+        base_x_mm=xs, in_contact=in_contact, phi_deg=out["phi"], dz_mm=out["dz"],
+        r_mm=out["r"], s_contact_mm=out["s"], contact_x_mm=out["cx"], contact_y_mm=out["cy"],
+        force_n=out["f"], slipping=slipping, elastica=in_contact.copy(), sliding=sliding,
+    )
 
 
 def sweep(scene, mech: WhiskerMechanics, base_x_mm, model: str = "auto") -> Sweep:
@@ -187,6 +444,10 @@ def sweep(scene, mech: WhiskerMechanics, base_x_mm, model: str = "auto") -> Swee
     if model not in ("auto", "beam", "elastica"):
         raise ValueError(f"model must be 'auto', 'beam' or 'elastica', got {model!r}")
     xs = np.asarray(base_x_mm, dtype=float)
+    if isinstance(scene, _FrictionContact):
+        if model == "beam":
+            raise ValueError("the beam model only covers peg contact; use the elastica")
+        return _sweep_friction(scene, mech, xs)
     n = xs.size
     out = {k: np.full(n, np.nan) for k in ("phi", "dz", "r", "s", "cx", "cy", "f")}
     in_contact = np.zeros(n, bool)
