@@ -74,9 +74,10 @@ UPDATE_EPS_PX = 0.5
 #: the rod and the cross hide up to 6 corners, so more would flag good rows.
 MIN_CORNERS = 4
 MAX_RMS_PX = 0.6
-#: Search radius for the tip around its predicted position (px), and the margin
+#: Search radius for the tip around its predicted positions (px; it moves < 3 px
+#: between frames at 30 fps on a hold, more on a sweep, which the velocity covers), and the margin
 #: of the corners' region for the updated-template LK (px).
-TIP_SEARCH_PX = 40.0
+TIP_SEARCH_PX = 20.0
 REGION_MARGIN_PX = 40
 #: The corners' spread grows by up to ~8% (dz = 1 mm brings them 4% closer; a tilt
 #: spreads the near side): the region is this much larger than at rest.
@@ -90,11 +91,17 @@ CLOTH_EXCLUDE_FACTOR = 1.3
 TIP_WEIGHT = 4.0
 #: Passes of the rest frame's tip measurement (each re-centres its window).
 REST_TIP_PASSES = 3
+#: Warped templates are reused while the pose moves less than this (dz mm, a and b
+#: rad, shift mm): 0.002 mm and 0.005 deg deform a 25 px patch by < 0.003 px.
+TEMPLATE_REUSE = np.array([0.002, 1e-4, 1e-4, 0.002, 0.002])
 #: LK patches carry this many pixels around the window for the corner to move in
 #: while converging (the prediction from the tip is within ~1 px on holds).
 REFINE_MARGIN_PX = 10
-#: The tip is measured again at the fitted pose when dz or the shift moved this much.
-RIM_REFIT_MM = 1e-3
+#: The tip is measured again at the fitted pose when dz or the shift moved this
+#: much since the guess: 0.01 mm changes the rim's radius by 0.02 px.
+RIM_REFIT_MM = 0.01
+#: ... or the tilt by this (rad, 0.06 deg: < 0.02 px of rim radius at 30 deg).
+RIM_REFIT_RAD = 1e-3
 #: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
 TILT_TOL_RAD = 1e-5
 TILT_MAX_ITER = 8
@@ -268,13 +275,17 @@ class FrontEnd:
             return self._fail("features lost; re-detection failed")
         opts = self.options
         gains = self._gains(frame)
-        q_pred = self._predict()
+        q_pred, q_moving = self._predict()
 
-        # Tip, then a first tilt guess from the tip alone.
+        # Tip, then a first tilt guess from the tip alone. The window spans where
+        # the tip would be if it stood still and if it kept moving.
         uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
         radius = math.sqrt(_area(rim) / math.pi)
-        tip_guess = uv_pred[TIP] + self.offsets[TIP]
-        edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX)
+        tip_still = uv_pred[TIP] + self.offsets[TIP]
+        tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
+        tip_guess = (tip_still + tip_moving) / 2
+        span = float(np.hypot(*(tip_moving - tip_still))) / 2
+        edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
         if edges is None:  # search all the tip can reach, around its rest position
             edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
         q_guess = q_pred.copy()
@@ -401,8 +412,12 @@ class FrontEnd:
             scale = cloth_level(frame, *self._cloth, gains) / self.cloth_rest
         return unmixed_maps(frame[v0 : v0 + h, u0 : u0 + w], self.weights, gains, scale)
 
-    def _predict(self) -> np.ndarray:
-        return self._q_hist[-1].copy()
+    def _predict(self) -> tuple[np.ndarray, np.ndarray]:
+        """The last pose, and the last pose moved on at the last velocity."""
+        last = self._q_hist[-1].copy()
+        if len(self._q_hist) < 2:
+            return last, last
+        return last, 2 * last - self._q_hist[-2]
 
     def _tmpl_img_missing(self) -> np.ndarray:
         return np.array([t is None for t in self._tmpl_img])
@@ -537,7 +552,16 @@ class FrontEnd:
         return cloth_level(frame, *self._cloth, gains) / self.cloth_rest
 
     def _templates(self, q):
-        """Rest patches warped to pose q, shape (12, n, n)."""
+        """Rest patches warped to pose q, shape (12, n, n); reused while q stays
+        within TEMPLATE_REUSE of the pose they were warped for."""
+        cached = getattr(self, "_tmpl_cache", None)
+        if cached is not None and np.all(np.abs(cached[0] - q) <= TEMPLATE_REUSE):
+            return cached[1]
+        out = self._warp_templates(q)
+        self._tmpl_cache = (np.array(q, float), out)
+        return out
+
+    def _warp_templates(self, q):
         d0 = self.model.edge_directions(np.zeros(5), step_mm=0.05)
         d1 = self.model.edge_directions(q, step_mm=0.05)
         # A maps rest-image directions to current-image directions: A d0 = d1.
@@ -639,9 +663,9 @@ class _Template:
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
-    """Whether dz or the shift changed enough to reshape the tip's model rim
-    (1e-3 mm: ~0.002 px of rim radius)."""
-    return bool(np.abs(q1[[0, 3, 4]] - q0[[0, 3, 4]]).max() > RIM_REFIT_MM)
+    """Whether the pose changed enough to reshape the tip's model rim."""
+    d = np.abs(np.asarray(q1) - q0)
+    return bool(d[[0, 3, 4]].max() > RIM_REFIT_MM or d[1:3].max() > RIM_REFIT_RAD)
 
 
 def _area(uv: np.ndarray) -> float:
