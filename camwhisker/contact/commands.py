@@ -121,14 +121,24 @@ def _run_bench(args) -> int:
 
 def add_commands(sub, error_cls) -> None:
     """Register the contact back end's subcommands on an argparse subparsers object."""
-    from camwhisker.mechanics.experiment import KINDS
+    from camwhisker.mechanics.experiment import (
+        FRONT_END_NOISE_DZ_MM,
+        FRONT_END_NOISE_PHI_DEG,
+        KINDS,
+        PAPER_NOISE_DZ_MM,
+        PAPER_NOISE_PHI_DEG,
+    )
 
     p = sub.add_parser("simulate-stage", help="simulate a stage experiment (mechanics) to files")
     p.add_argument("--kind", required=True, choices=KINDS)
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--noise-phi-deg", type=float, default=0.22, help="per-frame phi noise")
-    p.add_argument("--noise-dz-mm", type=float, default=0.04, help="per-frame dz noise")
+    p.add_argument("--noise-phi-deg", type=float, default=PAPER_NOISE_PHI_DEG,
+                   help=f"per-frame phi noise (default: the paper's; our front end's target: "
+                        f"{FRONT_END_NOISE_PHI_DEG})")
+    p.add_argument("--noise-dz-mm", type=float, default=PAPER_NOISE_DZ_MM,
+                   help=f"per-frame dz noise (default: the paper's; our front end's target: "
+                        f"{FRONT_END_NOISE_DZ_MM})")
     p.add_argument("--sensor", metavar="FILE", help="sensor file (whisker length)")
     p.set_defaults(func=_guard(_run_simulate, error_cls))
 
@@ -152,7 +162,8 @@ def add_commands(sub, error_cls) -> None:
     p.set_defaults(func=_guard(_run_contact, error_cls))
 
     p = sub.add_parser("contact-bench",
-                       help="speed and error of the contact back end on simulated runs")
+                       help="speed and error of the contact back end on simulated runs, "
+                            "at the paper's noise and at our front end's")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--samples", type=int, default=100_000, help="samples for the timing")
     p.add_argument("--figures", metavar="DIR", help="write Fig. 8 and Fig. 9 style PNGs here")
