@@ -186,3 +186,18 @@ def test_wrong_frame_size_is_refused(nominal):
     _, sensor, frames, _ = nominal
     with pytest.raises(ValueError, match="sensor file says"):
         FrontEnd(sensor).start(frames[0][:700])
+
+
+def test_locked_gains_track_as_well_on_a_steady_cast(nominal):
+    sc, sensor, frames, results = nominal
+    locked = list(track(frames, sensor, FrontEndOptions(lock_gains=True)))
+    phi_rmse, dz_rmse, _, ok = _errors(sc, locked)
+    # The nominal cast drifts by 2% over 20 s; over 16 frames the rest gains still fit.
+    assert ok == 1.0 and phi_rmse <= 0.05 and dz_rmse <= 0.02
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="mode"):
+        FrontEndOptions(mode="fast")
+    with pytest.raises(ValueError, match="updated_template"):
+        FrontEndOptions(updated_template="sometimes")
