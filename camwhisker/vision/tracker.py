@@ -102,6 +102,9 @@ REFINE_MARGIN_PX = 10
 RIM_REFIT_MM = 0.01
 #: ... or the tilt by this (rad, 0.06 deg: < 0.02 px of rim radius at 30 deg).
 RIM_REFIT_RAD = 1e-3
+#: A prediction whose tip lies within this of the edge points' mean (px) places
+#: the model's rim directly (its shape changes by < 0.01 px over that distance).
+PREDICTION_OK_PX = 3.0
 #: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
 TILT_TOL_RAD = 1e-5
 TILT_MAX_ITER = 8
@@ -291,13 +294,19 @@ class FrontEnd:
         q_guess = q_pred.copy()
         tip = None
         if edges is not None:
-            rough = ellipse_centre(edges)
-            if rough.ok:
-                q_guess = self._tilt_from_tip(q_pred, rough.centre_uv)
-                tip = self._tip_at(edges, q_guess)
+            # Place the model's rim at the prediction the tip came closest to; when
+            # neither is close, first at a tilt solved from an ellipse's centre.
+            middle = edges.mean(axis=0)
+            near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
+            q0, tip0 = (q_moving, tip_moving) if near_moving else (q_pred, tip_still)
+            if np.hypot(*(middle - tip0)) > PREDICTION_OK_PX:
+                rough = ellipse_centre(edges)
+                why = why or rough.reason
+                q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
+            if q0 is not None:
+                tip = self._tip_at(edges, q0)
                 if tip.ok:
-                    q_guess = self._tilt_from_tip(q_guess, tip.centre_uv)
-            why = why or rough.reason
+                    q_guess = self._tilt_from_tip(q0, tip.centre_uv)
         if tip is None:
             tip = TipMeasurement(np.full(2, np.nan), math.nan, False, why)
 
