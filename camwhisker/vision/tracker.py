@@ -102,8 +102,8 @@ REFINE_MARGIN_PX = 10
 RIM_REFIT_MM = 0.01
 #: ... or the tilt by this (rad, 0.06 deg: < 0.02 px of rim radius at 30 deg).
 RIM_REFIT_RAD = 1e-3
-#: A prediction whose tip lies within this of the edge points' mean (px) places
-#: the model's rim directly (its shape changes by < 0.01 px over that distance).
+#: The model's rim placed at a prediction is kept when the tip it finds lies within
+#: this of the predicted tip (px): the rim's shape changes by < 0.01 px over it.
 PREDICTION_OK_PX = 3.0
 #: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
 TILT_TOL_RAD = 1e-5
@@ -299,14 +299,14 @@ class FrontEnd:
             middle = edges.mean(axis=0)
             near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
             q0, tip0 = (q_moving, tip_moving) if near_moving else (q_pred, tip_still)
-            if np.hypot(*(middle - tip0)) > PREDICTION_OK_PX:
+            tip = self._tip_at(edges, q0)
+            if not (tip.ok and np.hypot(*(tip.centre_uv - tip0)) <= PREDICTION_OK_PX):
                 rough = ellipse_centre(edges)
                 why = why or rough.reason
                 q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
-            if q0 is not None:
-                tip = self._tip_at(edges, q0)
-                if tip.ok:
-                    q_guess = self._tilt_from_tip(q0, tip.centre_uv)
+                tip = None if q0 is None else self._tip_at(edges, q0)
+            if tip is not None and tip.ok:
+                q_guess = self._tilt_from_tip(q0, tip.centre_uv)
         if tip is None:
             tip = TipMeasurement(np.full(2, np.nan), math.nan, False, why)
 
