@@ -214,11 +214,15 @@ def _dark_blob(val, guess_xy, radius_px, level_step):
     sub = val[::level_step, ::level_step] if level_step > 1 else val
     area_exp = math.pi * radius_px**2
     dark_pct = min(100.0 * DARK_AREA_FRACTION * area_exp / val.size, 50.0)
-    dark, bright = np.percentile(sub, [dark_pct, BRIGHT_PERCENTILE])
+    flat = sub.ravel()
+    k_dark = int(dark_pct / 100.0 * (flat.size - 1))
+    k_bright = int(BRIGHT_PERCENTILE / 100.0 * (flat.size - 1))
+    part = np.partition(flat, (k_dark, k_bright))
+    dark, bright = float(part[k_dark]), float(part[k_bright])
     if bright - dark <= 0:
         return "no contrast in the tip window"
     thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
-    mask = (val < thr).astype(np.uint8)
+    mask = cv2.threshold(val, thr, 1, cv2.THRESH_BINARY_INV)[1].astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n < 2:
         return "no dark blob near the expected tip"
