@@ -105,6 +105,10 @@ RIM_REFIT_RAD = 1e-3
 #: The model's rim placed at a prediction is kept when the tip it finds lies within
 #: this of the predicted tip (px): the rim's shape changes by < 0.01 px over it.
 PREDICTION_OK_PX = 3.0
+#: The second chances (re-prediction from the corners that locked, then the
+#: updated templates) run when fewer corners than this locked on the warped rest
+#: patches (a big jump); a corner or two lost to noise is not worth their ~2 ms.
+FALLBACK_BELOW = 8
 #: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
 TILT_TOL_RAD = 1e-5
 TILT_MAX_ITER = 8
@@ -323,7 +327,7 @@ class FrontEnd:
         uv_ref, qual = self._refine(frame, gains, tmpl, start_uv, ~occluded)
         retry = ~occluded & ~(qual >= QUALITY_MIN)
         locked = ~occluded & ~retry
-        if retry.any() and locked.sum() >= MIN_CORNERS and tip.ok:
+        if retry.any() and MIN_CORNERS <= locked.sum() < FALLBACK_BELOW and tip.ok:
             # Some corners were too far from the tip-only prediction (dz or the shift
             # moved): predict them again from a fit to the corners that locked.
             pre = np.full((TIP + 1, 2), np.nan)
@@ -336,7 +340,8 @@ class FrontEnd:
                 better = retry & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(qual, nan=-1))
                 uv_ref[better], qual[better] = uv_r[better], q_r[better]
                 retry = ~occluded & ~(qual >= QUALITY_MIN)
-        if opts.updated_template == "fallback" and retry.any():
+        locked = ~occluded & ~retry
+        if opts.updated_template == "fallback" and retry.any() and locked.sum() < FALLBACK_BELOW:
             # Too far from the prediction: track those corners from the previous
             # frame (the updated template) and correct them again.
             again, tracked_r = self._updated_step(frame, gains, uv_guess, retry)
