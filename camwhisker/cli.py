@@ -158,6 +158,123 @@ def _run_batch(args) -> int:
 # --- live processing -------------------------------------------------------------------------
 
 
+def _add_list_cameras(sub) -> None:
+    p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
+    p.add_argument("--all", action="store_true", help="also the nodes that cannot capture")
+    p.add_argument("--sysfs", default="/sys/class/video4linux", metavar="DIR",
+                   help="video4linux class folder (another tree for tests)")  # fmt: skip
+    p.add_argument("--dev", default="/dev", metavar="DIR", help="device folder (with v4l/by-id)")
+    p.set_defaults(func=_run_list_cameras)
+
+
+def _run_list_cameras(args) -> int:
+    from pathlib import Path
+
+    from camwhisker.live.cameras import format_camera_list, list_cameras
+
+    cameras = list_cameras(Path(args.sysfs), Path(args.dev), include_metadata=args.all)
+    print(format_camera_list(cameras))
+    return 0 if cameras else 1
+
+
+def _add_live(sub) -> None:
+    p = sub.add_parser("live", help="camera (or file at camera rate) -> signals within ms")
+    p.add_argument("source", nargs="?",
+                   help="camera index, /dev/videoN or by-id name; or a video / folder")  # fmt: skip
+    p.add_argument("--out", metavar="OUT.csv", help="signal table, flushed per row (+ OUT.json)")
+    p.add_argument("--mode", choices=("latest", "every"), default="latest",
+                   help="latest: drop stale frames (control); every: keep all")  # fmt: skip
+    p.add_argument("--record", metavar="SESSION.avi", help="record the frames (MJPG + timestamps)")
+    p.add_argument("--udp", type=int, metavar="PORT", help="one JSON datagram per frame")
+    p.add_argument("--udp-host", default="127.0.0.1", help="UDP destination (default: this host)")
+    p.add_argument("--jsonl", action="store_true", help="one JSON line per frame on stdout")
+    p.add_argument("--playback-fps", type=float, metavar="FPS",
+                   help="play a file at this rate, like a camera")  # fmt: skip
+    p.add_argument("--loop", action="store_true", help="loop a played-back file")
+    p.add_argument("--frames", type=int, metavar="N", help="stop after N rows (bench: clip length)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--no-keys", action="store_true", help="no r/d/q keys even on a terminal")
+    p.add_argument("--raw-mjpg", action="store_true", help="take the camera's JPEG bytes as sent")
+    p.add_argument("--no-lock", action="store_true",
+                   help="leave auto white balance and exposure as the camera has them")  # fmt: skip
+    p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
+    p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
+    p.add_argument("--mode-front", choices=("model", "paper"), default="model",
+                   help="front end: exact camera model or the paper's eqs. 2-7")  # fmt: skip
+    _sensor_arg(p)
+    p.set_defaults(func=_run_live)
+
+
+def _run_live(args) -> int:
+    import logging
+    import sys
+    from dataclasses import replace
+    from pathlib import Path
+
+    from camwhisker.live.cameras import C310_PROFILE
+    from camwhisker.live.capture import CaptureError, open_capture
+    from camwhisker.live.loop import LiveConfig, LiveSession
+    from camwhisker.sources import SourceError
+    from camwhisker.vision import FrontEndOptions
+
+    if args.bench:
+        from camwhisker.live.bench import run_bench
+
+        print(run_bench(args.frames or 150).text())
+        return 0
+    if not args.source or not args.out:
+        raise CommandError("live needs a SOURCE and --out (or --bench)")
+    logging.basicConfig(level=logging.INFO, format="camwhisker live: %(message)s")
+    profile = C310_PROFILE
+    if args.no_lock:
+        profile = replace(profile, auto_wb=None, auto_exposure=None)
+    if args.exposure is not None:
+        profile = replace(profile, exposure=args.exposure)
+    sensor = load_sensor(args.sensor)
+    try:
+        capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
+        if args.loop and hasattr(capture, "loop"):
+            capture.loop = True
+    except (CaptureError, SourceError) as exc:
+        raise CommandError(str(exc)) from exc
+    config = LiveConfig(
+        mode=args.mode, options=FrontEndOptions(args.mode_front),
+        record=Path(args.record) if args.record else None,
+        record_rate_fps=args.playback_fps or profile.fps,
+        udp_port=args.udp, udp_host=args.udp_host, jsonl=args.jsonl,
+        controls=False if args.no_keys else None, max_frames=args.frames,
+        duration_s=args.duration,
+    )  # fmt: skip
+    report = LiveSession(capture, sensor, args.out, config).run()
+    print(LiveSession.summary(report), file=sys.stderr)
+    for problem in report.problems:
+        print(f"camwhisker live: problem: {problem}", file=sys.stderr)
+    return 3 if report.grabber.get("lost") else 0
+
+
+def _add_replay(sub) -> None:
+    p = sub.add_parser("replay", help="a recorded live session -> its signal table again")
+    p.add_argument("session", help="SESSION.avi recorded by 'camwhisker live --record'")
+    p.add_argument("--out", required=True, metavar="OUT.csv")
+    p.add_argument("--mode-front", choices=("model", "paper"), default="model")
+    _sensor_arg(p)
+    p.set_defaults(func=_run_replay)
+
+
+def _run_replay(args) -> int:
+    from camwhisker.live.loop import reprocess_session
+    from camwhisker.sources import SourceError
+    from camwhisker.vision import FrontEndOptions
+
+    try:
+        out = reprocess_session(args.session, load_sensor(args.sensor), args.out,
+                                FrontEndOptions(args.mode_front))  # fmt: skip
+    except (SourceError, ValueError) as exc:
+        raise CommandError(str(exc)) from exc
+    print(out)
+    return 0
+
+
 # --- contact back end -------------------------------------------------------------------------
 
 
@@ -177,7 +294,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_COMMANDS: list = [_add_render, _add_bound, _add_samples, _add_describe, _add_contact, _add_batch]
+_COMMANDS: list = [
+    _add_render,
+    _add_bound,
+    _add_samples,
+    _add_describe,
+    _add_contact,
+    _add_batch,
+    _add_list_cameras,
+    _add_live,
+    _add_replay,
+]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,17 @@
+"""Live processing: a camera (or a file at camera rate) -> the front end -> results within ms.
+
+Modules, in the order the data flows:
+
+- :mod:`~camwhisker.live.cameras`   listing capture devices, stable names, the settings profile
+- :mod:`~camwhisker.live.capture`   one source interface: camera, video file, image folder
+- :mod:`~camwhisker.live.playback`  a file released on a real-time clock (a camera stand-in)
+- :mod:`~camwhisker.live.grabber`   the grabber thread: "latest" / "every", reconnects, fps
+- :mod:`~camwhisker.live.record`    recording a session (MJPG AVI + timestamps) for batch
+- :mod:`~camwhisker.live.outputs`   signal table (CSV), JSON lines, UDP
+- :mod:`~camwhisker.live.loop`      processor, generator, session, reprocessing
+- :mod:`~camwhisker.live.bench`     per-frame latency benchmark
+"""
+
+from camwhisker.live.loop import LiveConfig, LiveProcessor, LiveSession, reprocess_session, run_live
+
+__all__ = ["LiveConfig", "LiveProcessor", "LiveSession", "reprocess_session", "run_live"]

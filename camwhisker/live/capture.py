@@ -1,0 +1,229 @@
+"""One source interface for live and batch input: a camera, a video file, an image folder.
+
+Every capture has the interface of ``cv2.VideoCapture`` that the grabber uses,
+so a plain ``cv2.VideoCapture`` is a capture too:
+
+- ``read() -> (ok, image)``: the next frame (uint8 BGR, or a camera's raw
+  JPEG bytes as a 1-D uint8 array), or ``(False, None)``;
+- ``release()``;
+
+and, where it has them:
+
+- ``reopen() -> bool``: open the device again after a failure;
+- ``ended``: True once a file has no more frames (a failed read is then the
+  end, not an unplugged camera);
+- ``describe() -> dict``: what it is and its applied settings, for the sidecar.
+
+:class:`CameraCapture` opens a V4L2 camera, applies a :class:`CameraProfile`
+and discards warm-up frames, on open and on every reopen.
+:class:`SourceCapture` wraps a :mod:`camwhisker.sources` source (file or
+folder), decoded exactly as batch decodes it.
+:class:`~camwhisker.live.playback.PlaybackSource` paces a file at camera rate.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from camwhisker.live.cameras import (
+    C310_PROFILE,
+    AppliedSettings,
+    CameraProfile,
+    apply_profile,
+    resolve_camera,
+)
+from camwhisker.sources import open_source
+
+__all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is_ended",
+           "describe"]  # fmt: skip
+
+log = logging.getLogger(__name__)
+
+
+class CaptureError(OSError):
+    """A capture device cannot be opened or read."""
+
+
+def is_ended(cap) -> bool:
+    """Whether a failed read from ``cap`` means the end of a file.
+
+    A capture with an ``ended`` attribute says so itself; for a plain
+    ``cv2.VideoCapture`` on a file the read position has reached the stated
+    frame count (a camera states none, so it never ends).
+    """
+    if hasattr(cap, "ended"):
+        return bool(cap.ended)
+    if isinstance(cap, cv2.VideoCapture):
+        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        return count > 0 and cap.get(cv2.CAP_PROP_POS_FRAMES) >= count
+    return False
+
+
+def describe(cap) -> dict:
+    """What the capture is, for the sidecar."""
+    if hasattr(cap, "describe"):
+        return cap.describe()
+    if isinstance(cap, cv2.VideoCapture):
+        return {"kind": "cv2.VideoCapture", "backend": cap.getBackendName(),
+                "fps": cap.get(cv2.CAP_PROP_FPS)}  # fmt: skip
+    return {"kind": type(cap).__name__}
+
+
+class CameraCapture:
+    """A camera with its settings profile applied and read back.
+
+    Parameters
+    ----------
+    spec : int or str
+        Index, ``/dev/videoN``, ``/dev/v4l/by-id/...`` or a bare by-id name.
+    profile : CameraProfile
+    raw_mjpg : bool
+        Ask OpenCV for the camera's JPEG bytes (``CAP_PROP_CONVERT_RGB`` off),
+        so a recording keeps them without re-encoding. Off by default: not
+        every backend honours it (the read-back says whether it took).
+    opener : callable, optional
+        ``opener(target) -> cv2.VideoCapture``; default opens through V4L2.
+        Tests pass one that opens a file.
+
+    Raises
+    ------
+    CaptureError
+        The camera cannot be opened.
+    """
+
+    def __init__(
+        self,
+        spec: int | str,
+        profile: CameraProfile = C310_PROFILE,
+        raw_mjpg: bool = False,
+        opener: Callable[[int | str], cv2.VideoCapture] | None = None,
+    ):
+        self.spec = spec
+        self.target = resolve_camera(spec) if opener is None else spec
+        self.profile = profile
+        self.raw_mjpg = raw_mjpg
+        self._opener = opener or (lambda t: cv2.VideoCapture(t, cv2.CAP_V4L2))
+        self.settings = AppliedSettings()
+        self.opens = 0
+        self._cap = None
+        self._open()
+
+    def _open(self) -> None:
+        cap = self._opener(self.target)
+        if not cap.isOpened():
+            raise CaptureError(f"camera {self.spec}: cannot open {self.target}")
+        self.settings = apply_profile(cap, self.profile)
+        if self.raw_mjpg:
+            cap.set(cv2.CAP_PROP_CONVERT_RGB, 0.0)
+            self.settings.applied["convert_rgb"] = float(cap.get(cv2.CAP_PROP_CONVERT_RGB))
+        n = 0
+        for _ in range(self.profile.warmup_frames):
+            ok, _img = cap.read()
+            n += bool(ok)
+        self.settings.warmup_discarded = n
+        self._cap = cap
+        self.opens += 1
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        if self._cap is None:
+            return False, None
+        return self._cap.read()
+
+    def reopen(self) -> bool:
+        """Release and open again (profile and warm-up included); False if it failed."""
+        self.release()
+        try:
+            self._open()
+        except (CaptureError, cv2.error) as exc:
+            log.warning("camera %s: reopen failed: %s", self.spec, exc)
+            return False
+        return True
+
+    @property
+    def ended(self) -> bool:
+        return False
+
+    def release(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def describe(self) -> dict:
+        return {"kind": "camera", "spec": str(self.spec), "device": str(self.target),
+                "raw_mjpg": self.raw_mjpg, "opens": self.opens,
+                "settings": self.settings.as_dict()}  # fmt: skip
+
+
+class SourceCapture:
+    """A :mod:`camwhisker.sources` source (video file or image folder) read frame by frame.
+
+    The frames are decoded exactly as ``camwhisker batch`` decodes them.
+    """
+
+    def __init__(self, path: str | Path, fps: float | None = None):
+        self.source = open_source(path, fps)
+        self.path = Path(path)
+        self.fps = self.source.fps
+        self._it = iter(self.source)
+        self.ended = False
+        self.frames_read = 0
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        if self._it is None:
+            return False, None
+        try:
+            frame = next(self._it)
+        except StopIteration:
+            self.ended = True
+            return False, None
+        self.frames_read += 1
+        return True, frame.image
+
+    def release(self) -> None:
+        if self._it is not None:
+            self._it.close()
+            self._it = None
+
+    def describe(self) -> dict:
+        return {"kind": "file", "path": str(self.path), "fps": self.fps,
+                "problem": self.source.problem}  # fmt: skip
+
+
+def _names_camera(spec: str) -> bool:
+    return spec.isdigit() or spec.startswith("/dev/") or not Path(spec).exists()
+
+
+def open_capture(
+    spec: str,
+    profile: CameraProfile = C310_PROFILE,
+    playback_fps: float | None = None,
+    fps: float | None = None,
+    raw_mjpg: bool = False,
+):
+    """Open what ``spec`` names: a camera, or a file / folder.
+
+    Parameters
+    ----------
+    spec : str
+        Camera index, node or by-id name; else a video file or image folder.
+    profile : CameraProfile
+        For a camera.
+    playback_fps : float, optional
+        Release a file's frames on a real-time clock at this rate
+        (:class:`~camwhisker.live.playback.PlaybackSource`); without it a file
+        is read as fast as it decodes.
+    fps : float, optional
+        Frame rate of an image folder.
+    """
+    if _names_camera(str(spec)):
+        return CameraCapture(spec, profile, raw_mjpg)
+    if playback_fps:
+        from camwhisker.live.playback import PlaybackSource
+
+        return PlaybackSource(spec, playback_fps, fps=fps)
+    return SourceCapture(spec, fps)

@@ -1,0 +1,451 @@
+"""The live loop: grabbed frames -> the front end -> CSV, JSON lines, UDP, recording.
+
+The trio of the style guide, over the front end's :class:`FrontEnd` (the
+same object batch's :func:`~camwhisker.vision.tracker.track` drives):
+
+- :class:`LiveProcessor`: one frame at a time, with the live events
+  (re-zero, re-detect, a gap where no frame came);
+- :func:`live_track`: a generator over ``(image, event)`` pairs;
+- :func:`reprocess_session`: a recorded session through the generator, with
+  the recorded timestamps and events: the live table again, row for row.
+
+:class:`LiveSession` runs the grabber thread, the processing and the outputs,
+takes commands (``r`` re-zero, ``d`` re-detect, ``q`` quit) from the
+terminal or from :meth:`LiveSession.command`, stops cleanly on Ctrl-C and
+SIGTERM, and writes the sidecar (settings, grabber counts, latency).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import queue
+import select
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.batch import SIGNAL_COLUMNS, sidecar_path
+from camwhisker.live.capture import describe
+from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
+from camwhisker.live.outputs import (
+    DEFAULT_UDP_HOST,
+    CsvSignalWriter,
+    UdpSender,
+    result_message,
+)
+from camwhisker.live.record import (
+    JPEG_QUALITY,
+    MjpgRoundTrip,
+    SessionRecorder,
+    decode_only,
+    read_timestamps,
+    timestamps_path,
+)
+from camwhisker.sensor import Sensor, sensor_to_dict
+from camwhisker.sources import VideoSource
+from camwhisker.synth.video import atomic_path
+from camwhisker.vision.detect import FeaturesNotFound
+from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
+
+__all__ = ["LiveProcessor", "live_track", "reprocess_session", "LiveConfig", "LiveSession",
+           "LiveReport", "latency_summary", "run_live", "EVENTS"]  # fmt: skip
+
+log = logging.getLogger(__name__)
+
+#: Events a row can carry (the timestamps file's ``event`` column).
+EVENTS = ("", "rezero", "redetect", "gap")
+#: Reason written in a row for which no frame came (the error is in the log and sidecar).
+GAP_REASON = "no frame: capture read failed"
+#: How often the loop looks at its stop flag while no frame comes (s): the
+#: longest a stop waits; the wait itself blocks, it does not spin.
+POLL_S = 0.1
+#: Keys read from a terminal.
+KEYS = {"r": "rezero", "d": "redetect", "q": "quit"}
+
+
+def _blank(index: int, reason: str) -> FrameResult:
+    nan3 = (math.nan,) * 3
+    return FrameResult(index, math.nan, math.nan, math.nan, False, nan3, nan3, reason=reason)
+
+
+class LiveProcessor:
+    """The front end with live events: one call per row.
+
+    The first frame is the rest reference (as in batch); a failed rest frame
+    gives an untrusted row and the next frame is tried. ``"rezero"`` starts a
+    new front end at the frame (the old one stays if the features are not
+    found); ``"redetect"`` finds the features again before the update;
+    ``"gap"`` (no image) gives an untrusted row and leaves the state alone.
+    """
+
+    def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
+        self.sensor = sensor
+        self.options = options or FrontEndOptions()
+        self.fe: FrontEnd | None = None
+
+    def _start(self, image: np.ndarray, index: int, what: str) -> FrameResult:
+        fe = FrontEnd(self.sensor, self.options)
+        try:
+            r = fe.start(image, index)
+        except (FeaturesNotFound, ValueError) as exc:
+            return _blank(index, f"{what}: {exc}")
+        self.fe = fe
+        return r
+
+    def process(self, index: int, image: np.ndarray | None, event: str = "") -> FrameResult:
+        """The row for frame ``index`` (``image`` None: a gap)."""
+        if image is None:
+            return _blank(index, GAP_REASON)
+        if self.fe is None:
+            return self._start(image, index, "rest frame")
+        if event == "rezero":
+            return self._start(image, index, "re-zero failed")
+        try:
+            if event == "redetect":
+                self.fe.redetect(image)
+            return self.fe.update(image, index)
+        except ValueError as exc:  # a frame of another size after a reconnect
+            return _blank(index, str(exc))
+
+
+def live_track(items: Iterable[tuple[np.ndarray | None, str]], sensor: Sensor,
+               options: FrontEndOptions | None = None) -> Iterator[FrameResult]:  # fmt: skip
+    """Yield one result per ``(image, event)`` item; see :class:`LiveProcessor`."""
+    proc = LiveProcessor(sensor, options)
+    for i, (image, event) in enumerate(items):
+        yield proc.process(i, image, event)
+
+
+def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
+                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
+    """Process a recorded session again: the same rows as the live table.
+
+    Frames are decoded as ``camwhisker batch`` decodes them
+    (:class:`~camwhisker.sources.VideoSource`); times, gaps and events come
+    from ``SESSION.timestamps.csv``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No video or no timestamps file.
+    ValueError
+        The timestamps name more frames than the video holds.
+    """
+    video = Path(video)
+    rows = read_timestamps(timestamps_path(video))
+    frames = iter(VideoSource(video))
+
+    def items():
+        for row in rows:
+            if row["video_frame"] is None:
+                yield None, "gap"
+                continue
+            try:
+                frame = next(frames)
+            except StopIteration:
+                raise ValueError(f"{video}: fewer frames than its timestamps file lists") from None
+            yield frame.image, row["event"]
+
+    out_csv = Path(out_csv)
+    with atomic_path(out_csv) as tmp:
+        writer = CsvSignalWriter(tmp)
+        try:
+            for row, r in zip(rows, live_track(items(), sensor, options), strict=True):
+                writer.write(row["t_s"], r)
+        finally:
+            writer.close()
+    return out_csv
+
+
+def _pct(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else math.nan
+
+
+def latency_summary(values_ms: list[float]) -> dict:
+    """n, p50, p99, max, mean (ms) of a list of latencies."""
+    return {"n": len(values_ms), "p50_ms": _pct(values_ms, 50), "p99_ms": _pct(values_ms, 99),
+            "max_ms": max(values_ms) if values_ms else math.nan,
+            "mean_ms": float(np.mean(values_ms)) if values_ms else math.nan}  # fmt: skip
+
+
+@dataclass
+class LiveConfig:
+    """How a live session runs.
+
+    mode : "latest" (control; stale frames dropped) or "every" (recording).
+    record : an ``.avi`` to record the processed frames to (with timestamps).
+    udp_port : send one JSON datagram per frame there (``udp_host``, default
+        this machine only).
+    jsonl : print one JSON line per frame on stdout.
+    controls : read r/d/q keys from stdin (None: when stdin is a terminal).
+    max_frames, duration_s : stop after so many rows / seconds (None: no limit).
+    """
+
+    mode: str = "latest"
+    options: FrontEndOptions = field(default_factory=FrontEndOptions)
+    record: Path | None = None
+    record_rate_fps: float = 30.0
+    jpeg_quality: int = JPEG_QUALITY
+    udp_port: int | None = None
+    udp_host: str = DEFAULT_UDP_HOST
+    jsonl: bool = False
+    controls: bool | None = None
+    max_frames: int | None = None
+    duration_s: float | None = None
+    max_reconnects: int = MAX_RECONNECTS
+    backoff_s: float = BACKOFF_S
+    handle_signals: bool = True
+
+
+@dataclass
+class LiveReport:
+    """What a live session did (also in its sidecar)."""
+
+    out_csv: Path
+    sidecar: Path
+    rows: int = 0
+    rows_ok: int = 0
+    gaps: int = 0
+    seq_gaps: int = 0
+    grabber: dict = field(default_factory=dict)
+    processing: dict = field(default_factory=dict)
+    end_to_end: dict = field(default_factory=dict)
+    events: list = field(default_factory=list)
+    stopped_by: str = ""
+    problems: list[str] = field(default_factory=list)
+
+
+class LiveSession:
+    """One live run: grabber thread, processing, outputs, controls, sidecar.
+
+    Parameters
+    ----------
+    capture : a capture (see :mod:`camwhisker.live.capture`)
+        Released when the session ends.
+    sensor : Sensor
+    out_csv : path
+        The signal table; ``OUT.json`` beside it is the sidecar.
+    config : LiveConfig
+    stdout : text stream for the JSON lines.
+    """
+
+    def __init__(self, capture, sensor: Sensor, out_csv: str | Path,
+                 config: LiveConfig | None = None, stdout=None):  # fmt: skip
+        self.capture = capture
+        self.sensor = sensor
+        self.config = config or LiveConfig()
+        self.out_csv = Path(out_csv)
+        self.stdout = stdout or sys.stdout
+        self.report = LiveReport(self.out_csv, sidecar_path(self.out_csv))
+        self._commands: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._stop_reason = ""
+        #: Sequence numbers of the rows, in order (for the drop check).
+        self.seqs: list[int] = []
+
+    # -------------------------------------------------------------- control
+    def command(self, name: str) -> None:
+        """Queue "rezero", "redetect" or "quit" (thread-safe)."""
+        if name == "quit":
+            self.stop("quit")
+        elif name in ("rezero", "redetect"):
+            self._commands.put(name)
+        else:
+            raise ValueError(f"unknown command {name!r}")
+
+    def stop(self, reason: str = "stop") -> None:
+        if not self._stop.is_set():
+            self._stop_reason = reason
+        self._stop.set()
+
+    def _on_signal(self, signum, _frame) -> None:
+        self.stop(signal.Signals(signum).name)
+
+    def _next_event(self) -> str:
+        try:
+            return self._commands.get_nowait()
+        except queue.Empty:
+            return ""
+
+    def _keys(self) -> None:
+        """Read single keys from a terminal until the session stops."""
+        import termios
+        import tty
+
+        fd = sys.stdin.fileno()
+        saved = termios.tcgetattr(fd)
+        try:
+            tty.setcbreak(fd)
+            while not self._stop.is_set():
+                ready, _, _ = select.select([fd], [], [], POLL_S)
+                if not ready:
+                    continue
+                key = os.read(fd, 1).decode(errors="ignore").lower()
+                if key in KEYS:
+                    log.info("key %r: %s", key, KEYS[key])
+                    self.command(KEYS[key])
+        finally:
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> LiveReport:
+        cfg = self.config
+        rep = self.report
+        prepare = MjpgRoundTrip(cfg.jpeg_quality) if cfg.record else decode_only
+        grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
+        proc = LiveProcessor(self.sensor, cfg.options)
+        self.out_csv.parent.mkdir(parents=True, exist_ok=True)
+        writer = CsvSignalWriter(self.out_csv)
+        recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
+        udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
+        controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
+        keys = threading.Thread(target=self._keys, name="camwhisker-keys", daemon=True)
+        old_handlers = {}
+        if cfg.handle_signals and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                old_handlers[sig] = signal.signal(sig, self._on_signal)
+        proc_ms: list[float] = []
+        e2e_ms: list[float] = []
+        t0 = None
+        t_start = time.monotonic()
+        self._input = describe(self.capture)  # a released cv2.VideoCapture cannot say
+        grabber.start()
+        if controls:
+            keys.start()
+            print("camwhisker live: keys r = re-zero, d = re-detect, q = quit", file=sys.stderr)
+        try:
+            while not self._stop.is_set():
+                if cfg.max_frames is not None and rep.rows >= cfg.max_frames:
+                    self.stop("max_frames")
+                    break
+                if cfg.duration_s is not None and time.monotonic() - t_start >= cfg.duration_s:
+                    self.stop("duration")
+                    break
+                item = grabber.get(POLL_S)
+                if item is None:
+                    if grabber.finished:
+                        self.stop("capture lost" if grabber.stats.lost else "end of input")
+                    continue
+                t0 = item.t_s if t0 is None else t0
+                self._row(item, item.t_s - t0, proc, writer, recorder, udp, proc_ms, e2e_ms)
+        finally:
+            grabber.stop()
+            if keys.is_alive():
+                self._stop.set()
+                keys.join()
+            self.capture.release()
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            writer.close()
+            if recorder is not None:
+                recorder.close()
+            if udp is not None:
+                udp.close()
+            self._finish(grabber, proc_ms, e2e_ms, recorder, udp)
+        return rep
+
+    def _row(self, item: Grabbed, t_s: float, proc, writer, recorder, udp,
+             proc_ms, e2e_ms) -> None:  # fmt: skip
+        rep = self.report
+        index = rep.rows
+        event = "gap" if item.image is None else self._next_event()
+        tic = time.perf_counter()
+        r = proc.process(index, item.image, event)
+        toc = time.perf_counter()
+        done = time.monotonic()
+        if item.image is not None:
+            proc_ms.append(1e3 * (toc - tic))
+            e2e_ms.append(1e3 * (done - item.t_s))
+        else:
+            rep.gaps += 1
+        if event in ("rezero", "redetect"):
+            rep.events.append({"frame": index, "event": event, "ok": bool(r.ok)})
+        if self.seqs:
+            rep.seq_gaps += item.seq - self.seqs[-1] - 1
+        self.seqs.append(item.seq)
+        writer.write(t_s, r)
+        if recorder is not None:
+            shape = None if item.image is None else item.image.shape
+            recorder.write(index, item.seq, t_s, item.jpeg, shape, event)
+        if self.config.jsonl or udp is not None:
+            msg = result_message(item.seq, t_s, r, 1e3 * (done - item.t_s))
+            if self.config.jsonl:
+                print(msg, file=self.stdout, flush=True)
+            if udp is not None:
+                udp.send(msg)
+        rep.rows += 1
+        rep.rows_ok += bool(r.ok)
+
+    def _finish(self, grabber: Grabber, proc_ms, e2e_ms, recorder, udp) -> None:
+        rep = self.report
+        cfg = self.config
+        stats = grabber.stats
+        rep.stopped_by = self._stop_reason or "end of input"
+        rep.grabber = dataclasses.asdict(stats)
+        rep.grabber["fps_measured"] = stats.fps_measured
+        rep.processing = latency_summary(proc_ms)
+        rep.end_to_end = latency_summary(e2e_ms)
+        if stats.lost:
+            rep.problems.append(f"capture lost after {cfg.max_reconnects} reconnect attempts")
+        if stats.failed_reads:
+            rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
+                                f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
+        meta = {
+            "camwhisker_version": __version__,
+            "made_by": "camwhisker.live.loop.LiveSession",
+            "input": describe(self.capture) if hasattr(self.capture, "describe") else self._input,
+            "mode": cfg.mode,
+            "rest_frame": 0,
+            "frames": rep.rows,
+            "frames_ok": rep.rows_ok,
+            "rows_without_frame": rep.gaps,
+            "stopped_by": rep.stopped_by,
+            "grabber": rep.grabber,
+            "dropped": stats.dropped,
+            "latency": {"processing": rep.processing, "end_to_end": rep.end_to_end},
+            "events": rep.events,
+            "recording": None if recorder is None else {
+                "video": str(recorder.video), "timestamps": str(recorder.timestamps),
+                "frames": recorder.frames, "jpeg_quality": cfg.jpeg_quality},
+            "udp": None if udp is None else {"address": list(udp.address), "sent": udp.sent,
+                                             "errors": udp.errors},
+            "problems": rep.problems,
+            "time_source": "capture (monotonic clock, from the first frame)",
+            "options": dataclasses.asdict(cfg.options),
+            "sensor_file": self.sensor.source,
+            "sensor": sensor_to_dict(self.sensor),
+            "columns": list(SIGNAL_COLUMNS),
+        }  # fmt: skip
+        with atomic_path(rep.sidecar) as tmp:
+            tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+
+    @staticmethod
+    def summary(rep: LiveReport) -> str:
+        """The end-of-run lines (printed by the command)."""
+        g, p, e = rep.grabber, rep.processing, rep.end_to_end
+        return "\n".join([
+            f"{rep.rows} rows, {rep.rows_ok} ok, {rep.gaps} without a frame -> {rep.out_csv}, "
+            f"{rep.sidecar} (stopped by {rep.stopped_by})",
+            f"grabbed {g.get('grabbed', 0)} ({g.get('mode')}), dropped {g.get('dropped', 0)}, "
+            f"measured {g.get('fps_measured', math.nan):.1f} fps, "
+            f"reconnects {g.get('reconnects', 0)}",
+            f"processing latency p50 {p['p50_ms']:.2f} ms, p99 {p['p99_ms']:.2f} ms; "
+            f"end to end p50 {e['p50_ms']:.2f} ms, p99 {e['p99_ms']:.2f} ms",
+        ])  # fmt: skip
+
+
+def run_live(capture, sensor: Sensor, out_csv: str | Path, config: LiveConfig | None = None,
+             stdout=None) -> LiveReport:  # fmt: skip
+    """Run a :class:`LiveSession` to its end; returns its report."""
+    return LiveSession(capture, sensor, out_csv, config, stdout).run()

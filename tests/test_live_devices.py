@@ -1,0 +1,233 @@
+"""Cameras (listing against a fake sysfs tree), the settings profile, the command line,
+clean shutdown on SIGTERM / Ctrl-C, the signal-table format, and the latency bench."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import logging
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from camwhisker.batch import write_signals
+from camwhisker.cli import main
+from camwhisker.live.bench import _jpegs, bench_frames
+from camwhisker.live.bench import main as bench_main
+from camwhisker.live.cameras import (
+    C310_PROFILE,
+    NO_CAMERA_MESSAGE,
+    V4L2_CAP_DEVICE_CAPS,
+    V4L2_CAP_META_CAPTURE,
+    V4L2_CAP_VIDEO_CAPTURE,
+    apply_profile,
+    list_cameras,
+    parse_querycap,
+    resolve_camera,
+)
+from camwhisker.live.capture import CameraCapture
+from camwhisker.live.loop import LiveConfig, reprocess_session, run_live
+from camwhisker.live.outputs import CsvSignalWriter
+from camwhisker.live.record import read_timestamps, timestamps_path
+from camwhisker.sensor import load_sensor
+from camwhisker.sources import VideoSource
+from camwhisker.vision.tracker import FrameResult
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
+CLIP = SAMPLES / "nominal.mp4"
+SENSOR = SAMPLES / "nominal.sensor.toml"
+C310_ID = "usb-046d_081b_3F2B1C10-video-index"
+
+
+def _fake_v4l(root: Path) -> tuple[Path, Path]:
+    """A C310 (capture node video0 + metadata node video1) and a by-id-less camera video2."""
+    sysfs, dev = root / "sys", root / "dev"
+    for node, name, index in (("video0", "UVC Camera (046d:081b)", 0),
+                              ("video1", "UVC Camera (046d:081b)", 1),
+                              ("video2", "Integrated Camera", 0)):  # fmt: skip
+        (sysfs / node).mkdir(parents=True)
+        (sysfs / node / "name").write_text(name + "\n")
+        (sysfs / node / "index").write_text(f"{index}\n")
+    (sysfs / "vbi0").mkdir()  # not a video node
+    by_id = dev / "v4l" / "by-id"
+    by_id.mkdir(parents=True)
+    for i in (0, 1):
+        (dev / f"video{i}").write_text("")  # a plain file: the driver cannot be asked
+        os.symlink(f"../../video{i}", by_id / f"{C310_ID}{i}")
+    return sysfs, dev
+
+
+def test_list_cameras_skips_metadata_nodes(tmp_path):
+    sysfs, dev = _fake_v4l(tmp_path)
+    cams = list_cameras(sysfs, dev)
+    assert [Path(c.node).name for c in cams] == ["video0", "video2"]
+    assert cams[0].name == "UVC Camera (046d:081b)" and cams[0].how == "sysfs index"
+    assert [Path(p).name for p in cams[0].by_id] == [f"{C310_ID}0"] and cams[1].by_id == ()
+    every = list_cameras(sysfs, dev, include_metadata=True)
+    assert [c.captures for c in every] == [True, False, True]
+
+
+def test_list_cameras_command(tmp_path, capsys):
+    sysfs, dev = _fake_v4l(tmp_path)
+    assert main(["list-cameras", "--sysfs", str(sysfs), "--dev", str(dev)]) == 0
+    out = capsys.readouterr().out
+    assert f"{C310_ID}0" in out and f"{C310_ID}1" not in out and "video1" not in out
+    assert "Integrated Camera" in out and "no /dev/v4l/by-id link" in out
+    empty = tmp_path / "none"
+    empty.mkdir()
+    assert main(["list-cameras", "--sysfs", str(empty), "--dev", str(empty)]) == 1
+    assert capsys.readouterr().out.strip() == NO_CAMERA_MESSAGE
+    assert list_cameras(tmp_path / "no-such-folder", dev) == []
+
+
+def test_resolve_camera_names(tmp_path):
+    _, dev = _fake_v4l(tmp_path)
+    assert resolve_camera("2") == 2 and resolve_camera(0) == 0
+    node = str((dev / "video0").resolve())
+    assert resolve_camera(f"{C310_ID}0", dev) == node  # bare stable name
+    assert resolve_camera(str(dev / "v4l" / "by-id" / f"{C310_ID}0"), dev) == node
+    with pytest.raises(FileNotFoundError, match="list-cameras"):
+        resolve_camera("usb-nothing-video-index0", dev)
+
+
+def test_parse_querycap():
+    def cap(caps, device_caps):
+        return struct.pack("16s32s32sIII12x", b"uvcvideo", b"C310", b"usb-1", 1, caps, device_caps)
+
+    both = V4L2_CAP_VIDEO_CAPTURE | V4L2_CAP_META_CAPTURE | V4L2_CAP_DEVICE_CAPS
+    assert parse_querycap(cap(both, V4L2_CAP_VIDEO_CAPTURE)) == ("uvcvideo", "C310", True)
+    assert parse_querycap(cap(both, V4L2_CAP_META_CAPTURE))[2] is False  # metadata node
+    assert parse_querycap(cap(V4L2_CAP_VIDEO_CAPTURE, 0))[2] is True  # no device caps
+
+
+def test_profile_that_does_not_take_warns_requested_vs_applied(caplog):
+    cap = cv2.VideoCapture(str(CLIP))  # a file ignores every camera control
+    with caplog.at_level(logging.WARNING, logger="camwhisker.live.cameras"):
+        s = apply_profile(cap, C310_PROFILE)
+    cap.release()
+    assert "auto_wb: requested 0.0, applied -1.0" in s.mismatches
+    assert any(m.startswith("fourcc: requested MJPG, applied") for m in s.mismatches)
+    assert "width_px" not in " ".join(s.mismatches)  # the file is 1280 wide: that one holds
+    assert s.applied["width_px"] == 1280.0 and s.requested["fps"] == 30.0
+    (msg,) = [m for m in caplog.messages if "requested vs applied" in m]
+    assert "auto_wb: requested 0.0, applied -1.0" in msg
+
+
+class ObedientCapture:
+    """A capture whose set() always takes: no warning may come."""
+
+    def __init__(self):
+        self.props = {}
+
+    def set(self, prop, value):
+        self.props[prop] = value
+        return True
+
+    def get(self, prop):
+        return self.props.get(prop, -1.0)
+
+
+def test_profile_that_takes_gives_no_warning(caplog):
+    with caplog.at_level(logging.WARNING, logger="camwhisker.live.cameras"):
+        s = apply_profile(ObedientCapture(), C310_PROFILE)
+    assert s.mismatches == [] and s.applied["fourcc"] == "MJPG"
+    assert not caplog.messages
+
+
+def test_camera_path_records_settings_in_the_sidecar(tmp_path):
+    """The whole camera path (profile, read-back, warm-up) on a capture that opens a file."""
+    # frames 0-8 of the clip are at rest: 3 warm-up frames leave rest frames to start on
+    profile = dataclasses.replace(C310_PROFILE, warmup_frames=3)
+    cam = CameraCapture("test-camera", profile, opener=lambda _t: cv2.VideoCapture(str(CLIP)))
+    out = tmp_path / "cam.csv"
+    rep = run_live(cam, load_sensor(SENSOR), out, LiveConfig(mode="every", max_frames=5,
+                                                            controls=False))  # fmt: skip
+    meta = json.loads(out.with_suffix(".json").read_text())
+    settings = meta["input"]["settings"]
+    assert settings["warmup_discarded"] == 3
+    assert "auto_wb: requested 0.0, applied -1.0" in settings["mismatches"]
+    assert settings["requested"]["fourcc"] == "MJPG" and meta["input"]["kind"] == "camera"
+    assert rep.rows == 5 and rep.rows_ok == 5
+
+
+def test_signal_row_is_batch_format(tmp_path):
+    nan3 = (math.nan,) * 3
+    results = [
+        FrameResult(0, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), nan3, 0.0, 0.0, 0.0,
+                    0.0, 12),
+        FrameResult(1, 0.123456789, 12.3456789, -170.12345, True, nan3, nan3, 0.01, -0.02,
+                    0.003, 0.25, 9),
+        FrameResult(2, math.nan, math.nan, math.nan, False, nan3, nan3, reason="tip: lost, x"),
+        FrameResult(3, 0.5, 1.0, 2.0, False, nan3, nan3, rms_px=0.7, reason="poor fit"),
+    ]  # fmt: skip
+    times = [0.0, 0.0333333333, 1e-7, math.nan]
+    write_signals(tmp_path / "batch.csv", zip(times, results, strict=True))
+    w = CsvSignalWriter(tmp_path / "live.csv")
+    for t, r in zip(times, results, strict=True):
+        w.write(t, r)
+    w.close()
+    assert (tmp_path / "live.csv").read_bytes() == (tmp_path / "batch.csv").read_bytes()
+    assert (w.rows, w.rows_ok) == (4, 2)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_closes_every_file(tmp_path, sig):
+    out, avi = tmp_path / "live.csv", tmp_path / "s.avi"
+    cmd = [sys.executable, "-m", "camwhisker.cli", "live", str(CLIP), "--playback-fps", "30",
+           "--loop", "--out", str(out), "--record", str(avi), "--sensor", str(SENSOR),
+           "--no-keys"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60.0  # start-up (imports) on a loaded machine
+    try:
+        while time.monotonic() < deadline:
+            if out.exists() and len(out.read_text().splitlines()) > 8:
+                break
+            if proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert f"stopped by {signal.Signals(sig).name}" in err and "p99" in err
+    with open(out, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert len(rows) > 9 and all(len(r) == 12 for r in rows)  # no half-written row
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["stopped_by"] == signal.Signals(sig).name
+    assert meta["frames"] == len(rows) - 1 == meta["recording"]["frames"]
+    stamps = read_timestamps(timestamps_path(avi))
+    assert len(stamps) == len(rows) - 1
+    assert len(list(VideoSource(avi))) == len(stamps)  # the AVI is finalised and whole
+    again = reprocess_session(avi, load_sensor(SENSOR), tmp_path / "again.csv")
+    assert again.read_bytes() == out.read_bytes()
+
+
+def test_latency_bench_on_the_mjpg_sample(capsys):
+    jpegs = _jpegs(SAMPLES / "nominal_mjpg.avi")
+    assert len(jpegs) == 12
+    b = bench_frames(jpegs, load_sensor(SAMPLES / "nominal_mjpg.sensor.toml"))
+    p = b.processing
+    assert b.frames == p["n"] == 11 and b.threads == 1
+    assert 0 < p["p50_ms"] <= p["p99_ms"] <= p["max_ms"] and b.rest_ms > 0
+    assert b.decode["n"] == 12 and b.ok_share == 1.0
+    assert math.isnan(b.phi_rmse_deg)  # no truth given
+    assert bench_main(["--video", str(SAMPLES / "nominal_mjpg.avi"),
+                       "--sensor", str(SAMPLES / "nominal_mjpg.sensor.toml")]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "p99" in out and "11 frames of 1280x720, 1 OpenCV thread" in out
+    assert "100% rows ok, phi RMSE 0.0" in out  # the sample's truth is beside it
+    np.testing.assert_array_less(0, [p["mean_ms"], b.decode["p50_ms"]])
