@@ -276,3 +276,27 @@ def test_tip_not_found_on_blank_frame():
     frame = np.full((200, 260, 3), 200, np.uint8)
     got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
     assert not got.ok and "blob" in got.reason or "contrast" in got.reason
+
+
+# ------------------------------------------------------------------ bench
+
+
+def test_bench_errors_and_table():
+    from camwhisker.synth.scenarios import PoseTrack
+    from camwhisker.vision.bench import BenchRow, _errors, table
+
+    z = np.zeros(4)
+    truth = PoseTrack(np.arange(4.0), np.array([0, 0.5, 0.5, 1.0]), np.array([0, 1, 20, 30.0]),
+                      np.array([0, 10, 179, -170.0]), z, z)  # fmt: skip
+    dz = truth.dz_mm + [0, 0.01, -0.01, 0.0]
+    phi = truth.phi_deg + [0, 0.0, 0.1, 0.3]
+    theta = np.array([np.nan, 10.0, -179.0, -171.0])  # errors wrap: 2 and 1 deg
+    ok = np.array([True, True, True, False])
+    phi_rmse, dz_rmse, theta_mae, bias = _errors(truth, dz, phi, theta, ok)
+    assert phi_rmse == pytest.approx(math.sqrt(0.01 / 3))
+    assert dz_rmse == pytest.approx(math.sqrt(0.0002 / 3))
+    assert theta_mae == pytest.approx(2.0)  # only phi >= 2 deg and ok: frame 2
+    assert bias == pytest.approx(0.1)
+    text = table([BenchRow("nominal", "model", 4, 100.0, 120.0, 0.75, phi_rmse, dz_rmse,
+                           theta_mae, bias)])  # fmt: skip
+    assert "| nominal | model | 4 | 100 | 120 | 75% |" in text
