@@ -6,17 +6,24 @@ rest patches (the first templates) and the rest offsets of the points against
 the model. :meth:`FrontEnd.update` then does, per frame:
 
 1. white balance from the cloth (or the locked rest gains);
-2. the tip, segmented near where the last pose puts it (a wide search if not
-   there), and a first tilt guess from the tip alone;
-3. the square and cross corners: pyramidal LK from the last updated
-   templates, with a forward-backward check (:func:`~camwhisker.vision.lk.track_updated`);
-4. drift correction of each corner against its rest patch, warped by the
-   model's rest-to-current affine map (:func:`~camwhisker.vision.lk.refine_first_template`),
-   leaving out corners the rod covers;
+2. the tip, segmented near where the last pose (and the last velocity) put it,
+   a coarse search of its whole reach if not there; its centroid from its edge
+   and the model's rim; a first tilt guess from the tip alone;
+3. drift correction of the square's and the cross's corners against their rest
+   patches, warped by the model's rest-to-current affine map, from where that
+   guess puts them (:func:`~camwhisker.vision.lk.refine_first_template`), on
+   linear colour-share maps; corners the rod or the cross covers are left out;
+4. only after a big jump (fewer than FALLBACK_BELOW corners locked): the
+   missing corners predicted again from a fit to the others, then tracked by
+   pyramidal LK from their updated templates with a forward-backward check
+   (:func:`~camwhisker.vision.lk.track_updated`) and corrected again.
+   ``FrontEndOptions(updated_template="always")`` runs that LK first for
+   every corner, in Matthews et al.'s order; the benchmark finds it no more
+   accurate and ~3x slower;
 5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`),
    and the paper's eqs. (2)-(7) on the same points;
 6. the template update rule of Matthews et al.: a corner's updated template
-   moves on only when the drift correction agreed with step 3.
+   moves on only when its drift correction agreed with its LK track.
 
 When a frame cannot be trusted (tip not found, too few corners, a poor fit)
 the next frame re-detects the features from scratch.
@@ -54,10 +61,10 @@ from camwhisker.vision.tip import TipMeasurement, ellipse_centre, rim_centre, ti
 
 __all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_THETA_DEG"]
 
-#: theta is reported only where phi exceeds this. The tip moves 9.4 px per degree
-#: of tilt and is located to ~0.03 px, so phi's noise is ~0.004 deg (nominal) to
-#: ~0.01 deg (hard); theta's error is ~sigma_phi / phi rad, which is <= 1 deg at
-#: 0.6 deg of tilt in the hard scene. Below this theta is left empty.
+#: theta is reported only where phi exceeds this. On the benchmark's rest frames
+#: the tilt vector's noise is ~0.006 deg per component (nominal) to ~0.016 deg
+#: (hard); theta's error is about that over phi (rad), so at 0.6 deg of tilt it is
+#: ~0.6 deg (nominal) to ~1.5 deg (hard), and it grows without bound below.
 PHI_MIN_FOR_THETA_DEG = 0.6
 #: Forward-backward error above which a step-3 track is dropped (px): a good track
 #: comes back within ~0.05 px; a jump onto another edge does not.
