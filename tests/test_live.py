@@ -21,7 +21,10 @@ import io
 import json
 import logging
 import math
+import os
 import socket
+import sys
+import threading
 from pathlib import Path
 
 import cv2
@@ -73,9 +76,19 @@ def _check_latest(session: LiveSession, rep, n_file: int) -> None:
 def test_playback_latest_mode(tmp_path, sensor, fps):
     cap = PlaybackSource(CLIP, fps)
     out = tmp_path / "live.csv"
-    session = LiveSession(cap, sensor, out, LiveConfig(mode="latest", controls=False))
+    avi = tmp_path / "s.avi" if fps == 30.0 else None  # latest-mode recording, once
+    session = LiveSession(cap, sensor, out, LiveConfig(mode="latest", record=avi,
+                                                       controls=False))  # fmt: skip
     rep = session.run()
     _check_latest(session, rep, CLIP_FRAMES)
+    assert rep.grabber["left_at_stop"] == 0
+    if avi is not None:  # batch sees the processed frames only, and finds the same rows
+        run_batch(avi, sensor, tmp_path / "batch.csv", progress=False)
+        strip = [{k: v for k, v in r.items() if k != "t_s"} for r in _rows(out)]
+        assert strip == [{k: v for k, v in r.items() if k != "t_s"}
+                         for r in _rows(tmp_path / "batch.csv")]  # fmt: skip
+        again = reprocess_session(avi, sensor, tmp_path / "again.csv")
+        assert again.read_bytes() == out.read_bytes()
     assert rep.gaps == 0 and rep.stopped_by == "end of input"
     rows = _rows(out)
     assert len(rows) == rep.rows and [int(r["frame"]) for r in rows] == list(range(rep.rows))
@@ -284,3 +297,29 @@ def test_quit_command_stops_the_session(tmp_path, sensor):
     rep = session.run()
     assert rep.stopped_by == "quit" and rep.rows < CLIP_FRAMES
     assert len(_rows(tmp_path / "q.csv")) == rep.rows
+
+
+def test_terminal_keys(tmp_path, sensor, monkeypatch):
+    """r / d / q from a terminal (a pseudo-terminal here); the terminal is restored."""
+    import pty
+    import termios
+
+    master, slave = pty.openpty()
+    before = termios.tcgetattr(slave)
+    tty_in = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", tty_in)
+    cap = PlaybackSource(CLIP, 30.0, loop=True)  # never ends by itself
+    # typed once the session has put the terminal in cbreak mode; q ends the session
+    typist = threading.Timer(1.0, os.write, (master, b"rdq"))
+    typist.start()
+    try:
+        # duration_s only guards the test from hanging: q must come long before
+        rep = run_live(cap, sensor, tmp_path / "k.csv", LiveConfig(controls=None, duration_s=30))
+        typist.join()
+        after = termios.tcgetattr(slave)
+    finally:
+        tty_in.close()
+        os.close(master)
+    assert rep.stopped_by == "quit"
+    assert after == before
+    assert all(e["event"] in ("rezero", "redetect") for e in rep.events)

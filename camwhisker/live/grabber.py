@@ -157,6 +157,12 @@ class Grabber:
             self._cond.notify_all()
 
     @property
+    def pending(self) -> int:
+        """Items grabbed and not yet taken."""
+        with self._cond:
+            return len(self._queue)
+
+    @property
     def fps_now(self) -> float:
         """Frame rate over the last FPS_WINDOW frames (NaN before two)."""
         t = list(self._recent)

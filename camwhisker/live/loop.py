@@ -394,6 +394,8 @@ class LiveSession:
         rep.stopped_by = self._stop_reason or "end of input"
         rep.grabber = dataclasses.asdict(stats)
         rep.grabber["fps_measured"] = stats.fps_measured
+        # grabbed = rows + dropped + left_at_stop (a stop by quit / signal / max_frames)
+        rep.grabber["left_at_stop"] = grabber.pending
         rep.processing = latency_summary(proc_ms)
         rep.end_to_end = latency_summary(e2e_ms)
         if stats.lost:
