@@ -143,6 +143,8 @@ def _run_batch(args) -> int:
     from camwhisker.sources import SourceError
     from camwhisker.vision import FeaturesNotFound, FrontEndOptions
 
+    if args.rest_frame < 0:
+        raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
     options = FrontEndOptions(args.mode, not args.no_shift, args.lock_gains)
     try:
         report = run_batch(args.video, load_sensor(args.sensor), args.out, options,

@@ -145,3 +145,9 @@ def test_rest_frame_option_leaves_earlier_rows_untrusted(video, tmp_path):
     rows = _read(out)
     assert rows[0]["ok"] == "0" and rows[0]["phi_deg"] == "" and rows[0]["dz_mm"] == ""
     assert rows[1]["ok"] == "1" and math.isclose(float(rows[1]["phi_deg"]), 0.0, abs_tol=1e-9)
+
+
+def test_negative_rest_frame_is_refused(video, tmp_path, capsys):
+    out = tmp_path / "n.csv"
+    assert main(["batch", str(video["video"]), "--out", str(out), "--rest-frame", "-1"]) == 2
+    assert "--rest-frame" in capsys.readouterr().err and not out.exists()

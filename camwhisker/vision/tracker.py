@@ -709,6 +709,8 @@ def track(
     FeaturesNotFound
         The rest frame lacks a feature.
     """
+    if rest_index < 0:
+        raise ValueError(f"rest_index must be >= 0, got {rest_index}")
     fe = FrontEnd(sensor, options)
     for i, frame in enumerate(frames):
         if i < rest_index:
