@@ -36,9 +36,10 @@ from camwhisker.live.cameras import (
     resolve_camera,
 )
 from camwhisker.live.capture import CameraCapture
-from camwhisker.live.loop import LiveConfig, reprocess_session, run_live
+from camwhisker.live.grabber import Grabber
+from camwhisker.live.loop import LiveConfig, run_live
 from camwhisker.live.outputs import CsvSignalWriter
-from camwhisker.live.record import read_timestamps, timestamps_path
+from camwhisker.live.record import MjpgRoundTrip, read_timestamps, timestamps_path
 from camwhisker.sensor import load_sensor
 from camwhisker.sources import VideoSource
 from camwhisker.vision.tracker import FrameResult
@@ -158,6 +159,37 @@ def test_camera_path_records_settings_in_the_sidecar(tmp_path):
     assert "auto_wb: requested 0.0, applied -1.0" in settings["mismatches"]
     assert settings["requested"]["fourcc"] == "MJPG" and meta["input"]["kind"] == "camera"
     assert rep.rows == 5 and rep.rows_ok == 5
+    measured = rep.grabber["fps_measured"]  # a file decodes faster than the 30 fps it states
+    if abs(measured - 30.0) > 3.0:
+        assert f"the camera reports 30 fps; measured {measured:.1f}" in rep.problems
+
+
+class GarbageCapture:
+    """Two reads of bytes that look like a camera's raw JPEG but are not, then the end."""
+
+    def __init__(self):
+        self.n = 0
+
+    @property
+    def ended(self):
+        return self.n > 2
+
+    def read(self):
+        self.n += 1
+        if self.n > 2:
+            return False, None
+        return True, np.frombuffer(b"\xff\xd8 not a jpeg", np.uint8)
+
+
+def test_a_frame_that_does_not_decode_is_a_gap():
+    g = Grabber(GarbageCapture(), "every", MjpgRoundTrip(), backoff_s=0.001).start()
+    items = []
+    while (item := g.get(5.0)) is not None:
+        items.append(item)
+    g.stop()
+    assert [i.image for i in items] == [None, None] and [i.seq for i in items] == [0, 1]
+    assert all(i.error.startswith("frame did not decode") for i in items)
+    assert g.stats.failed_reads == 2 and g.stats.ended and not g.stats.lost
 
 
 def test_signal_row_is_batch_format(tmp_path):
@@ -212,7 +244,8 @@ def test_signal_closes_every_file(tmp_path, sig):
     stamps = read_timestamps(timestamps_path(avi))
     assert len(stamps) == len(rows) - 1
     assert len(list(VideoSource(avi))) == len(stamps)  # the AVI is finalised and whole
-    again = reprocess_session(avi, load_sensor(SENSOR), tmp_path / "again.csv")
+    again = tmp_path / "again.csv"
+    assert main(["replay", str(avi), "--out", str(again), "--sensor", str(SENSOR)]) == 0
     assert again.read_bytes() == out.read_bytes()
 
 

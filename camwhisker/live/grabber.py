@@ -30,6 +30,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import av
 import cv2
 import numpy as np
 
@@ -195,7 +196,11 @@ class Grabber:
         s = self.stats
         jpeg = None
         if image is not None and self.prepare is not None:
-            image, jpeg = self.prepare(image)
+            try:
+                image, jpeg = self.prepare(image)
+            except (ValueError, av.error.FFmpegError, cv2.error) as exc:  # a corrupt JPEG
+                image, error = None, f"frame did not decode: {exc}"
+                s.failed_reads += 1
         self._put(Grabbed(s.grabbed, t_s, image, error, jpeg))
         s.grabbed += 1
 

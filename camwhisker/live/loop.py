@@ -70,6 +70,10 @@ GAP_REASON = "no frame: capture read failed"
 #: How often the loop looks at its stop flag while no frame comes (s): the
 #: longest a stop waits; the wait itself blocks, it does not spin.
 POLL_S = 0.1
+#: A camera whose measured rate differs from the rate it reports by more than this
+#: share is named in the problems (drivers report the requested rate, not the real one,
+#: e.g. under low light with auto exposure the C310 halves its rate).
+FPS_MISMATCH = 0.1
 #: Keys read from a terminal.
 KEYS = {"r": "rezero", "d": "redetect", "q": "quit"}
 
@@ -400,6 +404,14 @@ class LiveSession:
         rep.end_to_end = latency_summary(e2e_ms)
         if stats.lost:
             rep.problems.append(f"capture lost after {cfg.max_reconnects} reconnect attempts")
+        applied_fps = self._input.get("settings", {}).get("applied", {}).get("fps")
+        measured = stats.fps_measured
+        if (
+            applied_fps
+            and math.isfinite(measured)
+            and (abs(measured - applied_fps) > FPS_MISMATCH * applied_fps)
+        ):
+            rep.problems.append(f"the camera reports {applied_fps:g} fps; measured {measured:.1f}")
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip

@@ -70,8 +70,8 @@ class PlaybackSource:
         due = self._t0 + self._k / self.rate_fps
         if due > now:
             time.sleep(due - now)
-        else:
-            self.late += self._k > 0 and now - due > 1.0 / self.rate_fps
+        elif now - due > 1.0 / self.rate_fps:
+            self.late += 1  # the reader fell more than a frame behind the clock
         self._k += 1
         self.released += 1
         return True, image
