@@ -256,6 +256,8 @@ def test_latency_bench_on_the_mjpg_sample(capsys):
     p = b.processing
     assert b.frames == p["n"] == 11 and b.threads == 1
     assert 0 < p["p50_ms"] <= p["p99_ms"] <= p["max_ms"] and b.rest_ms > 0
+    # CPU time of the processing thread cannot exceed its wall-clock (one thread)
+    assert b.cpu["n"] == 11 and 0 < b.cpu["mean_ms"] <= 1.05 * p["mean_ms"]
     assert b.decode["n"] == 12 and b.ok_share == 1.0
     assert math.isnan(b.phi_rmse_deg)  # no truth given
     assert bench_main(["--video", str(SAMPLES / "nominal_mjpg.avi"),

@@ -255,6 +255,7 @@ class LiveSession:
         self._commands: queue.SimpleQueue[str] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._stop_reason = ""
+        self._stdout_closed = False
         #: Sequence numbers of the rows, in order (for the drop check).
         self.seqs: list[int] = []
 
@@ -384,8 +385,12 @@ class LiveSession:
             recorder.write(index, item.seq, t_s, item.jpeg, shape, event)
         if self.config.jsonl or udp is not None:
             msg = result_message(item.seq, t_s, r, 1e3 * (done - item.t_s))
-            if self.config.jsonl:
-                print(msg, file=self.stdout, flush=True)
+            if self.config.jsonl and not self._stdout_closed:
+                try:
+                    print(msg, file=self.stdout, flush=True)
+                except BrokenPipeError:  # the reader went away: the other outputs go on
+                    self._stdout_closed = True
+                    log.warning("stdout closed: no more JSON lines")
             if udp is not None:
                 udp.send(msg)
         rep.rows += 1
