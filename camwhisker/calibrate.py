@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker import __version__
+from camwhisker.atomic import atomic_write_text
 from camwhisker.contact.gm import PHI_MIN_DEG, GMFit, fit_gm, r_gm
-from camwhisker.contact.io import atomic_write_text, write_csv
+from camwhisker.contact.io import write_csv
 from camwhisker.contact.mf import (
     DZ_SCALE_MM,
     MF_DOMAIN_RADIUS,

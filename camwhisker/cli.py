@@ -120,6 +120,24 @@ def _run_describe(args) -> int:
     return 0
 
 
+def _add_experiment(sub) -> None:
+    p = sub.add_parser(
+        "make-experiment",
+        help="simulate a stage experiment and film it (videos, stage logs, truth)",
+    )
+    p.add_argument("--dest", default="sample_frames/experiment", metavar="DIR")
+    p.add_argument("--seed", type=int, default=8)
+    p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
+    p.set_defaults(func=_run_experiment)
+
+
+def _run_experiment(args) -> int:
+    from camwhisker.synth.experiment import render_experiment
+
+    print(render_experiment(args.dest, args.seed, jobs=args.jobs))
+    return 0
+
+
 # --- vision front end ------------------------------------------------------------------------
 
 
@@ -287,6 +305,34 @@ def _add_contact(sub) -> None:
     add_commands(sub, CommandError)
 
 
+# --- the whole chain ----------------------------------------------------------------------------
+
+
+def _add_chain(sub) -> None:
+    p = sub.add_parser(
+        "chain",
+        help="batch, calibrate, contact and plots on a filmed stage experiment, "
+        "checked against its truth",
+    )
+    p.add_argument("experiment", help="folder made by make-experiment (has experiment.toml)")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--jobs", type=int, default=2, help="videos processed in parallel")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run_chain)
+
+
+def _run_chain(args) -> int:
+    from camwhisker.chain import ChainError, format_summary, run_chain
+
+    try:
+        summary = run_chain(args.experiment, args.out, args.jobs, progress=not args.quiet)
+    except (ChainError, ValueError) as exc:
+        raise CommandError(str(exc)) from exc
+    print(format_summary(summary))
+    print(f"wrote {args.out}/summary.json, calib.toml, signals/, contact/ and fig*.png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="camwhisker", description=__doc__)
     parser.add_argument("--version", action="version", version=f"camwhisker {__version__}")
@@ -301,6 +347,8 @@ _COMMANDS: list = [
     _add_bound,
     _add_samples,
     _add_describe,
+    _add_experiment,
+    _add_chain,
     _add_contact,
     _add_batch,
     _add_list_cameras,

@@ -22,7 +22,8 @@ from camwhisker.contact.zscore import flag_rates, roc_auc
 from camwhisker.mechanics.experiment import NOISE_LEVELS, simulate_runs
 from camwhisker.stage import stage_log_from_arrays
 
-__all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_kind", "summary", "benchmark",
+__all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_run", "pool",
+           "evaluate_kind", "summary", "benchmark",
            "run_bench", "format_report"]
 
 EVAL_KINDS = ("rigid", "compliant", "slide-box", "slide-circle")
@@ -46,30 +47,42 @@ def calibrate_simulated(seed: int, kind: str = "rigid", **sim) -> Calibration:
     return calib
 
 
-def evaluate_kind(calib: Calibration, kind: str, seed: int, **sim) -> dict:
-    """Pause-level estimates with truth for all runs of ``kind``, pooled.
+def evaluate_run(calib: Calibration, signals: dict, log, truth: dict, scene,
+                 true_offset_s: float, run_index: int = 0) -> dict:
+    """Pause-level estimates of one run with its truth attached.
 
     Truth per pause (at its middle): r_true_mm, slipping, contact point, the
     distance of (x_hat, y_hat) to the true profile (profile_dist_mm), the
-    offset error (offset_err_s), and the run index.
+    offset error (offset_err_s), and the run index. ``signals`` may come from
+    the simulator or from the vision front end on a filmed run.
     """
-    parts = []
-    for i, run in enumerate(simulate_runs(kind, seed, **sim)):
-        a = analyse_run(run.signals, _log(run, False))
-        e = pause_estimates(calib, a)
-        tmid = 0.5 * (a.pauses.t_start_s + a.pauses.t_end_s)
-        truth = run.truth
-        e["r_true_mm"] = np.interp(tmid, truth["t_s"], truth["r_mm"])
-        e["slipping"] = np.interp(tmid, truth["t_s"], truth["slipping"].astype(float)) > 0.5
-        e["profile_dist_mm"] = run.scene.profile_distance(e["x_hat_mm"], e["y_hat_mm"])
-        gx, gy = reconstruct(e["x_mm"], e["r_gm_mm"], e["phi_deg"], a.travel_sign)
-        mx, my = reconstruct(e["x_mm"], e["r_mf_mm"], e["phi_deg"], a.travel_sign)
-        e["gm_x_hat_mm"], e["gm_y_hat_mm"], e["mf_x_hat_mm"], e["mf_y_hat_mm"] = gx, gy, mx, my
-        e["gm_profile_dist_mm"] = run.scene.profile_distance(gx, gy)
-        e["offset_err_s"] = np.full(tmid.size, a.offset_s - run.offset_s)
-        e["run"] = np.full(tmid.size, i)
-        parts.append(e)
+    a = analyse_run(signals, log)
+    e = pause_estimates(calib, a)
+    tmid = 0.5 * (a.pauses.t_start_s + a.pauses.t_end_s)
+    e["r_true_mm"] = np.interp(tmid, truth["t_s"], truth["r_mm"])
+    slipping = np.asarray(truth["slipping"], float)
+    e["slipping"] = np.interp(tmid, truth["t_s"], slipping) > 0.5
+    e["profile_dist_mm"] = scene.profile_distance(e["x_hat_mm"], e["y_hat_mm"])
+    gx, gy = reconstruct(e["x_mm"], e["r_gm_mm"], e["phi_deg"], a.travel_sign)
+    mx, my = reconstruct(e["x_mm"], e["r_mf_mm"], e["phi_deg"], a.travel_sign)
+    e["gm_x_hat_mm"], e["gm_y_hat_mm"], e["mf_x_hat_mm"], e["mf_y_hat_mm"] = gx, gy, mx, my
+    e["gm_profile_dist_mm"] = scene.profile_distance(gx, gy)
+    e["offset_err_s"] = np.full(tmid.size, a.offset_s - true_offset_s)
+    e["run"] = np.full(tmid.size, run_index)
+    return e
+
+
+def pool(parts: list[dict]) -> dict:
+    """Concatenate per-run evaluations into one."""
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def evaluate_kind(calib: Calibration, kind: str, seed: int, **sim) -> dict:
+    """:func:`evaluate_run` over all simulated runs of ``kind``, pooled."""
+    return pool([
+        evaluate_run(calib, run.signals, _log(run, False), run.truth, run.scene, run.offset_s, i)
+        for i, run in enumerate(simulate_runs(kind, seed, **sim))
+    ])
 
 
 def summary(ev: dict) -> dict:

@@ -9,46 +9,46 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SignalTableError", "read_signal_table", "write_csv", "atomic_write_text",
-           "atomic_write_bytes", "format_cell"]
+from camwhisker.atomic import atomic_write_text
+
+__all__ = ["SignalTableError", "read_columns", "read_signal_table", "write_csv", "format_cell"]
 
 SIGNAL_COLUMNS = ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
 
 
 class SignalTableError(ValueError):
     """A signal table that cannot be used; the message names the file, row and column."""
 
 
-def read_signal_table(path: str | Path) -> dict:
-    """Read a signal table (SENSOR.md section 6) into float arrays (empty cell -> NaN).
+def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> dict:
+    """Numeric columns of a CSV with a header into float arrays (empty cell -> NaN).
 
-    ``ok`` becomes a bool array; rows with ok = 0 keep their (NaN) values.
+    Parameters
+    ----------
+    columns : tuple of str, optional
+        The columns to read (others, e.g. free-text notes, are ignored); all if None.
 
     Raises
     ------
     SignalTableError
-        Missing file or column, a non-numeric cell, or t_s missing or not increasing.
+        Missing file or column, a ragged row, or a non-numeric cell (named by row and column).
     """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise SignalTableError(f"{path}: cannot read signal table ({exc.strerror})") from exc
+        raise SignalTableError(f"{path}: cannot read ({exc.strerror})") from exc
     reader = csv.reader(io.StringIO(text))
     header = [h.strip() for h in next(reader, [])]
-    for need in SIGNAL_COLUMNS:
+    for need in columns or ():
         if need not in header:
             raise SignalTableError(f"{path}: row 1: missing column {need!r} (header: {header})")
-    idx = {name: header.index(name) for name in SIGNAL_COLUMNS}
-    cols = {name: [] for name in SIGNAL_COLUMNS}
+    idx = {name: header.index(name) for name in (columns or header)}
+    cols = {name: [] for name in idx}
     for i, row in enumerate(reader, start=2):
         if not row:
             continue
@@ -64,7 +64,20 @@ def read_signal_table(path: str | Path) -> dict:
             except ValueError:
                 raise SignalTableError(
                     f"{path}: row {i}, column {name}: not a number: {cell!r}") from None
-    out = {k: np.array(v, float) for k, v in cols.items()}
+    return {k: np.array(v, float) for k, v in cols.items()}
+
+
+def read_signal_table(path: str | Path) -> dict:
+    """Read a signal table (SENSOR.md section 6) into float arrays (empty cell -> NaN).
+
+    ``ok`` becomes a bool array; rows with ok = 0 keep their (NaN) values.
+
+    Raises
+    ------
+    SignalTableError
+        Missing file or column, a non-numeric cell, or t_s missing or not increasing.
+    """
+    out = read_columns(path, SIGNAL_COLUMNS)
     t = out["t_s"]
     if t.size == 0:
         raise SignalTableError(f"{path}: no rows")
@@ -91,25 +104,6 @@ def format_cell(value, digits: int = 6) -> str:
     if not math.isfinite(v):
         return ""
     return f"{v:.{digits}g}"
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write to a temporary file beside ``path``, then rename it into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual file mode
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def write_csv(path: str | Path, columns: dict, digits: int = 6) -> None:

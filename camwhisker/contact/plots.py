@@ -21,8 +21,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from camwhisker import __version__  # noqa: E402
+from camwhisker.atomic import atomic_write_bytes  # noqa: E402
 from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
-from camwhisker.contact.io import atomic_write_bytes  # noqa: E402
 
 __all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes"]
 

@@ -142,6 +142,14 @@ def _scenes(kind: str):
 
 
 @functools.lru_cache(maxsize=64)
+def scene_by_name(kind: str, name: str):
+    """The scene of run ``name`` in experiments of ``kind`` (as named by :func:`simulate_runs`)."""
+    scenes = dict(_scenes(kind))
+    if name not in scenes:
+        raise ValueError(f"no run {name!r} in {kind!r} experiments (runs: {', '.join(scenes)})")
+    return scenes[name]
+
+
 def _cached_sweep(scene, mech, positions, model):
     return sweep(scene, mech, np.array(positions), model)
 

@@ -6,7 +6,8 @@ import datetime as _dt
 from pathlib import Path
 
 from camwhisker import __version__
-from camwhisker.contact.io import atomic_write_text, write_csv
+from camwhisker.atomic import atomic_write_text
+from camwhisker.contact.io import write_csv
 from camwhisker.mechanics.experiment import StageRun
 
 __all__ = ["write_runs"]

@@ -47,6 +47,9 @@ class Artefacts:
     read_noise_fraction: float = 0.3
     #: JPEG quality of the codec (MJPG AVI), or None for no compression.
     jpeg_quality: int | None = None
+    #: H.264 constant rate factor for MP4 files: 18 is visually lossless and keeps
+    #: the sensor noise; higher values smooth it away and shrink the file.
+    h264_crf: int = 18
 
 
 def illumination_field(shape: tuple[int, int], art: Artefacts) -> np.ndarray:

@@ -16,12 +16,10 @@ For ``NAME.avi`` the files are::
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Iterator
+from fractions import Fraction
 from pathlib import Path
 
 import av
@@ -30,33 +28,13 @@ import numpy as np
 from tqdm import tqdm
 
 from camwhisker import __version__
+from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.synth.artefacts import apply_artefacts, illumination_field
 from camwhisker.synth.render import SceneRenderer
 from camwhisker.synth.scenarios import Scenario
 
 __all__ = ["write_video", "render_frames", "render_scenario", "atomic_path", "sidecar_paths"]
-
-_FILE_MODE = 0o644
-
-#: H.264 constant rate factor for MP4 output: visually lossless, keeps sensor noise.
-MP4_CRF = 18
-
-
-@contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix); rename it into place on success."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, _FILE_MODE)  # mkstemp makes it private; outputs are ordinary files
-        os.replace(tmp, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
 
 
 def sidecar_paths(video: Path) -> dict[str, Path]:
@@ -70,9 +48,14 @@ def sidecar_paths(video: Path) -> dict[str, Path]:
 
 
 def write_video(
-    path: Path, frames: Iterable[np.ndarray], fps: float, jpeg_quality: int | None = 88
+    path: Path,
+    frames: Iterable[np.ndarray],
+    fps: float,
+    jpeg_quality: int | None = 88,
+    h264_crf: int = 18,
 ) -> int:
-    """Write uint8 BGR frames to ``.avi`` (MJPG) or ``.mp4`` (H.264); returns the count."""
+    """Write uint8 BGR frames to ``.avi`` (MJPG, at ``jpeg_quality``) or ``.mp4``
+    (H.264, at constant rate factor ``h264_crf``); returns the count."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".avi", ".mp4"):
@@ -99,10 +82,12 @@ def write_video(
                 stream = None
                 for frame in frames:
                     if stream is None:
-                        stream = container.add_stream("libx264", rate=round(fps))
+                        stream = container.add_stream(
+                            "libx264", rate=Fraction(fps).limit_denominator(1001)
+                        )
                         stream.height, stream.width = frame.shape[:2]
                         stream.pix_fmt = "yuv444p"  # 4:2:0 shifts colours by ~3 DN
-                        stream.options = {"crf": str(MP4_CRF), "preset": "medium"}
+                        stream.options = {"crf": str(int(h264_crf)), "preset": "medium"}
                     packet = av.VideoFrame.from_ndarray(frame, format="bgr24")
                     container.mux(stream.encode(packet))
                     n += 1
@@ -132,10 +117,9 @@ def render_scenario(
     video = Path(video)
     paths = sidecar_paths(video)
     used = sensor.replace(**scenario.sensor_changes) if scenario.sensor_changes else sensor
-    n = write_video(
-        video, render_frames(scenario, sensor, seed, progress), scenario.fps,
-        scenario.artefacts.jpeg_quality,
-    )  # fmt: skip
+    art = scenario.artefacts
+    frames = render_frames(scenario, sensor, seed, progress)
+    n = write_video(video, frames, scenario.fps, art.jpeg_quality, art.h264_crf)
     with atomic_path(paths["truth"]) as tmp:
         scenario.track.write_csv(tmp)
     with atomic_path(paths["sensor"]) as tmp:

@@ -1,0 +1,306 @@
+"""Many recordings at once: expand inputs, skip what is done, run in parallel, report failures.
+
+One video is one task. A task is any picklable callable ``process(video,
+out) -> dict`` that writes ``out`` and its JSON sidecar atomically, the
+sidecar last, recording the output's size and SHA-256 (see
+:func:`write_sidecar`). An output counts as complete only when its sidecar
+says so and the output's bytes still match: a run killed at any point
+never leaves a file that is taken as complete, and a rerun skips exactly the
+finished files.
+
+Tasks run in this process (``jobs=1``), in ``jobs`` local processes, each with
+OpenCV on one thread, or on an existing Dask distributed cluster
+(``scheduler``), one video per task. One failed video never stops the others;
+the summary lists each failure with its reason.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import time
+import traceback
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from camwhisker.atomic import atomic_path
+from camwhisker.batch import sidecar_path
+
+__all__ = [
+    "VIDEO_SUFFIXES",
+    "CampaignError",
+    "TaskResult",
+    "Summary",
+    "expand_inputs",
+    "output_path",
+    "sidecar_path",
+    "write_sidecar",
+    "is_complete",
+    "run_many",
+]
+
+#: What a folder is searched for.
+VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"})
+
+
+class CampaignError(ValueError):
+    """Inputs that cannot be turned into a list of videos (named in the message)."""
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    video: str
+    out: str
+    status: str  # "done", "skipped" or "failed"
+    reason: str = ""
+    frames: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class Summary:
+    results: list[TaskResult] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def count(self, status: str) -> int:
+        return sum(r.status == status for r in self.results)
+
+    @property
+    def failed(self) -> list[TaskResult]:
+        return [r for r in self.results if r.status == "failed"]
+
+    @property
+    def frames(self) -> int:
+        return sum(r.frames for r in self.results if r.status == "done")
+
+    def report(self) -> str:
+        lines = [
+            f"{len(self.results)} videos: {self.count('done')} done, "
+            f"{self.count('skipped')} already complete, {self.count('failed')} failed; "
+            f"{self.frames} frames in {self.seconds:.1f} s"
+        ]
+        lines += [f"  FAILED {r.video}: {r.reason}" for r in self.failed]
+        return "\n".join(lines)
+
+
+def expand_inputs(items: Sequence[str | Path]) -> list[Path]:
+    """Videos named by files, folders (searched recursively by suffix) and globs.
+
+    Order is kept and duplicates dropped. A named file is kept even if it is
+    not a video, so that its failure is reported with the others; a folder
+    or glob that yields nothing is an error naming it.
+    """
+    out: list[Path] = []
+    for item in items:
+        text = str(item)
+        path = Path(text)
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
+            if not found:
+                raise CampaignError(f"{path}: folder holds no video ({', '.join(VIDEO_SUFFIXES)})")
+        elif glob.has_magic(text):
+            found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
+            if not found:
+                raise CampaignError(f"{text}: pattern matches no file")
+        else:
+            found = [path]
+        out.extend(found)
+    seen: set[Path] = set()
+    unique = []
+    for p in out:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def output_path(
+    video: Path, dest: Path | None, suffix: str = ".csv", root: Path | None = None
+) -> Path:
+    """Where a video's signal table goes: beside it, or under ``dest`` mirroring its
+    path relative to ``root`` (so that equal names in different folders don't collide)."""
+    name = video.stem + ".signals" + suffix
+    if dest is None:
+        return video.with_name(name)
+    rel = video.parent.resolve().relative_to(root.resolve()) if root is not None else Path()
+    return Path(dest) / rel / name
+
+
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_sidecar(out: Path, meta: dict, complete: bool = True) -> None:
+    """Write ``out``'s sidecar (atomically), recording ``out`` as it is now.
+
+    ``complete=False`` records an output that is all there is but not all
+    there should be (a truncated video): kept, but redone by the next run.
+    """
+    out = Path(out)
+    output = {"path": out.name, "bytes": out.stat().st_size, "sha256": _digest(out)}
+    record = dict(meta, output=output, complete=complete)
+    with atomic_path(sidecar_path(out)) as tmp:
+        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
+
+
+def is_complete(out: Path) -> bool:
+    """True only if the sidecar says complete and the output's bytes still match it."""
+    out, side = Path(out), sidecar_path(Path(out))
+    if not (out.is_file() and side.is_file()):
+        return False
+    try:
+        record = json.loads(side.read_text())
+        expected = record["output"]
+        return (
+            record.get("complete") is True
+            and expected["bytes"] == out.stat().st_size
+            and expected["sha256"] == _digest(out)
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def _run_one(process: Callable[[Path, Path], dict], video: Path, out: Path) -> TaskResult:
+    """Run one task, turning any failure into a result with its reason."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    t0 = time.perf_counter()
+    try:
+        info = process(Path(video), Path(out)) or {}
+    except Exception as exc:  # noqa: BLE001 - one bad video must not stop the campaign
+        last = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+        where = f" (at {Path(last.filename).name}:{last.lineno})" if last else ""
+        return TaskResult(
+            str(video),
+            str(out),
+            "failed",
+            f"{type(exc).__name__}: {exc}{where}",
+            seconds=time.perf_counter() - t0,
+        )
+    status = "failed" if info.get("error") else "done"
+    return TaskResult(
+        str(video),
+        str(out),
+        status,
+        info.get("error", ""),
+        int(info.get("frames", 0)),
+        time.perf_counter() - t0,
+    )
+
+
+def run_many(
+    tasks: Iterable[tuple[Path, Path]],
+    process: Callable[[Path, Path], dict],
+    jobs: int = 1,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> Summary:
+    """Run ``process`` over (video, out) pairs, skipping complete outputs unless ``overwrite``.
+
+    Parameters
+    ----------
+    jobs : int
+        Local worker processes (1: run here).
+    scheduler : str, optional
+        Address of a Dask distributed scheduler; overrides ``jobs``.
+    """
+    t0 = time.perf_counter()
+    summary = Summary()
+    todo = []
+    for video, out in tasks:
+        if not overwrite and is_complete(out):
+            summary.results.append(TaskResult(str(video), str(out), "skipped"))
+        else:
+            todo.append((Path(video), Path(out)))
+    bar = tqdm(total=len(todo), desc="videos", unit="video", disable=not progress)
+    try:
+        for result in _dispatch(todo, process, jobs, scheduler):
+            summary.results.append(result)
+            bar.update(1)
+            if result.status == "failed":
+                bar.write(f"FAILED {result.video}: {result.reason}")
+    finally:
+        bar.close()
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _dispatch(todo, process, jobs, scheduler):
+    if not todo:
+        return
+    if scheduler is not None:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+
+        with Client(scheduler) as client:
+            futures = [client.submit(_run_one, process, v, o, pure=False) for v, o in todo]
+            for fut in dask_completed(futures):
+                yield fut.result()
+        return
+    if jobs <= 1:
+        for v, o in todo:
+            yield _run_one(process, v, o)
+        return
+    workers = min(jobs, len(todo))
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(_run_one, process, v, o) for v, o in todo]
+        for fut in as_completed(futures):
+            yield fut.result()
+
+
+@dataclass(frozen=True)
+class BatchTask:
+    """The front end on one video, as a picklable campaign task.
+
+    Writes the signal table (CSV, or Parquet when ``out`` ends in .parquet)
+    and its sidecar, then marks the output complete in the sidecar with its
+    size, digest, decoder and timings.
+    """
+
+    sensor: object  # camwhisker.sensor.Sensor
+    options: object = None  # camwhisker.vision.tracker.FrontEndOptions
+    calibration_id: str | None = None
+
+    def __call__(self, video: Path, out: Path) -> dict:
+        from camwhisker.batch import run_batch
+
+        out = Path(out)
+        parquet = out.suffix.lower() == ".parquet"
+        # Parquet is converted from the CSV, written first under a hidden name.
+        table = out.with_name(f".{out.stem}.partial.csv") if parquet else out
+        t0 = time.perf_counter()
+        report = run_batch(video, self.sensor, table, self.options, progress=False)
+        seconds = time.perf_counter() - t0
+        meta = json.loads(report.sidecar.read_text())
+        if parquet:
+            _csv_to_parquet(table, out)
+            table.unlink()
+            report.sidecar.unlink()
+        meta.update(
+            calibration_id=self.calibration_id,
+            frames_decoded=report.frames,
+            timings={"seconds": seconds, "frames_per_s": report.frames / seconds},
+        )
+        write_sidecar(out, meta, complete=not report.problems)
+        return {"frames": report.frames, "error": "; ".join(report.problems)}
+
+
+def _csv_to_parquet(csv_path: Path, out: Path) -> None:
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    table = pacsv.read_csv(csv_path)
+    with atomic_path(out) as tmp:
+        pq.write_table(table, tmp)
