@@ -47,7 +47,9 @@ class PlaybackSource:
         self._fps = fps
         self._clock = clock
         self._src = SourceCapture(self.path, fps)
-        self._t0: float | None = None
+        #: Clock time (s) at which frame 0 was released; frame k is released at
+        #: ``t0_s + k / rate_fps`` or later (None before the first read).
+        self.t0_s: float | None = None
         self._k = 0
         self.released = 0
         self.late = 0
@@ -65,9 +67,9 @@ class PlaybackSource:
         if not ok:
             return False, None
         now = self._clock()
-        if self._t0 is None:
-            self._t0 = now
-        due = self._t0 + self._k / self.rate_fps
+        if self.t0_s is None:
+            self.t0_s = now
+        due = self.t0_s + self._k / self.rate_fps
         if due > now:
             time.sleep(due - now)
         elif now - due > 1.0 / self.rate_fps:
