@@ -123,12 +123,24 @@ def expand_inputs(items: Sequence[str | Path]) -> list[Path]:
 def output_path(
     video: Path, dest: Path | None, suffix: str = ".csv", root: Path | None = None
 ) -> Path:
-    """Where a video's signal table goes: beside it, or under ``dest`` mirroring its
-    path relative to ``root`` (so that equal names in different folders don't collide)."""
+    """Where a video's signal table goes.
+
+    Beside the video, or under ``dest`` mirroring the video's folder relative
+    to ``root`` (default: the working directory; folders outside it are
+    mirrored from the filesystem root). The rule does not depend on the other
+    inputs of a run, so a rerun finds its earlier outputs, and equal names in
+    different folders never collide.
+    """
+    video = Path(video)
     name = video.stem + ".signals" + suffix
     if dest is None:
         return video.with_name(name)
-    rel = video.parent.resolve().relative_to(root.resolve()) if root is not None else Path()
+    folder = video.parent.resolve()
+    base = Path(root or Path.cwd()).resolve()
+    try:
+        rel = folder.relative_to(base)
+    except ValueError:
+        rel = folder.relative_to(folder.anchor)
     return Path(dest) / rel / name
 
 
@@ -229,7 +241,7 @@ def run_many(
         for result in _dispatch(todo, process, jobs, scheduler):
             summary.results.append(result)
             bar.update(1)
-            if result.status == "failed":
+            if result.status == "failed" and progress:
                 bar.write(f"FAILED {result.video}: {result.reason}")
     finally:
         bar.close()
@@ -272,6 +284,8 @@ class BatchTask:
     sensor: object  # camwhisker.sensor.Sensor
     options: object = None  # camwhisker.vision.tracker.FrontEndOptions
     calibration_id: str | None = None
+    rest_index: int = 0
+    fps: float | None = None
 
     def __call__(self, video: Path, out: Path) -> dict:
         from camwhisker.batch import run_batch
@@ -281,7 +295,9 @@ class BatchTask:
         # Parquet is converted from the CSV, written first under a hidden name.
         table = out.with_name(f".{out.stem}.partial.csv") if parquet else out
         t0 = time.perf_counter()
-        report = run_batch(video, self.sensor, table, self.options, progress=False)
+        report = run_batch(
+            video, self.sensor, table, self.options, self.rest_index, self.fps, progress=False
+        )
         seconds = time.perf_counter() - t0
         meta = json.loads(report.sidecar.read_text())
         if parquet:

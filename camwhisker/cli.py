@@ -142,31 +142,66 @@ def _run_experiment(args) -> int:
 
 
 def _add_batch(sub) -> None:
-    p = sub.add_parser("batch", help="video -> signal table (dz, phi, theta per frame)")
-    p.add_argument("video", help="video file OpenCV can read, or a folder of images")
-    p.add_argument("--out", required=True, metavar="OUT.csv", help="signal table (CSV)")
-    p.add_argument("--mode", choices=("model", "paper"), default="model",
-                   help="exact camera model (default) or the paper's eqs. 2-7")  # fmt: skip
+    p = sub.add_parser(
+        "batch",
+        help="video(s) -> signal table(s) (dz, phi, theta per frame)",
+        description="One video with --out: its signal table. Many videos, folders or globs: "
+        "one table each, beside the input or under --dest, skipping outputs already complete.",
+    )
+    p.add_argument(
+        "video",
+        nargs="+",
+        help="video files OpenCV can read, folders, globs; or one folder of images with --out",
+    )
+    p.add_argument("--out", metavar="OUT.csv", help="signal table of a single input")
+    p.add_argument("--dest", metavar="DIR", help="many inputs: write the tables under DIR")
+    p.add_argument(
+        "--format", choices=("csv", "parquet"), default="csv", help="many inputs: table format"
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="many inputs: N local processes, one OpenCV thread each",
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="many inputs: run on this Dask distributed scheduler"
+    )
+    p.add_argument("--overwrite", action="store_true", help="redo outputs already complete")
+    p.add_argument(
+        "--mode",
+        choices=("model", "paper"),
+        default="model",
+        help="exact camera model (default) or the paper's eqs. 2-7",
+    )
     p.add_argument("--no-shift", action="store_true", help="do not fit the lateral shift")
     p.add_argument("--lock-gains", action="store_true", help="keep the rest frame's white balance")
     p.add_argument("--rest-frame", type=int, default=0, metavar="N", help="rest reference frame")
     p.add_argument("--fps", type=float, help="frame rate of an image folder")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     _sensor_arg(p)
     p.set_defaults(func=_run_batch)
 
 
 def _run_batch(args) -> int:
-    from camwhisker.batch import run_batch
     from camwhisker.sources import SourceError
     from camwhisker.vision import FeaturesNotFound, FrontEndOptions
 
     if args.rest_frame < 0:
         raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
     options = FrontEndOptions(args.mode, not args.no_shift, args.lock_gains)
+    sensor = load_sensor(args.sensor)
+    if args.out is None:
+        return _run_batch_many(args, sensor, options)
+    if len(args.video) != 1 or args.dest:
+        raise CommandError("--out takes a single input; for many use --dest (or neither)")
+    from camwhisker.batch import run_batch
+
     try:
-        report = run_batch(args.video, load_sensor(args.sensor), args.out, options,
-                           args.rest_frame, args.fps, not args.quiet)  # fmt: skip
+        report = run_batch(
+            args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet
+        )
     except (SourceError, FeaturesNotFound) as exc:
         raise CommandError(str(exc)) from exc
     print(f"{report.frames} frames, {report.frames_ok} ok -> {report.out_csv}, {report.sidecar}")
@@ -175,14 +210,35 @@ def _run_batch(args) -> int:
     return 3 if report.problems else 0
 
 
+def _run_batch_many(args, sensor, options) -> int:
+    from pathlib import Path
+
+    from camwhisker.campaign import BatchTask, CampaignError, expand_inputs, output_path, run_many
+
+    try:
+        videos = expand_inputs(args.video)
+    except CampaignError as exc:
+        raise CommandError(str(exc)) from exc
+    dest = Path(args.dest) if args.dest else None
+    tasks = [(v, output_path(v, dest, "." + args.format)) for v in videos]
+    task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps)
+    summary = run_many(tasks, task, args.jobs, args.scheduler, args.overwrite, not args.quiet)
+    print(summary.report())
+    return 3 if summary.failed else 0
+
+
 # --- live processing -------------------------------------------------------------------------
 
 
 def _add_list_cameras(sub) -> None:
     p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
     p.add_argument("--all", action="store_true", help="also the nodes that cannot capture")
-    p.add_argument("--sysfs", default="/sys/class/video4linux", metavar="DIR",
-                   help="video4linux class folder (another tree for tests)")  # fmt: skip
+    p.add_argument(
+        "--sysfs",
+        default="/sys/class/video4linux",
+        metavar="DIR",
+        help="video4linux class folder (another tree for tests)",
+    )
     p.add_argument("--dev", default="/dev", metavar="DIR", help="device folder (with v4l/by-id)")
     p.set_defaults(func=_run_list_cameras)
 
@@ -199,28 +255,41 @@ def _run_list_cameras(args) -> int:
 
 def _add_live(sub) -> None:
     p = sub.add_parser("live", help="camera (or file at camera rate) -> signals within ms")
-    p.add_argument("source", nargs="?",
-                   help="camera index, /dev/videoN or by-id name; or a video / folder")  # fmt: skip
+    p.add_argument(
+        "source", nargs="?", help="camera index, /dev/videoN or by-id name; or a video / folder"
+    )
     p.add_argument("--out", metavar="OUT.csv", help="signal table, flushed per row (+ OUT.json)")
-    p.add_argument("--mode", choices=("latest", "every"), default="latest",
-                   help="latest: drop stale frames (control); every: keep all")  # fmt: skip
+    p.add_argument(
+        "--mode",
+        choices=("latest", "every"),
+        default="latest",
+        help="latest: drop stale frames (control); every: keep all",
+    )
     p.add_argument("--record", metavar="SESSION.avi", help="record the frames (MJPG + timestamps)")
     p.add_argument("--udp", type=int, metavar="PORT", help="one JSON datagram per frame")
     p.add_argument("--udp-host", default="127.0.0.1", help="UDP destination (default: this host)")
     p.add_argument("--jsonl", action="store_true", help="one JSON line per frame on stdout")
-    p.add_argument("--playback-fps", type=float, metavar="FPS",
-                   help="play a file at this rate, like a camera")  # fmt: skip
+    p.add_argument(
+        "--playback-fps", type=float, metavar="FPS", help="play a file at this rate, like a camera"
+    )
     p.add_argument("--loop", action="store_true", help="loop a played-back file")
     p.add_argument("--frames", type=int, metavar="N", help="stop after N rows (bench: clip length)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--no-keys", action="store_true", help="no r/d/q keys even on a terminal")
     p.add_argument("--raw-mjpg", action="store_true", help="take the camera's JPEG bytes as sent")
-    p.add_argument("--no-lock", action="store_true",
-                   help="leave auto white balance and exposure as the camera has them")  # fmt: skip
+    p.add_argument(
+        "--no-lock",
+        action="store_true",
+        help="leave auto white balance and exposure as the camera has them",
+    )
     p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
-    p.add_argument("--mode-front", choices=("model", "paper"), default="model",
-                   help="front end: exact camera model or the paper's eqs. 2-7")  # fmt: skip
+    p.add_argument(
+        "--mode-front",
+        choices=("model", "paper"),
+        default="model",
+        help="front end: exact camera model or the paper's eqs. 2-7",
+    )
     _sensor_arg(p)
     p.set_defaults(func=_run_live)
 
@@ -258,13 +327,17 @@ def _run_live(args) -> int:
     except (CaptureError, SourceError) as exc:
         raise CommandError(str(exc)) from exc
     config = LiveConfig(
-        mode=args.mode, options=FrontEndOptions(args.mode_front),
+        mode=args.mode,
+        options=FrontEndOptions(args.mode_front),
         record=Path(args.record) if args.record else None,
         record_rate_fps=args.playback_fps or profile.fps,
-        udp_port=args.udp, udp_host=args.udp_host, jsonl=args.jsonl,
-        controls=False if args.no_keys else None, max_frames=args.frames,
+        udp_port=args.udp,
+        udp_host=args.udp_host,
+        jsonl=args.jsonl,
+        controls=False if args.no_keys else None,
+        max_frames=args.frames,
         duration_s=args.duration,
-    )  # fmt: skip
+    )
     report = LiveSession(capture, sensor, args.out, config).run()
     print(LiveSession.summary(report), file=sys.stderr)
     for problem in report.problems:
@@ -287,8 +360,9 @@ def _run_replay(args) -> int:
     from camwhisker.vision import FrontEndOptions
 
     try:
-        out = reprocess_session(args.session, load_sensor(args.sensor), args.out,
-                                FrontEndOptions(args.mode_front))  # fmt: skip
+        out = reprocess_session(
+            args.session, load_sensor(args.sensor), args.out, FrontEndOptions(args.mode_front)
+        )
     except (SourceError, ValueError) as exc:
         raise CommandError(str(exc)) from exc
     print(out)

@@ -164,3 +164,22 @@ def test_parquet_output_has_the_same_rows(videos):
     ]
     header = csv_out.read_text().splitlines()[0].split(",")
     assert table.column_names == header
+
+
+def test_batch_command_many_inputs(videos, capsys):
+    from camwhisker.cli import main
+
+    root, good, bad = videos
+    dest = root / "dest"
+    rc = main(
+        ["batch", str(root / "a"), str(root / "b"), str(bad[0]), "--dest", str(dest), "--quiet"]
+    )
+    assert rc == 3  # one input failed
+    report = capsys.readouterr().out
+    assert "3 videos: 2 done, 0 already complete, 1 failed" in report and bad[0].name in report
+    mirrored = dest / root.relative_to(root.anchor)  # tmp_path lies outside the working dir
+    assert is_complete(mirrored / "a" / "clip.signals.csv")
+    assert is_complete(mirrored / "b" / "clip.signals.csv")
+    assert main(["batch", str(root / "a"), "--dest", str(dest), "--quiet"]) == 0
+    assert "1 already complete" in capsys.readouterr().out
+    assert main(["batch", str(good[0]), str(good[1]), "--out", str(root / "x.csv")]) == 2
