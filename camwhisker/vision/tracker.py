@@ -116,6 +116,12 @@ PREDICTION_OK_PX = 3.0
 #: updated templates) run when fewer corners than this locked on the warped rest
 #: patches (a big jump); a corner or two lost to noise is not worth their ~2 ms.
 FALLBACK_BELOW = 8
+#: Corners that must lock for the others to be predicted again from a fit: with
+#: the tip, 2 corners give 6 equations for the 5 unknowns.
+MIN_REPREDICT = 2
+#: Depths tried when too few corners lock (mm): the range of dz and beyond, in
+#: steps (0.2 mm: ~1.5 px at the corners) within the LK's reach.
+DZ_HYPOTHESES_MM = np.arange(-0.2, 1.41, 0.2)
 #: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
 TILT_TOL_RAD = 1e-5
 TILT_MAX_ITER = 8
@@ -257,20 +263,11 @@ class FrontEnd:
     def redetect(self, frame: np.ndarray) -> bool:
         """Find the features again from scratch at the current frame; True if found.
 
-        The pose is re-estimated from the detected tip and square corners
-        (the cross is not needed, the rod may cover it).
+        The pose is re-estimated from whatever was detected with the tip (the
+        rod and the cross may hide some corners).
         """
-        gains = self._gains(frame)
-        try:
-            det = detect_features(frame, gains, self.model, q=self.q,
-                                  require=("magnifier tip",))  # fmt: skip
-        except FeaturesNotFound:
-            return False
-        use = det.found.copy()
-        w = np.where(use, 1.0, 0.0)
-        w[TIP] *= TIP_WEIGHT
-        fit = fit_pose(self.model, det.uv, self.offsets, self.q, w, self.options.fit_shift)
-        if not fit.converged or fit.n_points < 3:
+        fit = self._detected_pose(frame, self._gains(frame))
+        if fit is None:
             return False
         self.q = fit.q.copy()
         self._q_hist = [self.q.copy()]
@@ -285,8 +282,10 @@ class FrontEnd:
             raise RuntimeError("FrontEnd.update before start(): no rest frame")
         self._check_frame(frame)
         self._index = self._index + 1 if index is None else index
-        if self._lost and not self.redetect(frame):
-            return self._fail("features lost; re-detection failed")
+        if self._lost:
+            # Best effort: a fresh pose from the detected features; the steps below
+            # search for the tip and the corners again either way.
+            self.redetect(frame)
         opts = self.options
         gains = self._gains(frame)
         q_pred, q_moving = self._predict()
@@ -334,7 +333,38 @@ class FrontEnd:
         uv_ref, qual = self._refine(frame, gains, tmpl, start_uv, ~occluded)
         retry = ~occluded & ~(qual >= QUALITY_MIN)
         locked = ~occluded & ~retry
-        if retry.any() and MIN_CORNERS <= locked.sum() < FALLBACK_BELOW and tip.ok:
+        if locked.sum() < MIN_CORNERS and tip.ok:
+            # Lost after a jump in dz: try the corners where the tip would put them
+            # at other depths, and keep the depth where most of them lock.
+            best = locked.sum()
+            for dz_mm in DZ_HYPOTHESES_MM:
+                q_h = q_guess.copy()
+                q_h[0] = dz_mm
+                q_h = self._tilt_from_tip(q_h, tip.centre_uv)
+                uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+                occ_h = self._occluded(q_h, uv_h)
+                uv_r, q_r = self._refine(frame, gains, self._warp_templates(q_h), uv_h, ~occ_h)
+                n_locked = int((~occ_h & (np.nan_to_num(q_r, nan=-1) >= QUALITY_MIN)).sum())
+                if n_locked > best:
+                    best, q_guess, occluded, start_uv = n_locked, q_h, occ_h, uv_h
+                    uv_ref, qual, tmpl = uv_r, q_r, self._warp_templates(q_h)
+            retry = ~occluded & ~(qual >= QUALITY_MIN)
+            locked = ~occluded & ~retry
+        if locked.sum() < MIN_REPREDICT and tip.ok:
+            # Still nothing (the shift jumped too): detect the features afresh.
+            fit0 = self._detected_pose(frame, gains, tip.centre_uv)
+            if fit0 is not None:
+                q_h = fit0.q
+                uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+                occ_h = self._occluded(q_h, uv_h)
+                tmpl_h = self._warp_templates(q_h)
+                uv_r, q_r = self._refine(frame, gains, tmpl_h, uv_h, ~occ_h)
+                if (~occ_h & (np.nan_to_num(q_r, nan=-1) >= QUALITY_MIN)).sum() > locked.sum():
+                    q_guess, occluded, start_uv, tmpl = q_h, occ_h, uv_h, tmpl_h
+                    uv_ref, qual = uv_r, q_r
+                    retry = ~occluded & ~(qual >= QUALITY_MIN)
+                    locked = ~occluded & ~retry
+        if retry.any() and MIN_REPREDICT <= locked.sum() < FALLBACK_BELOW and tip.ok:
             # Some corners were too far from the tip-only prediction (dz or the shift
             # moved): predict them again from a fit to the corners that locked.
             pre = np.full((TIP + 1, 2), np.nan)
@@ -406,6 +436,24 @@ class FrontEnd:
         if self.options.lock_gains:
             return self.gains_rest
         return white_balance_gains(frame, *self._cloth)
+
+    def _detected_pose(self, frame, gains, tip_uv=None) -> PoseFit | None:
+        """A pose fitted to the features :func:`detect_features` finds (searching
+        from the rest pose); ``tip_uv`` replaces its tip. None if too little."""
+        try:
+            det = detect_features(frame, gains, self.model, require=())
+        except FeaturesNotFound:  # pragma: no cover - nothing is required
+            return None
+        uv = det.uv.copy()
+        if tip_uv is not None:
+            uv[TIP] = tip_uv
+        found = np.isfinite(uv).all(axis=1)
+        if not found[TIP] or found[:TIP].sum() < MIN_REPREDICT:
+            return None
+        w = np.where(found, 1.0, 0.0)
+        w[TIP] *= TIP_WEIGHT
+        fit = fit_pose(self.model, uv, self.offsets, self.q, w, self.options.fit_shift)
+        return fit if fit.converged else None
 
     def _measure_colours(self, frame, gains, g, origin) -> None:
         """Colours of cross, square and cloth at the rest frame -> unmixing weights."""
