@@ -21,9 +21,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from camwhisker import __version__
+from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.sources import open_source
-from camwhisker.synth.video import atomic_path
 from camwhisker.vision import tracker as _tracker
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions, track
 
