@@ -42,8 +42,10 @@ STATIONARY_TOL_MM = 1e-3
 # Frames this close to either end of a pause are left out of its median: it
 # covers a residual clock-offset error and the settling of a quasi-static step.
 PAUSE_TRIM_S = 0.1
-# A pause needs this many trusted frames to give a median.
-MIN_PAUSE_FRAMES = 5
+# A pause needs this many trusted frames to give a median: three is the fewest
+# whose median still rejects one bad frame, and what a 1.2 s pause holds at a
+# low recording rate of 3 frames/s (at 30 frames/s a pause holds 30 or more).
+MIN_PAUSE_FRAMES = 3
 # Offset search: coarse grid then a fine grid around the best coarse value.
 OFFSET_COARSE_STEP_S = 0.1
 OFFSET_FINE_STEP_S = 0.004

@@ -1,0 +1,80 @@
+"""End to end: the bundled filmed stage experiment through batch, calibrate, contact and plots.
+
+The same chain as the README's main job, on the same bundled sample, with the
+numbers held against the simulator's truth. Tolerances are issue #8's:
+sd of the GM error <= 3 mm in rigid non-slipping contact (the paper's
+sigma_GM is ~3 mm), Z separating slipping and compliant samples from good
+ones with ROC AUC >= 0.9, low-score box and bottle points within 3 mm of the
+true profile.
+"""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from camwhisker.chain import LOW_Z, SHAPE_TOL_MM, format_summary, run_chain
+
+EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    out = tmp_path_factory.mktemp("chain")
+    return run_chain(EXPERIMENT, out, jobs=2, progress=False), out
+
+
+def test_calibration_fits_the_filmed_campaign(chain):
+    s, _ = chain
+    lo, hi = s["C_ci95"]
+    assert lo <= s["C"] <= hi and hi - lo > 0
+    # The simulated whisker is not eq. (8) exactly, so C is whatever fits it best; the
+    # GM model the calibration keeps must reproduce the known radii within 1 mm RMSE
+    # (a third of the paper's sigma_GM).
+    assert s["roles"]["calibration"]["gm_rmse_mm"] < 1.0
+    assert s["roles"]["calibration"]["n"] >= 150  # 3-5 frames per pause all gave medians
+
+
+def test_front_end_tracks_every_run(chain):
+    fe = chain[0]["front_end"]
+    assert fe["ok"] >= 0.95 * fe["frames"]
+    # H.264 at crf 26 and dz up to 1.7 mm: still within issue #3's nominal targets.
+    assert fe["phi_rmse_deg"] < 0.05 and fe["dz_rmse_mm"] < 0.02
+
+
+def test_rigid_non_slipping_gm_error_sd_within_3mm(chain):
+    g = chain[0]["rigid_stuck_gm"]
+    assert g["n"] >= 10
+    assert g["sd_mm"] <= 3.0
+
+
+def test_z_separates_slipping_and_compliant_from_good(chain):
+    sep = chain[0]["separation"]
+    assert sep["n_doubtful"] >= 10 and sep["n_good"] >= 10
+    assert sep["z_score"]["auc"] >= 0.9
+
+
+def test_low_score_shape_points_lie_on_the_profile(chain):
+    for role in ("box", "bottle"):
+        sh = chain[0]["shapes"][role]
+        assert sh["n_low_z"] >= 3, role
+        assert sh["within_tol"] == sh["n_low_z"], role
+        assert sh["max_dist_mm"] <= SHAPE_TOL_MM
+
+
+def test_outputs_say_how_they_were_made_and_summary_matches(chain):
+    s, out = chain
+    for name in (
+        "calib.toml",
+        "summary.json",
+        "fig7a_gm_model.png",
+        "fig8_errors.png",
+        "fig9_shapes.png",
+    ):
+        assert (out / name).stat().st_size > 0, name
+    assert json.loads((out / "summary.json").read_text())["C"] == pytest.approx(s["C"])
+    text = format_summary(s)
+    assert f"C = {s['C']:.1f}" in text
+    assert f"AUC {s['separation']['z_score']['auc']:.3f}" in text
+    assert f"Z < {LOW_Z}" in text
+    assert len(list((out / "contact").glob("*.csv"))) == len(list(EXPERIMENT.glob("*.mp4")))
