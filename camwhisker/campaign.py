@@ -19,6 +19,7 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
+import os
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
@@ -43,6 +44,10 @@ __all__ = [
     "is_complete",
     "run_many",
 ]
+
+#: FFmpeg capture options that keep decoding on one thread (see OpenCV's videoio docs).
+FFMPEG_ONE_THREAD = "threads;1"
+_FFMPEG_OPTIONS = "OPENCV_FFMPEG_CAPTURE_OPTIONS"
 
 #: What a folder is searched for.
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"})
@@ -183,10 +188,28 @@ def is_complete(out: Path) -> bool:
 
 
 def _run_one(process: Callable[[Path, Path], dict], video: Path, out: Path) -> TaskResult:
-    """Run one task, turning any failure into a result with its reason."""
+    """Run one task on one core, turning any failure into a result with its reason.
+
+    One core: OpenCV's own threads and FFmpeg's decoding threads (an option
+    read when a capture opens; restored afterwards), so that N workers use N
+    cores and the throughput of 1 worker is that of one core.
+    """
     import cv2
 
+    threads, saved = cv2.getNumThreads(), os.environ.get(_FFMPEG_OPTIONS)
     cv2.setNumThreads(1)
+    os.environ[_FFMPEG_OPTIONS] = FFMPEG_ONE_THREAD
+    try:
+        return _timed(process, video, out)
+    finally:
+        cv2.setNumThreads(threads)
+        if saved is None:
+            del os.environ[_FFMPEG_OPTIONS]
+        else:
+            os.environ[_FFMPEG_OPTIONS] = saved
+
+
+def _timed(process, video, out) -> TaskResult:
     t0 = time.perf_counter()
     try:
         info = process(Path(video), Path(out)) or {}
@@ -320,3 +343,56 @@ def _csv_to_parquet(csv_path: Path, out: Path) -> None:
     table = pacsv.read_csv(csv_path)
     with atomic_path(out) as tmp:
         pq.write_table(table, tmp)
+
+
+def throughput(videos: Sequence[Path], jobs: int, out_dir: Path) -> dict:
+    """Frames/s of a fresh batch over ``videos`` with ``jobs`` local workers (wall clock)."""
+    from camwhisker.sensor import Sensor
+
+    tasks = [(Path(v), Path(out_dir) / f"{i:03d}_{Path(v).stem}.csv") for i, v in enumerate(videos)]
+    t0 = time.perf_counter()
+    summary = run_many(tasks, BatchTask(Sensor()), jobs=jobs, overwrite=True, progress=False)
+    seconds = time.perf_counter() - t0
+    if summary.failed:
+        raise CampaignError(summary.report())
+    return {
+        "jobs": jobs,
+        "videos": len(tasks),
+        "frames": summary.frames,
+        "seconds": seconds,
+        "frames_per_s": summary.frames / seconds,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m camwhisker.campaign [--copies N] VIDEO...``: 1 worker against 2, one table."""
+    import argparse
+    import tempfile
+
+    p = argparse.ArgumentParser(prog="python -m camwhisker.campaign", description=main.__doc__)
+    p.add_argument("videos", nargs="+")
+    p.add_argument("--copies", type=int, default=4, help="each video this many times")
+    p.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
+    args = p.parse_args(argv)
+    videos = [Path(v) for v in args.videos] * args.copies
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for jobs in args.jobs:
+            rows.append(throughput(videos, jobs, Path(tmp) / f"jobs{jobs}"))
+    base = rows[0]["frames_per_s"]
+    print(
+        f"{len(videos)} videos, {rows[0]['frames']} frames; {os.cpu_count()} cores, "
+        f"load average at end {os.getloadavg()[0]:.2f}"
+    )
+    print("| workers | seconds | frames/s | speed-up |")
+    print("|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['jobs']} | {r['seconds']:.1f} | {r['frames_per_s']:.1f} | "
+            f"{r['frames_per_s'] / base:.2f}x |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
