@@ -407,6 +407,49 @@ def _run_chain(args) -> int:
     return 0
 
 
+# --- benchmark ---------------------------------------------------------------------------------
+
+
+def _add_bench(sub) -> None:
+    p = sub.add_parser(
+        "bench", help="speed against error: the front end, the paper's pipeline, other trackers"
+    )
+    p.add_argument("--out", required=True, metavar="MD", help="Markdown table to write")
+    p.add_argument("--plot", metavar="PNG", help="frames/s against error plot (log axes)")
+    p.add_argument("--frames", type=int, default=50, help="frames per scene (default 50)")
+    p.add_argument("--scenes", default="nominal,distortion,hard", help="comma-separated scenes")
+    p.add_argument("--configs", help="comma-separated configuration names (default: all)")
+    p.add_argument("--cache", metavar="DIR", help="renders and bounds kept here (default: temp)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_run_bench)
+
+
+def _run_bench(args) -> int:
+    from pathlib import Path
+
+    from camwhisker.bench.configs import select
+    from camwhisker.bench.run import default_cache
+    from camwhisker.bench.run import main as bench_main
+    from camwhisker.vision.bench import SCENES
+
+    try:
+        configs = select(args.configs)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from exc
+    scenes = [s.strip() for s in args.scenes.split(",")]
+    unknown = [s for s in scenes if s not in SCENES]
+    if unknown:
+        raise CommandError(f"unknown scene {unknown[0]!r} (known: {', '.join(SCENES)})")
+    if args.frames < 6:
+        raise CommandError(f"--frames must be at least 6, got {args.frames}")
+    cache = Path(args.cache) if args.cache else default_cache()
+    log = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    text = bench_main(None, Path(args.out), Path(args.plot) if args.plot else None,
+                      args.frames, scenes, configs, cache, log)  # fmt: skip
+    print(text)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="camwhisker", description=__doc__)
     parser.add_argument("--version", action="version", version=f"camwhisker {__version__}")
@@ -428,6 +471,7 @@ _COMMANDS: list = [
     _add_list_cameras,
     _add_live,
     _add_replay,
+    _add_bench,
 ]
 
 

@@ -28,11 +28,12 @@ import numpy as np
 
 from camwhisker.sensor import Sensor
 from camwhisker.sources import VideoSource
-from camwhisker.synth.scenarios import make_scenario, wrap_deg
-from camwhisker.synth.video import render_scenario
+from camwhisker.synth.scenarios import Scenario, make_scenario, wrap_deg
+from camwhisker.synth.video import render_scenario, sidecar_paths
 from camwhisker.vision.tracker import FrontEnd, FrontEndOptions
 
-__all__ = ["SCENES", "BenchRow", "run_scene", "main"]
+__all__ = ["SCENES", "BenchRow", "RenderedScene", "render_scene", "scene_errors", "run_scene",
+           "main"]  # fmt: skip
 
 #: Scenes and their seeds (never used to tune the front end).
 SCENES = {"nominal": 2001, "distortion": 2002, "hard": 2003}
@@ -50,6 +51,41 @@ class BenchRow:
     dz_rmse_mm: float
     theta_mae_deg: float
     phi_bias_deg: float
+
+
+@dataclass(frozen=True)
+class RenderedScene:
+    """A benchmark scene on disk: its scenario (truth), the sensor it was seen with,
+    and the video."""
+
+    name: str
+    seed: int
+    scenario: Scenario
+    sensor: Sensor
+    video: Path
+
+
+def render_scene(name: str, seed: int, n_frames: int, folder: Path,
+                 suffix: str = ".avi") -> RenderedScene:  # fmt: skip
+    """Render scene ``name`` with ``seed`` to ``folder``, or reuse an earlier render there.
+
+    The file name carries the scene, seed and frame count, so a cache folder
+    shared between runs only ever reuses the same frames."""
+    scenario = make_scenario(name, n_frames, seed)
+    video = Path(folder) / f"{name}-s{seed}-n{n_frames}{suffix}"
+    if not (video.exists() and sidecar_paths(video)["meta"].exists()):
+        video.parent.mkdir(parents=True, exist_ok=True)
+        render_scenario(scenario, Sensor(), video, seed)
+    sensor = Sensor()
+    if scenario.sensor_changes:
+        sensor = sensor.replace(**scenario.sensor_changes)
+    return RenderedScene(name, seed, scenario, sensor, video)
+
+
+def scene_errors(track, dz, phi, theta, ok):
+    """(phi RMSE deg, dz RMSE mm, theta MAE deg where phi >= 2, phi bias deg where
+    phi > 15) of estimates against the truth ``track`` over the rows ``ok``."""
+    return _errors(track, dz, phi, theta, ok)
 
 
 def _errors(track, dz, phi, theta, ok):
@@ -71,12 +107,9 @@ def _errors(track, dz, phi, theta, ok):
 def run_scene(name: str, seed: int, n_frames: int, folder: Path, suffix: str = ".avi",
               options: FrontEndOptions | None = None) -> list[BenchRow]:  # fmt: skip
     """Render one scene, run the front end on it, return the model and paper rows."""
-    scenario = make_scenario(name, n_frames, seed)
-    paths = render_scenario(scenario, Sensor(), folder / f"{name}{suffix}", seed)
-    sensor = Sensor()
-    if scenario.sensor_changes:
-        sensor = sensor.replace(**scenario.sensor_changes)
-    frames = [f.image for f in VideoSource(paths["video"])]
+    scene = render_scene(name, seed, n_frames, folder, suffix)
+    scenario, sensor = scene.scenario, scene.sensor
+    frames = [f.image for f in VideoSource(scene.video)]
     track = scenario.track
     cv2.setNumThreads(1)
     fe = FrontEnd(sensor, options or FrontEndOptions())

@@ -1,0 +1,85 @@
+"""The configurations the benchmark compares.
+
+``FrontEndOptions`` exposes four knobs: ``mode`` (the paper's eqs. 2-7 or
+the exact model), ``fit_shift``, ``lock_gains`` (the white-balance choice:
+gains per frame from the cloth, or the rest frame's) and ``updated_template``
+("fallback", "always", "off"). ROI size, LK window, pyramid levels and the
+sub-pixel method are module constants of :mod:`camwhisker.vision.tracker` and
+:mod:`camwhisker.vision.lk` (REGION_MARGIN_PX, PATCH_HALF_PX, the LK's
+pyramid in ``track_updated``, inverse-compositional LK), not options, so they
+are not varied here; nor is there a ``refine_passes`` option.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from camwhisker.vision.tracker import FrontEndOptions
+
+__all__ = ["Config", "CONFIGS", "DEFAULT", "PAPER", "select"]
+
+
+@dataclass(frozen=True)
+class Config:
+    """One pipeline: the front end with ``options``, or a peer tracker by name.
+
+    full_frame_map : compute the eq. (1) contrast map of the whole frame every
+        frame as well (the paper's cost: it maps the full image).
+    """
+
+    name: str
+    options: FrontEndOptions = field(default_factory=FrontEndOptions)
+    peer: str | None = None
+    full_frame_map: bool = False
+    note: str = ""
+
+
+DEFAULT = "default"
+PAPER = "paper-literal"
+
+CONFIGS = [
+    Config(DEFAULT, note="FrontEndOptions()"),
+    Config(
+        PAPER,
+        FrontEndOptions(mode="paper"),
+        full_frame_map=True,
+        note='mode="paper" + full-frame eq. 1 map per frame',
+    ),  # fmt: skip
+    Config(
+        "peer: matchTemplate",
+        peer="matchTemplate",
+        note="TM_CCOEFF_NORMED over the reach, parabolic peak",
+    ),  # fmt: skip
+    Config(
+        "peer: phase correlation",
+        peer="phase correlation",
+        note="skimage, upsample 20, 65 px patch at last position",
+    ),  # fmt: skip
+    Config("peer: CSRT", peer="CSRT", note="cv2.TrackerCSRT per point, whole pixels"),
+    Config(
+        "peer: kornia", peer="kornia", note="8 frames x 13 points, NCC + soft-argmax"
+    ),  # fmt: skip
+    Config("fit_shift=False", FrontEndOptions(fit_shift=False)),
+    Config("lock_gains=True", FrontEndOptions(lock_gains=True)),
+    Config('updated_template="always"', FrontEndOptions(updated_template="always")),
+    Config('updated_template="off"', FrontEndOptions(updated_template="off")),
+]
+
+
+def select(names: str | None) -> list[Config]:
+    """Configurations by comma-separated names (all when None).
+
+    Raises
+    ------
+    ValueError
+        Naming an unknown configuration.
+    """
+    if not names:
+        return list(CONFIGS)
+    by_name = {c.name: c for c in CONFIGS}
+    out = []
+    for name in (n.strip() for n in names.split(",")):
+        if name not in by_name:
+            raise ValueError(f"unknown configuration {name!r} (known: {', '.join(by_name)})")
+        out.append(by_name[name])
+    return out

@@ -1,0 +1,75 @@
+"""camwhisker bench: the machinery on a tiny clip, the Pareto front, the table.
+
+The clip is the nominal scene's first 6 frames (seed 2001): rest frames and
+the first hold. Bounds: the default front end's phi RMSE there is ~0.017 deg
+(0.05 deg allows for platform differences; a broken tracker is off by degrees).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camwhisker.bench.configs import CONFIGS, DEFAULT, select
+from camwhisker.bench.pareto import pareto_front
+from camwhisker.bench.peers import parabolic_peak
+
+DEFAULT_PHI_RMSE_MAX_DEG = 0.05
+
+
+def test_pareto_front_hand_made():
+    # speed, error: A fast and bad, B slow and good, C dominated by D, D, E tie with D
+    speed = np.array([100.0, 5.0, 20.0, 30.0, 30.0, np.nan])
+    error = np.array([1.0, 0.01, 0.5, 0.4, 0.4, 0.001])
+    front = pareto_front(speed, error)
+    assert front.tolist() == [True, True, False, True, True, False]
+
+
+def test_pareto_front_strict_domination():
+    # equal speed, lower error dominates; equal in both: neither dominates
+    assert pareto_front(np.array([10.0, 10.0]), np.array([0.2, 0.1])).tolist() == [False, True]
+    assert pareto_front(np.array([10.0, 10.0]), np.array([0.1, 0.1])).tolist() == [True, True]
+
+
+def test_parabolic_peak_sub_pixel():
+    x = np.arange(9.0)
+    score = -((x[None, :] - 4.3) ** 2) - (x[:, None] - 2.8) ** 2
+    u, v, _ = parabolic_peak(score.astype(np.float32))
+    assert u == pytest.approx(4.3, abs=1e-4) and v == pytest.approx(2.8, abs=1e-4)
+
+
+def test_select_configs():
+    assert [c.name for c in select(None)] == [c.name for c in CONFIGS]
+    with pytest.raises(ValueError, match="unknown configuration"):
+        select("default,nope")
+
+
+def test_bench_tiny_clip(tmp_path):
+    from camwhisker.bench.run import load_scene, markdown, plot, run_config
+
+    configs = select(f"{DEFAULT},peer: matchTemplate")
+    scene = load_scene("nominal", 6, tmp_path / "cache")
+    assert len(scene.frames) == 6
+    results = [run_config(c, scene) for c in configs]
+    # every configuration processed the same frames (all but the rest frame)
+    assert [r.frames for r in results] == [5, 5]
+    default = results[0]
+    assert default.ok == 1.0
+    assert default.phi_rmse_deg < DEFAULT_PHI_RMSE_MAX_DEG
+    assert default.cpu_s > 0 and default.phi_bound_deg > 0
+    text = markdown(results, configs, "camwhisker bench --test", {"cpu": "x", "cores": 2,
+                    "load": (0.0, 0.0, 0.0)}, 1.0, 6)  # fmt: skip
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| configuration |"))
+    table = lines[start : lines.index("", start)]
+    assert len(table) == 2 + len(configs)
+    assert table[2].startswith("| default |") and table[3].startswith("| peer: matchTemplate |")
+    png = plot(results, configs, tmp_path / "b.png")
+    assert png.stat().st_size > 1000
+
+
+def test_cli_bench_rejects_unknown(tmp_path, capsys):
+    from camwhisker.cli import main
+
+    assert main(["bench", "--out", str(tmp_path / "b.md"), "--configs", "nope"]) == 2
+    assert "unknown configuration" in capsys.readouterr().err
