@@ -27,7 +27,9 @@ from camwhisker.sources import open_source
 from camwhisker.vision import tracker as _tracker
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions, track
 
-__all__ = ["SIGNAL_COLUMNS", "BatchReport", "run_batch", "write_signals", "sidecar_path"]
+__all__ = [
+    "SIGNAL_COLUMNS", "BatchReport", "run_batch", "signal_row", "write_signals", "sidecar_path",
+]
 
 #: Required columns first (SENSOR.md section 6), then diagnostics.
 SIGNAL_COLUMNS = (
@@ -58,6 +60,25 @@ def _cell(x: float, fmt: str) -> str:
     return "" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
+def signal_row(t_s: float, r: FrameResult) -> list:
+    """One row of the signal table (:data:`SIGNAL_COLUMNS`), as batch and live write it.
+
+    Untrusted estimates (ok = 0) are empty cells, never numbers.
+    """
+    ok = bool(r.ok)
+    return [
+        r.frame, _cell(t_s, ".6f"),
+        _cell(r.dz_mm, ".5f") if ok else "",
+        _cell(r.phi_deg, ".5f") if ok else "",
+        _cell(r.theta_deg, ".3f") if ok else "",
+        int(ok),
+        _cell(r.sx_mm, ".5f") if ok else "",
+        _cell(r.sy_mm, ".5f") if ok else "",
+        _cell(r.phi_sigma_deg, ".5f"),
+        r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
+    ]  # fmt: skip
+
+
 def write_signals(path: Path, rows: Iterable[tuple[float, FrameResult]]) -> tuple[int, int]:
     """Write (t_s, result) rows as the signal table; returns (rows, rows ok).
 
@@ -68,20 +89,9 @@ def write_signals(path: Path, rows: Iterable[tuple[float, FrameResult]]) -> tupl
         out = csv.writer(fh)
         out.writerow(SIGNAL_COLUMNS)
         for t_s, r in rows:
-            ok = bool(r.ok)
-            out.writerow([
-                r.frame, _cell(t_s, ".6f"),
-                _cell(r.dz_mm, ".5f") if ok else "",
-                _cell(r.phi_deg, ".5f") if ok else "",
-                _cell(r.theta_deg, ".3f") if ok else "",
-                int(ok),
-                _cell(r.sx_mm, ".5f") if ok else "",
-                _cell(r.sy_mm, ".5f") if ok else "",
-                _cell(r.phi_sigma_deg, ".5f"),
-                r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
-            ])  # fmt: skip
+            out.writerow(signal_row(t_s, r))
             n += 1
-            n_ok += ok
+            n_ok += bool(r.ok)
     return n, n_ok
 
 

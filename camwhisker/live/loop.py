@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker import __version__
+from camwhisker.atomic import atomic_path
 from camwhisker.batch import SIGNAL_COLUMNS, sidecar_path
 from camwhisker.live.capture import describe
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
@@ -54,7 +55,6 @@ from camwhisker.live.record import (
 )
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.sources import VideoSource
-from camwhisker.synth.video import atomic_path
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 

@@ -1,9 +1,7 @@
 """Where live results go: the signal table (CSV, flushed per row), JSON lines, UDP.
 
-The CSV has batch's columns (:data:`camwhisker.batch.SIGNAL_COLUMNS`) and
-batch's cell format; :func:`signal_row` is the one row formatter, checked
-against :func:`camwhisker.batch.write_signals` byte for byte by the tests
-(batch exposes no per-row writer, and a live table must flush row by row).
+The CSV has batch's columns and batch's one row formatter
+(:func:`camwhisker.batch.signal_row`), flushed row by row.
 
 JSON lines and UDP datagrams carry one object per frame: frame, seq, t_s,
 dz_mm, phi_deg, theta_deg, ok, latency_ms, note. Untrusted values are null.
@@ -16,33 +14,13 @@ import json
 import math
 import socket
 
-from camwhisker.batch import SIGNAL_COLUMNS
+from camwhisker.batch import SIGNAL_COLUMNS, signal_row
 from camwhisker.vision.tracker import FrameResult
 
-__all__ = ["signal_row", "CsvSignalWriter", "result_message", "UdpSender", "DEFAULT_UDP_HOST"]
+__all__ = ["CsvSignalWriter", "result_message", "UdpSender", "DEFAULT_UDP_HOST"]
 
 #: Results go to this machine only unless the user names another address.
 DEFAULT_UDP_HOST = "127.0.0.1"
-
-
-def _cell(x, fmt: str) -> str:
-    return "" if x is None or not math.isfinite(x) else format(x, fmt)
-
-
-def signal_row(t_s: float, r: FrameResult) -> list:
-    """One row of the signal table, formatted exactly as batch formats it."""
-    ok = bool(r.ok)
-    return [
-        r.frame, _cell(t_s, ".6f"),
-        _cell(r.dz_mm, ".5f") if ok else "",
-        _cell(r.phi_deg, ".5f") if ok else "",
-        _cell(r.theta_deg, ".3f") if ok else "",
-        int(ok),
-        _cell(r.sx_mm, ".5f") if ok else "",
-        _cell(r.sy_mm, ".5f") if ok else "",
-        _cell(r.phi_sigma_deg, ".5f"),
-        r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
-    ]  # fmt: skip
 
 
 class CsvSignalWriter:
