@@ -25,12 +25,16 @@ class Config:
 
     full_frame_map : compute the eq. (1) contrast map of the whole frame every
         frame as well (the paper's cost: it maps the full image).
+    detect_each_frame : no tracking: every frame's features found afresh by
+        segmenting the full-frame eq. (1) map (:func:`~camwhisker.vision.detect.detect_features`),
+        then eqs. (2)-(7) (``options.mode == "paper"``) or the exact pose fit.
     """
 
     name: str
     options: FrontEndOptions = field(default_factory=FrontEndOptions)
     peer: str | None = None
     full_frame_map: bool = False
+    detect_each_frame: bool = False
     note: str = ""
 
 
@@ -44,21 +48,25 @@ CONFIGS = [
         FrontEndOptions(mode="paper"),
         full_frame_map=True,
         note='mode="paper" + full-frame eq. 1 map per frame',
-    ),  # fmt: skip
+    ),
+    Config(
+        "paper-literal (detect every frame)",
+        FrontEndOptions(mode="paper"),
+        detect_each_frame=True,
+        note="full-frame eq. 1 map segmented every frame (detect_features), eqs. 2-7",
+    ),
     Config(
         "peer: matchTemplate",
         peer="matchTemplate",
-        note="TM_CCOEFF_NORMED over the reach, parabolic peak",
-    ),  # fmt: skip
+        note="TM_CCOEFF_NORMED, tip over its reach, corners within 48 px; parabolic peak",
+    ),
     Config(
         "peer: phase correlation",
         peer="phase correlation",
         note="skimage, upsample 20, 65 px patch at last position",
-    ),  # fmt: skip
+    ),
     Config("peer: CSRT", peer="CSRT", note="cv2.TrackerCSRT per point, whole pixels"),
-    Config(
-        "peer: kornia", peer="kornia", note="8 frames x 13 points, NCC + soft-argmax"
-    ),  # fmt: skip
+    Config("peer: kornia", peer="kornia", note="8 frames x 13 points, NCC + soft-argmax"),
     Config("fit_shift=False", FrontEndOptions(fit_shift=False)),
     Config("lock_gains=True", FrontEndOptions(lock_gains=True)),
     Config('updated_template="always"', FrontEndOptions(updated_template="always")),
