@@ -45,12 +45,13 @@ def test_select_configs():
 
 
 def test_bench_tiny_clip(tmp_path):
-    from camwhisker.bench.run import load_scene, markdown, plot, run_config
+    from camwhisker.bench.run import load_scene, markdown, plot, run_benchmark
 
     configs = select(f"{DEFAULT},peer: matchTemplate")
     scene = load_scene("nominal", 6, tmp_path / "cache")
     assert len(scene.frames) == 6
-    results = [run_config(c, scene) for c in configs]
+    # repeats=2: timed twice in turn, errors checked to repeat exactly
+    results = run_benchmark(configs, ["nominal"], 6, tmp_path / "cache", repeats=2)
     # every configuration processed the same frames (all but the rest frame)
     assert [r.frames for r in results] == [5, 5]
     default = results[0]
