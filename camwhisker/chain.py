@@ -78,9 +78,9 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
 
     # 1. Front end on every video.
     t0 = time.perf_counter()
-    tables = {r.name + r.role: out / "signals" / f"{r.video.stem}.csv" for r in runs}
+    tables = {r.video.stem: out / "signals" / f"{r.video.stem}.csv" for r in runs}
     batch = run_many(
-        [(r.video, tables[r.name + r.role]) for r in runs],
+        [(r.video, tables[r.video.stem]) for r in runs],
         BatchTask(sensor, FrontEndOptions()),
         jobs=jobs,
         progress=progress,
@@ -102,7 +102,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
         "frames_per_s_per_core": frames / work_s if work_s else math.nan,
     }
     signals = {key: read_signal_table(path) for key, path in tables.items()}
-    logs = {r.name + r.role: read_stage_log(r.stage) for r in runs}
+    logs = {r.video.stem: read_stage_log(r.stage) for r in runs}
 
     # 2. Calibrate on the calibration runs.
     t0 = time.perf_counter()
@@ -111,9 +111,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
         raise ChainError(f"{experiment}: no calibration runs")
     calib, _, cal_data = calibrate(
         [
-            CalibrationRun(
-                signals[r.name + r.role], logs[r.name + r.role], str(tables[r.name + r.role])
-            )
+            CalibrationRun(signals[r.video.stem], logs[r.video.stem], str(tables[r.video.stem]))
             for r in cal
         ],
         sensor.whisker.length_mm,
@@ -128,7 +126,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     evaluations: dict[str, list] = {}
     front_end = []
     for i, r in enumerate(runs):
-        key = r.name + r.role
+        key = r.video.stem
         cols, _ = contact_rows(signals[key], logs[key], calib)
         write_csv(out / "contact" / f"{r.video.stem}.csv", cols)
         truth = read_columns(r.contact_truth)
