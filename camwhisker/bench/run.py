@@ -187,7 +187,8 @@ def _run_peer(config: Config, scene: Scene):
     q = np.zeros(5)
     t0, c0 = time.perf_counter(), time.process_time()
     for uv in PEERS[config.peer](scene.frames[1:], scene.frames[0], rest_uv):
-        fit = fit_pose(fe.model, uv, fe.offsets, q, w, config.options.fit_shift)
+        with np.errstate(all="ignore"):  # a degenerate fit to lost points is flagged below
+            fit = fit_pose(fe.model, uv, fe.offsets, q, w, config.options.fit_shift)
         n_corners = int(fit.used[:TIP].sum()) if fit.used is not None else 0
         ok = bool(fit.converged and np.isfinite(uv[TIP]).all() and n_corners >= MIN_CORNERS
                   and fit.rms_px <= MAX_RMS_PX)  # fmt: skip
@@ -351,8 +352,10 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
         "faster (CPU, decode excluded) and more accurate; rows with fewer than "
         f"{100 * MIN_OK_FOR_FRONT:.0f}% ok on any scene are not eligible (their RMSE covers "
         "only the rows they kept). Timing: the least CPU time of up to "
-        f"{repeats} runs (runs under {REPEAT_BELOW_S:.0f} s of CPU are repeated); the errors "
-        "repeat exactly.",
+        f"{repeats} runs, the configurations in turn (those under {REPEAT_BELOW_S:.0f} s of "
+        "CPU a run are repeated); the errors repeat exactly. Peak extra RSS: above the RSS "
+        "at the configuration's start (the first configuration of a scene carries the "
+        "allocations the later ones reuse).",
         "",
     ]
     head = (
