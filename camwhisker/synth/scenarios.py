@@ -228,38 +228,26 @@ def _out_of_frame(n, seed, fps=30.0):
     )
 
 
-def _lighting_jump(n, seed, fps=30.0):
-    rng = np.random.default_rng(seed)
-    t_jump = (n // 2) / fps
-    return Scenario(
-        "lighting_jump",
-        "the LEDs drop to 70% halfway through",
-        ordinary_track(n, fps, rng),
-        replace(NOMINAL_ARTEFACTS, lighting_jump=(t_jump, 0.7)),
-        fps,
-    )
+def _nominal_with(name: str, description: str, **artefact_changes):
+    """A builder: the nominal scene's poses under changed webcam artefacts."""
+
+    def build(n, seed, fps=30.0):
+        track = ordinary_track(n, fps, np.random.default_rng(seed))
+        changes = {k: v(n, fps) if callable(v) else v for k, v in artefact_changes.items()}
+        return Scenario(name, description, track, replace(NOMINAL_ARTEFACTS, **changes), fps)
+
+    return build
 
 
-def _saturated(n, seed, fps=30.0):
-    rng = np.random.default_rng(seed)
-    return Scenario(
-        "saturated",
-        "exposure 35% too high: the cloth and highlights clip at 255",
-        ordinary_track(n, fps, rng),
-        replace(NOMINAL_ARTEFACTS, gain=1.35),
-        fps,
-    )
-
-
-def _heavy_blur(n, seed, fps=30.0):
-    rng = np.random.default_rng(seed)
-    return Scenario(
-        "heavy_blur",
-        "defocus blur sigma 4 px",
-        ordinary_track(n, fps, rng),
-        replace(NOMINAL_ARTEFACTS, blur_sigma_px=4.0),
-        fps,
-    )
+_lighting_jump = _nominal_with(
+    "lighting_jump",
+    "the LEDs drop to 70% halfway through",
+    lighting_jump=lambda n, fps: ((n // 2) / fps, 0.7),
+)
+_saturated = _nominal_with(
+    "saturated", "exposure 35% too high: the cloth and highlights clip at 255", gain=1.35
+)
+_heavy_blur = _nominal_with("heavy_blur", "defocus blur sigma 4 px", blur_sigma_px=4.0)
 
 
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
