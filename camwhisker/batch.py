@@ -103,6 +103,7 @@ def run_batch(
     rest_index: int = 0,
     fps: float | None = None,
     progress: bool = True,
+    decode_threads: int | None = None,
 ) -> BatchReport:
     """Process a video (or image folder) into the signal table and its sidecar.
 
@@ -120,6 +121,8 @@ def run_batch(
         Frame rate for an image folder (or a video without one).
     progress : bool
         Show a progress bar on long videos.
+    decode_threads : int, optional
+        FFmpeg decoding threads (see :class:`camwhisker.sources.VideoSource`).
 
     Returns
     -------
@@ -135,7 +138,7 @@ def run_batch(
         The rest frame lacks a feature; nothing is written.
     """
     options = options or FrontEndOptions()
-    source = open_source(video, fps)
+    source = open_source(video, fps, decode_threads)
     out_csv = Path(out_csv)
     report = BatchReport(out_csv, sidecar_path(out_csv))
     times: dict[int, float] = {}

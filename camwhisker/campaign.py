@@ -45,10 +45,6 @@ __all__ = [
     "run_many",
 ]
 
-#: FFmpeg capture options that keep decoding on one thread (see OpenCV's videoio docs).
-FFMPEG_ONE_THREAD = "threads;1"
-_FFMPEG_OPTIONS = "OPENCV_FFMPEG_CAPTURE_OPTIONS"
-
 #: What a folder is searched for.
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg"})
 
@@ -190,23 +186,18 @@ def is_complete(out: Path) -> bool:
 def _run_one(process: Callable[[Path, Path], dict], video: Path, out: Path) -> TaskResult:
     """Run one task on one core, turning any failure into a result with its reason.
 
-    One core: OpenCV's own threads and FFmpeg's decoding threads (an option
-    read when a capture opens; restored afterwards), so that N workers use N
-    cores and the throughput of 1 worker is that of one core.
+    One core: OpenCV's own threads here (restored afterwards); tasks that
+    decode video ask for one decoding thread themselves (:class:`BatchTask`).
+    So N workers use N cores, and the throughput of 1 worker is one core's.
     """
     import cv2
 
-    threads, saved = cv2.getNumThreads(), os.environ.get(_FFMPEG_OPTIONS)
+    threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    os.environ[_FFMPEG_OPTIONS] = FFMPEG_ONE_THREAD
     try:
         return _timed(process, video, out)
     finally:
         cv2.setNumThreads(threads)
-        if saved is None:
-            del os.environ[_FFMPEG_OPTIONS]
-        else:
-            os.environ[_FFMPEG_OPTIONS] = saved
 
 
 def _timed(process, video, out) -> TaskResult:
@@ -319,7 +310,14 @@ class BatchTask:
         table = out.with_name(f".{out.stem}.partial.csv") if parquet else out
         t0 = time.perf_counter()
         report = run_batch(
-            video, self.sensor, table, self.options, self.rest_index, self.fps, progress=False
+            video,
+            self.sensor,
+            table,
+            self.options,
+            self.rest_index,
+            self.fps,
+            progress=False,
+            decode_threads=1,  # one core per task, decoding included
         )
         seconds = time.perf_counter() - t0
         meta = json.loads(report.sidecar.read_text())

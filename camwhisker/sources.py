@@ -75,6 +75,10 @@ class VideoSource:
     Parameters
     ----------
     path : str or Path
+    decode_threads : int, optional
+        Threads FFmpeg may decode with (``cv2.CAP_PROP_N_THREADS``); default:
+        OpenCV's choice, all cores. Workers of a parallel batch pass 1, or a
+        single worker would already use every core for decoding.
 
     Raises
     ------
@@ -84,13 +88,14 @@ class VideoSource:
         OpenCV cannot decode it as video.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, decode_threads: int | None = None):
         self.path = Path(path)
+        self._params = [] if decode_threads is None else [cv2.CAP_PROP_N_THREADS, decode_threads]
         if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: no such file")
         if self.path.is_dir():
             raise SourceError(f"{self.path}: is a folder, not a video")
-        cap = cv2.VideoCapture(str(self.path))
+        cap = self._capture()
         ok = cap.isOpened()
         first = cap.read()[1] if ok else None
         cap.release()
@@ -116,8 +121,11 @@ class VideoSource:
             return float(self._times[index])
         return index / self.fps
 
+    def _capture(self) -> cv2.VideoCapture:
+        return cv2.VideoCapture(str(self.path), cv2.CAP_ANY, self._params)
+
     def __iter__(self) -> Iterator[Frame]:
-        cap = cv2.VideoCapture(str(self.path))
+        cap = self._capture()
         i = 0
         try:
             while True:
@@ -175,9 +183,9 @@ class ImageFolderSource:
             yield Frame(i, i / self.fps, image)
 
 
-def open_source(path: str | Path, fps: float | None = None):
+def open_source(path: str | Path, fps: float | None = None, decode_threads: int | None = None):
     """A :class:`VideoSource` for a file, an :class:`ImageFolderSource` for a folder."""
     path = Path(path)
     if path.is_dir():
         return ImageFolderSource(path, fps)
-    return VideoSource(path)
+    return VideoSource(path, decode_threads)
