@@ -11,9 +11,11 @@ true profile.
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from camwhisker.chain import LOW_Z, SHAPE_TOL_MM, format_summary, run_chain
+from camwhisker.contact.io import read_columns
 
 EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
 
@@ -60,6 +62,19 @@ def test_low_score_shape_points_lie_on_the_profile(chain):
         assert sh["n_low_z"] >= 3, role
         assert sh["within_tol"] == sh["n_low_z"], role
         assert sh["max_dist_mm"] <= SHAPE_TOL_MM
+        # Fig. 9's slip stretch is coloured doubtful: >= 80 % of slipping points at Z >= 1
+        # (the paper's hit rate, 82 %).
+        assert sh["n_slipping"] >= 20, role
+        assert sh["slipping_z_ge_1"] >= 0.8 * sh["n_slipping"], role
+
+
+def test_bottle_swept_from_both_sides(chain):
+    """The bottle's two runs travel +x and -x: each is reconstructed on its own side."""
+    _, out = chain
+    for name, side in (("bottle_left", -1.0), ("bottle_right", 1.0)):
+        rows = read_columns(out / "contact" / f"{name}.csv")
+        x_hat = rows["x_hat_mm"][np.isfinite(rows["x_hat_mm"])]
+        assert x_hat.size >= 20 and np.all(side * x_hat > 35.0), name
 
 
 def test_outputs_say_how_they_were_made_and_summary_matches(chain):

@@ -21,7 +21,7 @@ GM itself where the evidence says it is fine, and GM with its bias removed by
 the MF evidence where it is not. (Where p >= :data:`KEEP_GM_POSTERIOR` the
 posterior-mean correction is under a tenth of m, and m is then mostly MF's own
 per-contact error: applying it moved a good GM toward MF's bias, measured on
-the stuck bottle contact, 1.4 % worse RMSE than GM on one seed.) Where MF is
+a stuck, rigid contact, 1.4 % worse RMSE than GM on one seed.) Where MF is
 undefined, GM is returned; where GM is undefined, MF.
 """
 
@@ -49,7 +49,7 @@ MF_BIAS_FLOOR_MM = 3.0
 # (1 - p) m would be under 0.1 m, i.e. under 0.3 mm for an m at the 3 mm floor
 # (GM's own spread, sigma_GM, is 0.3-1 mm), so it cannot be told from MF's bias.
 # Measured on 5 seeds x 2 noise levels: RMSE of rigid, compliant and slipping
-# contact unchanged to 0.3 %; the stuck bottle no longer ends above GM's.
+# contact unchanged to 0.3 %; a stuck, rigid contact no longer ends above GM's.
 KEEP_GM_POSTERIOR = 0.9
 
 

@@ -77,7 +77,7 @@ def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
 
 
 def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
-    """Fig. 9: reconstructed points (GM r, eq. 12) coloured by eq.-(11) Z, MF points grey.
+    """Fig. 9: reconstructed points (GM r, eq. 12) coloured by eq.-(11) Z; MF grey, fused x.
 
     The colour bands are the paper's reading of Z (< 0.5 expected, 0.5-1, > 1 probable
     error); points where the simulated contact truly slips are ringed in black.
@@ -92,6 +92,8 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
         ox, oy = outlines[kind]
         ax.plot(ox, oy, "k-", lw=1, label="true outline")
         ax.scatter(ev["mf_x_hat_mm"], ev["mf_y_hat_mm"], s=8, c="0.7", label="MF")
+        ax.scatter(ev["x_hat_mm"], ev["y_hat_mm"], s=14, c="k", marker="x", lw=0.7, zorder=5,
+                   label="fused (the contact table's r_hat)")
         sc = ax.scatter(ev["gm_x_hat_mm"], ev["gm_y_hat_mm"], s=16, c=ev["z_score"], cmap=cmap,
                         norm=norm, zorder=3)
         for colour, band in zip(cmap.colors, ("Z < 0.5", "0.5 <= Z < 1", "Z >= 1"), strict=True):

@@ -2,9 +2,9 @@
 
 - :mod:`~camwhisker.mechanics.whisker`: the tapered whisker on its spring base
   (small-deflection beam in closed form, elastica by shooting).
-- :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant); a tilted box and
-  a bottle with Coulomb friction (stick, then slip or snap-off); quasi-static
-  sweeps of the base.
+- :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant); a tilted box with
+  Coulomb friction (stick at its corner, then slip up its face); a bottle whose
+  side the whisker slides down, tangent to it; quasi-static sweeps of the base.
 - :mod:`~camwhisker.mechanics.experiment`: stage runs with clocks, noise, truth.
 - :mod:`~camwhisker.mechanics.files`: writing runs to CSV files.
 """

@@ -12,8 +12,13 @@ jittered length (>= 1 s, like the paper), a rest. The run produces
 Kinds (see :data:`KINDS`): ``rigid`` (pegs at the paper's radii), ``compliant``
 (pegs on springs, the paper's pipe cleaner radii), ``slide-box`` (a tilted box:
 stick at its corner, then Coulomb slip up its face), ``slide-circle`` (a water
-bottle: stick, then the whisker snaps off), and ``eq8`` (phi generated from eq. (8) with
+bottle swept past on both sides, the stage travelling +x then -x: the whisker's
+side slides down the bottle), and ``eq8`` (phi generated from eq. (8) with
 C = 132 instead of mechanics, so C recovery can be tested).
+
+Every scene is solved with the stage travelling +x (:mod:`camwhisker.mechanics.scenes`);
+a run in -x solves the mirrored scene and maps x back, so its stage log, truth
+and scene are in the lab frame and its whisker leans toward +x (theta 180 deg).
 
 :func:`signal_arrays` gives the noise-free time series of a run at any frame
 rate, for a video renderer.
@@ -62,12 +67,13 @@ THETA_TRUE_DEG = 0.0
 # theta is left empty below this phi: 4.5 sigma of the paper's phi noise.
 THETA_MIN_PHI_DEG = 1.0
 
-# Coulomb friction coefficients of the sliding scenes (dry plastic on card and
-# on a PET bottle, 0.3-0.5). The box's face rises at 78 deg: with mu = 0.5 the
-# whisker sticks at the corner up to phi ~ 14 deg, then slides up the face
-# with phi steady while r grows from 41 to ~100 mm (Fig. 9's failure mode).
+# Coulomb friction coefficient of the box (dry plastic on card, 0.3-0.5). Its
+# face rises at 78 deg: with mu = 0.5 the whisker sticks at the corner up to
+# phi ~ 14 deg, then slides up the face with phi steady while r grows from 41 to
+# ~100 mm (Fig. 9's failure mode).
 BOX_MU = 0.5
-BOTTLE_MU = 0.4
+# The bottle: 90 mm across, its axis 55 mm from the base line.
+BOTTLE = CircleScene(0.0, 55.0, 45.0)
 
 # Per-frame noise levels of the simulated front end (SENSOR.md section 6 signals).
 # PAPER_NOISE: the paper's measured RMSE (Sec. III-A: phi 0.22 deg, dz 0.04 mm).
@@ -129,25 +135,31 @@ class StageRun:
 
 
 def _scenes(kind: str):
+    """The runs of an experiment kind: (name, scene in the lab frame, travel sign)."""
     if kind in ("rigid", "eq8"):
-        return [(f"r{r:g}", PegScene(r)) for r in PAPER_RIGID_RADII_MM]
+        return [(f"r{r:g}", PegScene(r), 1.0) for r in PAPER_RIGID_RADII_MM]
     if kind == "compliant":
-        return [(f"c{r:g}", PegScene(r, k_obj_n_per_mm=COMPLIANT_K_N_PER_MM))
+        return [(f"c{r:g}", PegScene(r, k_obj_n_per_mm=COMPLIANT_K_N_PER_MM), 1.0)
                 for r in PAPER_COMPLIANT_RADII_MM]
     if kind == "slide-box":
-        return [("box", BoxScene(0.0, 40.0, face_angle_deg=78.0, mu=BOX_MU))]
+        return [("box", BoxScene(0.0, 40.0, face_angle_deg=78.0, mu=BOX_MU), 1.0)]
     if kind == "slide-circle":
-        return [("circle", CircleScene(0.0, 55.0, 45.0, mu=BOTTLE_MU))]
+        return [("left", BOTTLE, 1.0), ("right", BOTTLE, -1.0)]
     raise ValueError(f"unknown experiment kind {kind!r} (known: {', '.join(KINDS)})")
 
 
 @functools.lru_cache(maxsize=64)
 def scene_by_name(kind: str, name: str):
-    """The scene of run ``name`` in experiments of ``kind`` (as named by :func:`simulate_runs`)."""
-    scenes = dict(_scenes(kind))
+    """The scene (lab frame) of run ``name`` of ``kind`` (as named by :func:`simulate_runs`)."""
+    scenes = {run: scene for run, scene, _ in _scenes(kind)}
     if name not in scenes:
         raise ValueError(f"no run {name!r} in {kind!r} experiments (runs: {', '.join(scenes)})")
     return scenes[name]
+
+
+def theta_deg_for(travel_sign: float) -> float:
+    """The plate's tilt direction (deg) while the whisker lags a base travelling this way."""
+    return THETA_TRUE_DEG if travel_sign > 0 else THETA_TRUE_DEG + 180.0
 
 
 def _cached_sweep(scene, mech, positions, model):
@@ -193,11 +205,22 @@ def simulate_run(
     noise: NoiseModel | None = None,
     model: str = "auto",
     c: float = PAPER_C,
+    travel_sign: float = 1.0,
 ) -> StageRun:
-    """Simulate one run of one scene (see module docstring)."""
+    """Simulate one run of one scene (see module docstring).
+
+    ``scene`` is in the lab frame; with ``travel_sign`` -1 the stage travels
+    in -x. ``steps`` and the ``schedule_*`` arrays stay in the travel frame
+    (x -> -x), where every scene is solved.
+    """
+    if travel_sign not in (1.0, -1.0):
+        raise ValueError(f"travel_sign must be +1 or -1, got {travel_sign}")
     mech = mech or WhiskerMechanics()
     protocol = protocol or StageProtocol()
     noise = noise or NoiseModel()
+    lab_scene = scene
+    if travel_sign < 0:
+        scene = scene.mirrored()
     x_first = scene.first_contact_x(mech)
     x_start = x_first - protocol.approach_steps * protocol.step_mm
     n_max = protocol.approach_steps + int(round(protocol.max_travel_mm / protocol.step_mm))
@@ -216,7 +239,7 @@ def simulate_run(
     offset_s = float(magnitude if rng.random() < 0.5 else -magnitude)
     t_stage_true = np.arange(-1.0, duration + 1.0, 1.0 / protocol.stage_rate_hz)
     x_stage = np.interp(t_stage_true, sched_t, sched_x)
-    stage = {"t_s": t_stage_true - offset_s, "x_mm": x_stage}
+    stage = {"t_s": t_stage_true - offset_s, "x_mm": travel_sign * x_stage}
     used = slice(0, n_steps + 1)
     xs_used = steps.base_x_mm[used]
     contact_used = steps.in_contact[used]
@@ -237,25 +260,27 @@ def simulate_run(
     t_cam = np.arange(n_frames) / protocol.fps
     x_cam = np.interp(t_cam, sched_t, sched_x)
     clean = signal_arrays_from(steps, used, x_cam)
+    theta_deg = theta_deg_for(travel_sign)
     truth = {
         "t_s": t_cam,
-        "x_mm": x_cam,
+        "x_mm": travel_sign * x_cam,
         "dx_mm": np.clip(x_cam - x_first, 0.0, None),
         "phi_deg": clean["phi_deg"],
         "dz_mm": clean["dz_mm"],
         "r_mm": along_x(steps.r_mm, x_cam),
-        "contact_x_mm": along_x(steps.contact_x_mm, x_cam),
+        "contact_x_mm": travel_sign * along_x(steps.contact_x_mm, x_cam),
         "contact_y_mm": along_x(steps.contact_y_mm, x_cam),
         "in_contact": (x_cam > x_first).astype(int),
         "slipping": np.interp(x_cam, xs_used, steps.slipping[used].astype(float)) > 0.5,
     }
-    signals = _measure(clean["phi_deg"], clean["dz_mm"], noise, rng)
+    signals = _measure(clean["phi_deg"], clean["dz_mm"], theta_deg, noise, rng)
     signals = {"frame": np.arange(n_frames), "t_s": t_cam, **signals}
     return StageRun(
-        name=name, kind=kind, scene=scene, offset_s=offset_s, travel_sign=1.0,
+        name=name, kind=kind, scene=lab_scene, offset_s=offset_s, travel_sign=travel_sign,
         stage=stage, signals=signals, truth=truth, steps=steps,
         schedule_t_s=sched_t, schedule_x_mm=sched_x,
-        info={"n_steps": n_steps, "x_first_contact_mm": x_first, "model": model,
+        info={"n_steps": n_steps, "x_first_contact_mm": travel_sign * x_first,
+              "theta_deg": theta_deg, "model": model,
               "noise": noise.__dict__, "protocol": protocol.__dict__, "mechanics": mech.__dict__},
     )
 
@@ -284,14 +309,14 @@ def signal_arrays(run: StageRun, fps: float):
     x = np.interp(t, run.schedule_t_s, run.schedule_x_mm)
     n = run.info["n_steps"] + 1
     out = signal_arrays_from(run.steps, slice(0, n), x)
-    theta = np.where(out["phi_deg"] > 0.0, THETA_TRUE_DEG, np.nan)
+    theta = np.where(out["phi_deg"] > 0.0, run.info["theta_deg"], np.nan)
     return {"t_s": t, "phi_deg": out["phi_deg"], "dz_mm": out["dz_mm"], "theta_deg": theta}
 
 
-def _measure(phi_deg, dz_mm, noise: NoiseModel, rng):
+def _measure(phi_deg, dz_mm, theta_deg, noise: NoiseModel, rng):
     """Add the front end's noise: isotropic on the 2D tilt vector, Gaussian on dz."""
     n = phi_deg.size
-    th = math.radians(THETA_TRUE_DEG)
+    th = math.radians(theta_deg)
     tu = phi_deg * math.cos(th) + noise.phi_deg * rng.standard_normal(n)
     tv = phi_deg * math.sin(th) + noise.phi_deg * rng.standard_normal(n)
     phi_m = np.hypot(tu, tv)
@@ -312,6 +337,6 @@ def simulate_runs(kind: str, seed: int, **kwargs) -> list[StageRun]:
     scenes = _scenes(kind)
     children = np.random.SeedSequence(seed).spawn(len(scenes))
     return [
-        simulate_run(name, kind, scene, np.random.default_rng(child), **kwargs)
-        for (name, scene), child in zip(scenes, children, strict=True)
+        simulate_run(name, kind, scene, np.random.default_rng(child), travel_sign=sign, **kwargs)
+        for (name, scene, sign), child in zip(scenes, children, strict=True)
     ]

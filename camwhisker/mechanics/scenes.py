@@ -9,10 +9,10 @@ A scene is what the whisker touches while its base travels along +x:
   (Coulomb friction), then slides up the face next to it with phi steady, so
   the GM overestimates r more and more (the paper's Fig. 9 failure).
 - :class:`CircleScene`: a circular cross-section (a water bottle); the
-  whisker sticks where it first touches it, and once the load leaves the
-  friction cone it snaps off (on a convex surface there is no steady slip).
+  whisker's side stays tangent to it and the point of tangency slides down the
+  bottle as the whisker leans back (frictionless, like the peg).
 
-See :class:`_FrictionContact` for the contact model and its limits.
+See :class:`_FrictionContact` for the box's stick / slip model and its limits.
 
 :func:`sweep` solves one equilibrium per base position, continuing each solve
 from the last one.
@@ -102,7 +102,7 @@ def _polyline_distance(x_mm, y_mm, xs, ys):
 
 
 class _FrictionContact:
-    """Point contact with Coulomb friction on a 2D profile (shared by box and circle).
+    """Point contact with Coulomb friction on a 2D profile (the box's corner and face).
 
     The contact is a point load that a point of the whisker puts on the object's
     profile, normal to the whisker (the whisker slides freely along its own
@@ -120,10 +120,9 @@ class _FrictionContact:
       or falls) while the base keeps travelling; the GM then overestimates r.
 
     Modelling choice: the profile is taken as the locus of contact points; the
-    whisker's body away from the contact is not checked against the object. In
-    a 2D model a whisker side can only slide along a convex object while
-    tangent to it; this load-on-the-cone-edge model is a stand-in for the slip
-    of the real (3D) whisker that the paper reports in Fig. 9.
+    whisker's body away from the contact is not checked against the object (it
+    leans away from the face it slides up). A smooth convex object is a
+    different contact: see :class:`CircleScene`.
     """
 
     mu: float
@@ -238,47 +237,49 @@ class BoxScene(_FrictionContact):
 
 
 @dataclass(frozen=True)
-class CircleScene(_FrictionContact):
+class CircleScene:
     """A circle of ``radius_mm`` centred at (center_x_mm, center_y_mm): a water bottle.
 
-    First contact is at the circle's leftmost point; once the load leaves the
-    friction cone the contact slides up and over the bottle (clockwise), where
-    the surface turns toward the direction of travel, as in the paper's Fig. 9.
+    The whisker's side touches the bottle: at the contact the whisker is tangent
+    to the circle and the load is along their common normal (frictionless, as
+    on a peg). The whisker first meets the bottle at its leftmost point; as the
+    base travels on (+x) and the whisker leans back, the point of tangency
+    slides down the bottle's near side toward the base, so r falls while the
+    GM, which assumes a fixed object point, keeps reporting about the first one
+    (the slip of the paper's Fig. 9). A smooth convex profile has no stuck
+    stretch: in the plane a whisker pinned at one point of the circle while
+    leaning would cut into it.
     """
 
     center_x_mm: float
     center_y_mm: float
     radius_mm: float
-    mu: float = 0.4
     kind: str = field(default="circle", init=False)
 
     def first_contact_x(self, mech: WhiskerMechanics) -> float:
         return self.center_x_mm - self.radius_mm
 
-    def first_point(self):
-        return self.center_x_mm - self.radius_mm, self.center_y_mm
+    def mirrored(self) -> CircleScene:
+        """The same bottle seen with x -> -x (for a stage travelling in -x)."""
+        return CircleScene(-self.center_x_mm, self.center_y_mm, self.radius_mm)
 
-    def frame_at(self, x_mm, y_mm):
-        a = math.atan2(y_mm - self.center_y_mm, x_mm - self.center_x_mm)
-        c, s = math.cos(a), math.sin(a)
-        return (c, s), (s, -c)  # outward normal; clockwise tangent (up the left side)
+    def constraint(self, mech: WhiskerMechanics):
+        length = mech.length_mm
+        cx, cy, radius = self.center_x_mm, self.center_y_mm, self.radius_mm
 
-    def signed_distance(self, x_mm, y_mm):
-        return math.hypot(x_mm - self.center_x_mm, y_mm - self.center_y_mm) - self.radius_mm
+        def residuals(st, u):
+            ax, ay = st["xc"] - cx, st["yc"] - cy
+            normal = st["bc"] + 0.5 * math.pi  # the whisker's normal, toward -x at rest
+            return (
+                (math.hypot(ax, ay) - radius) / length,  # on the circle
+                _wrap(math.atan2(ay, ax) - normal),  # tangent to it there
+                _wrap(u[2] - normal),  # frictionless: load along the normal
+            )
 
-    def arc_at(self, x_mm, y_mm) -> float:
-        """Arc length (mm) clockwise from the leftmost point to the direction of (x, y)."""
-        a = math.atan2(y_mm - self.center_y_mm, x_mm - self.center_x_mm)
-        return self.radius_mm * (math.pi - (a if a > -0.5 * math.pi else a + 2.0 * math.pi))
+        return residuals
 
-    def point_at(self, arc_mm: float):
-        a = math.pi - arc_mm / self.radius_mm
-        return (self.center_x_mm + self.radius_mm * math.cos(a),
-                self.center_y_mm + self.radius_mm * math.sin(a))
-
-    def on_profile(self, x_mm, y_mm):
-        # The upper-left quarter, from the leftmost point to the top.
-        return -1e-6 <= self.arc_at(x_mm, y_mm) <= 0.5 * math.pi * self.radius_mm
+    def guess(self, mech: WhiskerMechanics, base_x_mm: float):
+        return PegScene(self.center_y_mm, self.first_contact_x(mech)).guess(mech, base_x_mm)
 
     def profile_distance(self, x_mm, y_mm):
         d = np.hypot(np.asarray(x_mm) - self.center_x_mm, np.asarray(y_mm) - self.center_y_mm)

@@ -18,8 +18,8 @@ Sizing (the bundle must stay small): at :data:`EXPERIMENT_FPS` = 3 frames/s
 each 1.2-1.8 s stage pause holds 3-5 frames, enough for the per-pause
 medians the paper uses, and H.264 at constant rate factor
 :data:`EXPERIMENT_CRF` = 26 keeps a frame near 6 KB. The whole campaign
-(8 calibration radii, 3 compliant pegs, box and bottle) is about 2,500
-frames and 15 MB.
+(8 calibration radii, 3 compliant pegs, the box, the bottle from both sides)
+is about 2,700 frames and 18 MB.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from camwhisker import __version__
 from camwhisker.atomic import atomic_path
 from camwhisker.contact.io import write_csv
 from camwhisker.mechanics import StageProtocol, simulate_runs
-from camwhisker.mechanics.experiment import THETA_TRUE_DEG
 from camwhisker.mechanics.files import TRUTH_COLUMNS
 from camwhisker.sensor import Sensor
 from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, PoseTrack, Scenario
@@ -79,7 +78,8 @@ def _pose_track(run, fps: float) -> PoseTrack:
     phi = np.nan_to_num(run.truth["phi_deg"])
     dz = np.nan_to_num(run.truth["dz_mm"])
     zeros = np.zeros_like(t)
-    return PoseTrack(t, dz, phi, np.full_like(t, THETA_TRUE_DEG), zeros, zeros.copy())
+    theta = np.full_like(t, run.info["theta_deg"])
+    return PoseTrack(t, dz, phi, theta, zeros, zeros.copy())
 
 
 def _render_one(args) -> dict:
