@@ -110,7 +110,9 @@ def run_batch(
     Parameters
     ----------
     video : path
-        A video file OpenCV can read, or a folder of images.
+        A video file OpenCV can read, or a folder of images. A live session
+        recording (``SESSION.timestamps.csv`` beside it) is processed with its
+        own clock, gaps and events, so its rows equal the live table's.
     sensor : Sensor
     out_csv : path
         Output table; ``OUT.json`` beside it records how it was made.
@@ -137,25 +139,37 @@ def run_batch(
     camwhisker.vision.FeaturesNotFound
         The rest frame lacks a feature; nothing is written.
     """
+    from camwhisker.live.record import timestamps_path
+
     options = options or FrontEndOptions()
     source = open_source(video, fps, decode_threads)
     out_csv = Path(out_csv)
     report = BatchReport(out_csv, sidecar_path(out_csv))
     times: dict[int, float] = {}
+    stamps = timestamps_path(Path(video))
+    session = Path(video).is_file() and stamps.is_file()
+    if session:
+        # A recorded live session: its own clock, gaps and events, as replay reads them.
+        from camwhisker.live.loop import session_rows
 
-    def frames():
-        for f in source:
-            times[f.index] = f.t_s
-            yield f.image
+        if rest_index != 0:
+            raise ValueError(f"{video}: a recorded session keeps its own rest frame "
+                             f"(rest_index must be 0, got {rest_index})")
+        rows = session_rows(video, sensor, options)
+    else:
 
+        def frames():
+            for f in source:
+                times[f.index] = f.t_s
+                yield f.image
+
+        rows = ((times.get(r.frame, math.nan), r)
+                for r in track(frames(), sensor, options, rest_index))  # fmt: skip
     total = len(source) or None
-    results = track(frames(), sensor, options, rest_index)
-    bar = tqdm(results, total=total, unit="frame", desc="batch",
+    bar = tqdm(rows, total=total, unit="frame", desc="batch",
                disable=not progress or (total or 0) < PROGRESS_MIN_FRAMES)  # fmt: skip
     with atomic_path(out_csv) as tmp:
-        report.frames, report.frames_ok = write_signals(
-            tmp, ((times.get(r.frame, math.nan), r) for r in bar)
-        )
+        report.frames, report.frames_ok = write_signals(tmp, bar)
     bar.close()
     if source.problem:
         report.problems.append(source.problem)
@@ -165,7 +179,7 @@ def run_batch(
         "camwhisker_version": __version__,
         "made_by": "camwhisker.batch.run_batch",
         "input": str(Path(video)),
-        "time_source": source.time_source,
+        "time_source": f"session timestamps ({stamps.name})" if session else source.time_source,
         "fps": source.fps,
         "rest_frame": rest_index,
         "frames": report.frames,

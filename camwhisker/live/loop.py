@@ -131,13 +131,12 @@ def live_track(items: Iterable[tuple[np.ndarray | None, str]], sensor: Sensor,
         yield proc.process(i, image, event)
 
 
-def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
-                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
-    """Process a recorded session again: the same rows as the live table.
+def session_rows(video: str | Path, sensor: Sensor, options: FrontEndOptions | None = None):
+    """(t_s, result) per row of a recorded session, as the live loop made them.
 
     Frames are decoded as ``camwhisker batch`` decodes them
-    (:class:`~camwhisker.sources.VideoSource`); times, gaps and events come
-    from ``SESSION.timestamps.csv``.
+    (:class:`~camwhisker.sources.VideoSource`); times, gaps and events
+    (re-zero, re-detect) come from ``SESSION.timestamps.csv``.
 
     Raises
     ------
@@ -161,12 +160,20 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
                 raise ValueError(f"{video}: fewer frames than its timestamps file lists") from None
             yield frame.image, row["event"]
 
+    for row, r in zip(rows, live_track(items(), sensor, options), strict=True):
+        yield row["t_s"], r
+
+
+def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
+                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
+    """Process a recorded session again: the same rows as the live table (:func:`session_rows`)."""
+    rows = session_rows(video, sensor, options)
     out_csv = Path(out_csv)
     with atomic_path(out_csv) as tmp:
         writer = CsvSignalWriter(tmp)
         try:
-            for row, r in zip(rows, live_track(items(), sensor, options), strict=True):
-                writer.write(row["t_s"], r)
+            for t_s, r in rows:
+                writer.write(t_s, r)
         finally:
             writer.close()
     return out_csv
