@@ -204,3 +204,10 @@ def test_options_are_checked():
         FrontEndOptions(mode="fast")
     with pytest.raises(ValueError, match="updated_template"):
         FrontEndOptions(updated_template="sometimes")
+    with pytest.raises(ValueError, match="subpixel"):
+        FrontEndOptions(subpixel="centroid")
+    for bad in (2, 12.5, True):
+        with pytest.raises(ValueError, match="lk_half_px"):
+            FrontEndOptions(lk_half_px=bad)
+    with pytest.raises(ValueError, match="pyramid_levels"):
+        FrontEndOptions(pyramid_levels=-1)

@@ -25,6 +25,7 @@ from collections.abc import Iterable, Iterator
 import cv2
 import numpy as np
 
+from camwhisker.vision.lk import parabolic_peak
 from camwhisker.vision.pose import TIP
 
 __all__ = [
@@ -36,7 +37,6 @@ __all__ = [
     "track_phase_correlation",
     "track_csrt",
     "track_kornia",
-    "parabolic_peak",
 ]
 
 #: Template half size (px): 25 x 25, the front end's LK window.
@@ -92,24 +92,6 @@ def _templates(grey: np.ndarray, uv: np.ndarray, half):
         else:
             out.append(None)
     return out, uv - centre
-
-
-def parabolic_peak(score: np.ndarray) -> tuple[float, float, float]:
-    """Sub-pixel (x, y) and value of the maximum of a 2-D score map.
-
-    A parabola through the peak and its two neighbours along each axis; the
-    integer peak where it lies on the border."""
-    _, top, _, (x, y) = cv2.minMaxLoc(score)
-    dx = dy = 0.0
-    if 0 < x < score.shape[1] - 1:
-        a, b, c = score[y, x - 1], score[y, x], score[y, x + 1]
-        den = a - 2 * b + c
-        dx = 0.5 * (a - c) / den if den < 0 else 0.0
-    if 0 < y < score.shape[0] - 1:
-        a, b, c = score[y - 1, x], score[y, x], score[y + 1, x]
-        den = a - 2 * b + c
-        dy = 0.5 * (a - c) / den if den < 0 else 0.0
-    return x + dx, y + dy, float(top)
 
 
 def track_match_template(

@@ -29,6 +29,8 @@ __all__ = [
     "PATCH_HALF_PX",
     "warp_templates",
     "refine_first_template",
+    "match_parabolic",
+    "parabolic_peak",
     "track_updated",
     "to_uint8",
 ]
@@ -201,14 +203,63 @@ def refine_first_template(
     return uv, quality
 
 
+def parabolic_peak(score: np.ndarray) -> tuple[float, float, float]:
+    """Sub-pixel (x, y) and value of the maximum of a 2-D score map.
+
+    A parabola through the peak and its two neighbours along each axis; the
+    integer peak where it lies on the border."""
+    _, top, _, (x, y) = cv2.minMaxLoc(score)
+    dx = dy = 0.0
+    if 0 < x < score.shape[1] - 1:
+        a, b, c = score[y, x - 1], score[y, x], score[y, x + 1]
+        den = a - 2 * b + c
+        dx = 0.5 * (a - c) / den if den < 0 else 0.0
+    if 0 < y < score.shape[0] - 1:
+        a, b, c = score[y - 1, x], score[y, x], score[y + 1, x]
+        den = a - 2 * b + c
+        dy = 0.5 * (a - c) / den if den < 0 else 0.0
+    return x + dx, y + dy, float(top)
+
+
+def match_parabolic(
+    image: np.ndarray,
+    origin: np.ndarray,
+    templates: np.ndarray,
+    start_uv: np.ndarray,
+    active: np.ndarray,
+):
+    """Each template's best match in its region: NCC (cv2.matchTemplate) and a parabolic peak.
+
+    The alternative to :func:`refine_first_template` (same arguments and
+    returns; ``image`` holds one region per point, shape (K, h, w)). The whole
+    region is searched, so ``start_uv`` only says which points have one.
+    Quality is the peak's zero-mean normalised cross-correlation.
+    """
+    k_all = templates.shape[0]
+    uv = np.full((k_all, 2), np.nan)
+    quality = np.full(k_all, np.nan)
+    window = np.ascontiguousarray(templates[:, 1:-1, 1:-1], np.float32)  # as the LK's
+    half = (window.shape[1] - 1) / 2
+    origins = np.broadcast_to(np.asarray(origin, float), (k_all, 2))
+    for k in np.flatnonzero(np.asarray(active, bool) & np.isfinite(start_uv).all(axis=1)):
+        if not window[k].std() > 0:
+            continue
+        score = cv2.matchTemplate(np.ascontiguousarray(image[k], np.float32), window[k],
+                                  cv2.TM_CCOEFF_NORMED)  # fmt: skip
+        x, y, top = parabolic_peak(score)
+        uv[k] = origins[k] + (x + half, y + half)
+        quality[k] = top
+    return uv, quality
+
+
 #: Pyramidal LK for the updated-template step: levels and window cover motions of
 #: ~ (2^3) * 12 = 100 px between frames (a jump between two stage holds).
 PYR_LEVELS = 3
-PYR_WIN_PX = 2 * PATCH_HALF_PX + 1
 _PYR_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 
 
-def track_updated(prev_u8: np.ndarray, prev_origin, prev_uv, cur_u8, cur_origin, guess_uv):
+def track_updated(prev_u8: np.ndarray, prev_origin, prev_uv, cur_u8, cur_origin, guess_uv,
+                  half: int = PATCH_HALF_PX, levels: int = PYR_LEVELS):  # fmt: skip
     """Pyramidal LK from the previous frame, with a forward-backward check.
 
     Parameters
@@ -220,6 +271,8 @@ def track_updated(prev_u8: np.ndarray, prev_origin, prev_uv, cur_u8, cur_origin,
         Positions in the previous frame.
     guess_uv : ndarray, shape (K, 2)
         Expected positions in the current frame (a motion prediction).
+    half, levels : int
+        Window (2 half + 1 px square) and pyramid levels of cv2.calcOpticalFlowPyrLK.
 
     Returns
     -------
@@ -230,14 +283,14 @@ def track_updated(prev_u8: np.ndarray, prev_origin, prev_uv, cur_u8, cur_origin,
     """
     p0 = (prev_uv - prev_origin).astype(np.float32).reshape(-1, 1, 2)
     g0 = (guess_uv - cur_origin).astype(np.float32).reshape(-1, 1, 2)
-    win = (PYR_WIN_PX, PYR_WIN_PX)
+    win = (2 * half + 1, 2 * half + 1)
     flags = cv2.OPTFLOW_USE_INITIAL_FLOW
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(
-        prev_u8, cur_u8, p0, g0.copy(), winSize=win, maxLevel=PYR_LEVELS,
+        prev_u8, cur_u8, p0, g0.copy(), winSize=win, maxLevel=levels,
         criteria=_PYR_CRITERIA, flags=flags,
     )  # fmt: skip
     p2, st2, _ = cv2.calcOpticalFlowPyrLK(
-        cur_u8, prev_u8, p1, p0.copy(), winSize=win, maxLevel=PYR_LEVELS,
+        cur_u8, prev_u8, p1, p0.copy(), winSize=win, maxLevel=levels,
         criteria=_PYR_CRITERIA, flags=flags,
     )  # fmt: skip
     ok = (st1.ravel() == 1) & (st2.ravel() == 1)

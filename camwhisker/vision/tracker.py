@@ -14,16 +14,22 @@ the model. :meth:`FrontEnd.update` then does, per frame:
    guess puts them (:func:`~camwhisker.vision.lk.refine_first_template`), on
    linear colour-share maps; corners the rod or the cross covers are left out;
 4. only after a big jump (fewer than FALLBACK_BELOW corners locked): the
-   missing corners predicted again from a fit to the others, then tracked by
-   pyramidal LK from their updated templates with a forward-backward check
-   (:func:`~camwhisker.vision.lk.track_updated`) and corrected again.
-   ``FrontEndOptions(updated_template="always")`` runs that LK first for
-   every corner, in Matthews et al.'s order; the benchmark finds it no more
-   accurate and ~3x slower;
+   missing corners predicted again from a fit to the others and corrected
+   again (and other depths tried, and the features detected afresh, when
+   too few lock at all);
 5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`),
-   and the paper's eqs. (2)-(7) on the same points;
-6. the template update rule of Matthews et al.: a corner's updated template
-   moves on only when its drift correction agreed with its LK track.
+   and the paper's eqs. (2)-(7) on the same points.
+
+The template-updating tracker of the paper (pyramidal LK from each corner's
+updated template with a forward-backward check,
+:func:`~camwhisker.vision.lk.track_updated`, and Matthews et al.'s update
+rule: a corner's updated template moves on only when its drift correction
+agreed with its LK track) is an option: ``FrontEndOptions(updated_template=
+"fallback")`` runs it for the corners step 4 could not recover,
+``"always"`` for every corner first, in Matthews et al.'s order. The
+benchmark (``camwhisker bench``) finds neither more accurate than leaving it
+out on its scenes, which do jump between holds, and both slower, so the
+default leaves it out.
 
 When a frame cannot be trusted (tip not found, too few corners, a poor fit)
 the next frame re-detects the features from scratch.
@@ -50,6 +56,8 @@ from camwhisker.vision.colour import (
 from camwhisker.vision.detect import FeaturesNotFound, detect_features
 from camwhisker.vision.lk import (
     PATCH_HALF_PX,
+    PYR_LEVELS,
+    match_parabolic,
     refine_first_template,
     to_uint8,
     track_updated,
@@ -139,16 +147,31 @@ class FrontEndOptions:
     fit_shift : fit the lateral shift (sx, sy) too.
     lock_gains : keep the rest frame's white-balance gains.
     updated_template : when to track corners with pyramidal LK from their
-        updated templates (the last frames): "fallback" (default) only for
-        corners the drift correction could not lock from the model's
-        prediction; "always" for every corner first (Matthews et al.'s order);
-        "off" never. The benchmark finds "always" no more accurate, at ~1 ms a frame.
+        updated templates (the last frames): "off" (default) never;
+        "fallback" only for corners the drift correction could not lock from
+        the model's prediction; "always" for every corner first (Matthews et
+        al.'s order). The benchmark finds neither more accurate than "off" on
+        its scenes, and both slower, so the default leaves it out.
+    lk_half_px : half size of a corner's template (px): the LK compares a
+        (2 lk_half_px - 1)^2 window (the rest is its gradient's border).
+    roi_margin_px : the region of interest around each corner's predicted
+        position extends this far beyond its window (px), for the LK to
+        converge in; also the reach of the "parabola" search.
+    pyramid_levels : levels of the pyramidal LK of the updated-template step.
+    subpixel : how a corner is placed against its warped rest template:
+        "lk" (inverse-compositional Lucas-Kanade, translation only, iterated
+        to 0.01 px) or "parabola" (normalised cross-correlation over the
+        region of interest, cv2.matchTemplate, and a parabola through the peak).
     """
 
     mode: str = "model"
     fit_shift: bool = True
     lock_gains: bool = False
-    updated_template: str = "fallback"
+    updated_template: str = "off"
+    lk_half_px: int = PATCH_HALF_PX
+    roi_margin_px: int = REFINE_MARGIN_PX
+    pyramid_levels: int = PYR_LEVELS
+    subpixel: str = "lk"
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -158,6 +181,12 @@ class FrontEndOptions:
                 f"updated_template must be 'fallback', 'always' or 'off', "
                 f"got {self.updated_template!r}"
             )
+        if self.subpixel not in ("lk", "parabola"):
+            raise ValueError(f"subpixel must be 'lk' or 'parabola', got {self.subpixel!r}")
+        for name, low in (("lk_half_px", 3), ("roi_margin_px", 1), ("pyramid_levels", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -500,7 +529,8 @@ class FrontEnd:
             return None
         if not hasattr(self, "_region_size"):
             ext = uv[ok].max(axis=0) - uv[ok].min(axis=0)
-            size = np.ceil(ext * REGION_GROWTH).astype(int) + 2 * (PATCH_HALF_PX + REGION_MARGIN_PX)
+            margin = self.options.lk_half_px + REGION_MARGIN_PX
+            size = np.ceil(ext * REGION_GROWTH).astype(int) + 2 * margin
             self._region_size = (min(int(size[0]), w), min(int(size[1]), h))
         rw, rh = self._region_size
         c = (uv[ok].min(axis=0) + uv[ok].max(axis=0)) / 2
@@ -562,7 +592,8 @@ class FrontEnd:
             ks = np.array(ks)
             tmpl = self._tmpl_img[ks[0]]
             res, fb = track_updated(tmpl.u8(), tmpl.origin, self._tmpl_uv[ks], u8, origin,
-                                    uv_guess[ks])  # fmt: skip
+                                    uv_guess[ks], self.options.lk_half_px,
+                                    self.options.pyramid_levels)  # fmt: skip
             good = fb < FB_MAX_PX
             uv[ks[good]] = res[good]
             ok[ks[good]] = True
@@ -591,9 +622,11 @@ class FrontEnd:
 
     def _refine(self, frame, gains, templates, start_uv, active):
         """Drift correction of every active corner against its warped rest patch."""
-        half = PATCH_HALF_PX + REFINE_MARGIN_PX
+        opts = self.options
+        half = opts.lk_half_px + opts.roi_margin_px
         patches, origins, inside = self._share_patches(frame, gains, start_uv, half)
-        return refine_first_template(patches, origins, templates, start_uv, active & inside)
+        place = refine_first_template if opts.subpixel == "lk" else match_parabolic
+        return place(patches, origins, templates, start_uv, active & inside)
 
     def _share_patches(self, frame, gains, uv, half):
         """Red-share (cross) or blue-share (square) patches around each corner.
@@ -635,9 +668,11 @@ class FrontEnd:
         d1 = self.model.edge_directions(q, step_mm=0.05)
         # A maps rest-image directions to current-image directions: A d0 = d1.
         a = np.einsum("kij,kjl->kil", np.swapaxes(d1, 1, 2), np.linalg.inv(np.swapaxes(d0, 1, 2)))
-        sq = warp_templates(self.rest_blue, self.rest_origin, self.rest_uv[:N_SQUARE], a[:N_SQUARE])
+        half = self.options.lk_half_px
+        sq = warp_templates(self.rest_blue, self.rest_origin, self.rest_uv[:N_SQUARE],
+                            a[:N_SQUARE], half)  # fmt: skip
         cr = warp_templates(self.rest_red, self.rest_origin, self.rest_uv[N_SQUARE:TIP],
-                            a[N_SQUARE:TIP])  # fmt: skip
+                            a[N_SQUARE:TIP], half)  # fmt: skip
         return np.concatenate([sq, cr])
 
     def _occluded(self, q, uv):
@@ -647,7 +682,7 @@ class FrontEnd:
         (at large tilts its arm ends pass over them)."""
         hull = cv2.convexHull(self.model.rod_outline(q).astype(np.float32))
         cross = self.model.cross_outline(q).astype(np.float32)
-        reach = PATCH_HALF_PX * math.sqrt(2) + OCCLUSION_MARGIN_PX
+        reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
         for k in range(TIP):
             pt = (float(uv[k, 0]), float(uv[k, 1]))
