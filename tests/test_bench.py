@@ -31,6 +31,30 @@ def test_pareto_front_strict_domination():
     assert pareto_front(np.array([10.0, 10.0]), np.array([0.1, 0.1])).tolist() == [True, True]
 
 
+def test_pareto_front_speed_tolerance():
+    # 104 against 100 frames/s is a tie within 5 %: equal error no longer dominates
+    speed = np.array([100.0, 104.0, 120.0, 110.0])
+    error = np.array([0.1, 0.1, 0.2, 0.05])
+    assert pareto_front(speed, error).tolist() == [False, False, True, True]
+    assert pareto_front(speed[:3], error[:3], speed_tol=0.05).tolist() == [True, True, True]
+    # a more accurate point within the tolerance still dominates a slightly faster one
+    assert pareto_front(speed, error, speed_tol=0.05).tolist() == [False, False, True, True]
+
+
+def test_timing_spread_from_repeats():
+    from camwhisker.bench.run import SceneResult, timing_spread
+
+    def res(config, scene, lo, hi):
+        return SceneResult(config, scene, 10, lo, lo, 0.0, 0.0, 1.0, 0.01, 0.01, 0.01, 1e-4,
+                           1e-5, hi)  # fmt: skip
+
+    rs = [res("a", "n", 1.0, 1.1), res("a", "d", 1.0, 1.0), res("b", "n", 2.0, 2.6),
+          res("c", "n", 1.0, 1.2), res("d", "n", 9.0, 9.0)]  # fmt: skip
+    # a: 2.1 / 2.0 - 1, b: 0.3, c: 0.2; d was timed once and does not count: median 0.2
+    assert timing_spread(rs) == pytest.approx(0.2)
+    assert timing_spread([res("a", "n", 1.0, float("nan"))]) == 0.0
+
+
 def test_parabolic_peak_sub_pixel():
     x = np.arange(9.0)
     score = -((x[None, :] - 4.3) ** 2) - (x[:, None] - 2.8) ** 2

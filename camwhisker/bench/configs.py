@@ -75,8 +75,8 @@ CONFIGS = [
     Config('updated_template="always"', FrontEndOptions(updated_template="always")),
     Config("lk_half_px=8", FrontEndOptions(lk_half_px=8)),
     Config("lk_half_px=16", FrontEndOptions(lk_half_px=16)),
-    Config("roi_margin_px=5", FrontEndOptions(roi_margin_px=5)),
-    Config("roi_margin_px=20", FrontEndOptions(roi_margin_px=20)),
+    Config("roi_margin_px=10", FrontEndOptions(roi_margin_px=10)),
+    Config("roi_margin_px=30", FrontEndOptions(roi_margin_px=30)),
     Config('subpixel="parabola"', FrontEndOptions(subpixel="parabola")),
 ]
 

@@ -7,12 +7,14 @@ import numpy as np
 __all__ = ["pareto_front"]
 
 
-def pareto_front(speed: np.ndarray, error: np.ndarray) -> np.ndarray:
+def pareto_front(speed: np.ndarray, error: np.ndarray, speed_tol: float = 0.0) -> np.ndarray:
     """Which points no other point dominates, shape (N,) bool.
 
     A point dominates another when it is at least as fast and at least as
-    accurate, and strictly better in one of the two. Points with a NaN are
-    never on the front (and dominate nothing).
+    accurate, and strictly better in one of the two. Speeds within a relative
+    ``speed_tol`` of each other count as equal (a timing's own spread), so a
+    point dominates by speed alone only when it is faster by more than that.
+    Points with a NaN are never on the front (and dominate nothing).
 
     Parameters
     ----------
@@ -20,12 +22,17 @@ def pareto_front(speed: np.ndarray, error: np.ndarray) -> np.ndarray:
         frames/s.
     error : ndarray, shape (N,)
         Error, any unit.
+    speed_tol : float
+        Relative spread of the speeds (0.05: 5 %).
     """
     s = np.asarray(speed, float)
     e = np.asarray(error, float)
     valid = np.isfinite(s) & np.isfinite(e)
     front = valid.copy()
     for i in np.flatnonzero(valid):
-        others = valid & (s >= s[i]) & (e <= e[i]) & ((s > s[i]) | (e < e[i]))
+        not_slower = s >= s[i] * (1.0 - speed_tol)
+        faster = s > s[i] * (1.0 + speed_tol)
+        others = valid & not_slower & (e <= e[i]) & (faster | (e < e[i]))
+        others[i] = False
         front[i] = not others.any()
     return front
