@@ -177,11 +177,31 @@ def _add_batch(sub) -> None:
     )
     p.add_argument("--no-shift", action="store_true", help="do not fit the lateral shift")
     p.add_argument("--lock-gains", action="store_true", help="keep the rest frame's white balance")
+    _tracker_args(p)
     p.add_argument("--rest-frame", type=int, default=0, metavar="N", help="rest reference frame")
     p.add_argument("--fps", type=float, help="frame rate of an image folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     _sensor_arg(p)
     p.set_defaults(func=_run_batch)
+
+
+def _tracker_args(p) -> None:
+    """The front end's tuning knobs (FrontEndOptions; `camwhisker bench` compares them)."""
+    from camwhisker.vision import FrontEndOptions
+
+    d = FrontEndOptions()
+    p.add_argument("--updated-template", choices=("off", "fallback", "always"),
+                   default=d.updated_template,
+                   help=f"the paper's updated-template LK: never, after a jump, or first "
+                        f"(default {d.updated_template})")  # fmt: skip
+    p.add_argument("--lk-half-px", type=int, default=d.lk_half_px, metavar="N",
+                   help=f"half size of a corner's template (default {d.lk_half_px})")
+    p.add_argument("--roi-margin-px", type=int, default=d.roi_margin_px, metavar="N",
+                   help=f"region of interest beyond the LK window (default {d.roi_margin_px})")
+    p.add_argument("--pyramid-levels", type=int, default=d.pyramid_levels, metavar="N",
+                   help=f"levels of the updated-template LK (default {d.pyramid_levels})")
+    p.add_argument("--subpixel", choices=("lk", "parabola"), default=d.subpixel,
+                   help=f"corner placement: Lucas-Kanade or NCC peak (default {d.subpixel})")
 
 
 def _run_batch(args) -> int:
@@ -190,7 +210,13 @@ def _run_batch(args) -> int:
 
     if args.rest_frame < 0:
         raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
-    options = FrontEndOptions(args.mode, not args.no_shift, args.lock_gains)
+    try:
+        options = FrontEndOptions(
+            args.mode, not args.no_shift, args.lock_gains, args.updated_template,
+            args.lk_half_px, args.roi_margin_px, args.pyramid_levels, args.subpixel,
+        )  # fmt: skip
+    except ValueError as exc:
+        raise CommandError(str(exc)) from exc
     sensor = load_sensor(args.sensor)
     if args.out is None:
         return _run_batch_many(args, sensor, options)

@@ -147,6 +147,25 @@ def test_rest_frame_option_leaves_earlier_rows_untrusted(video, tmp_path):
     assert rows[1]["ok"] == "1" and math.isclose(float(rows[1]["phi_deg"]), 0.0, abs_tol=1e-9)
 
 
+def test_tracker_knobs_from_the_command_line(video, tmp_path, capsys):
+    out = tmp_path / "k.csv"
+    rc = main(["batch", str(video["video"]), "--sensor", str(video["sensor"]), "--out", str(out),
+               "--subpixel", "parabola", "--lk-half-px", "10", "--updated-template", "fallback",
+               "--quiet"])  # fmt: skip
+    assert rc == 0
+    options = json.loads((tmp_path / "k.json").read_text())["options"]
+    assert (options["subpixel"], options["lk_half_px"], options["updated_template"]) == (
+        "parabola", 10, "fallback")
+    truth = PoseTrack.read_csv(video["truth"])
+    rows = _read(out)
+    assert all(r["ok"] == "1" for r in rows)
+    # NCC's parabola is coarser than the LK (the benchmark: ~0.025 deg against 0.014 deg)
+    assert max(abs(float(r["phi_deg"]) - p) for r, p in zip(rows, truth.phi_deg, strict=True)) < 0.1
+    assert main(["batch", str(video["video"]), "--out", str(tmp_path / "b.csv"),
+                 "--lk-half-px", "2"]) == 2  # fmt: skip
+    assert "lk_half_px" in capsys.readouterr().err and not (tmp_path / "b.csv").exists()
+
+
 def test_negative_rest_frame_is_refused(video, tmp_path, capsys):
     out = tmp_path / "n.csv"
     assert main(["batch", str(video["video"]), "--out", str(out), "--rest-frame", "-1"]) == 2
