@@ -25,12 +25,11 @@ from collections.abc import Iterable, Iterator
 import cv2
 import numpy as np
 
-from camwhisker.vision.lk import parabolic_peak
+from camwhisker.vision.lk import PATCH_HALF_PX, parabolic_peak
 from camwhisker.vision.pose import TIP
 
 __all__ = [
     "PEERS",
-    "PATCH_HALF_PX",
     "REACH_CORNER_PX",
     "REACH_TIP_PX",
     "track_match_template",
@@ -39,8 +38,6 @@ __all__ = [
     "track_kornia",
 ]
 
-#: Template half size (px): 25 x 25, the front end's LK window.
-PATCH_HALF_PX = 12
 #: The tip's end face is ~72 px across: its template must hold the rim (81 x 81).
 TIP_HALF_PX = 40
 #: Search radius (px). The tip is unique: it is searched over its whole reach
