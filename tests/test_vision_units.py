@@ -26,13 +26,14 @@ from camwhisker.vision import paper
 from camwhisker.vision.colour import (
     cloth_samples,
     contrast_map,
+    share_patches,
     unmixed_maps,
     unmixing_weights,
     white_balance_gains,
 )
 from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
 from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_centroid
-from camwhisker.vision.tip import find_tip
+from camwhisker.vision.tip import _blob_stats, brightness, find_tip
 
 # ------------------------------------------------------------------ paper eqs
 
@@ -130,6 +131,20 @@ def test_unmixing_reads_mixing_fractions_linearly():
     np.testing.assert_allclose(b[0], [0.0, 0.7, 1.0], atol=1e-5)
     with pytest.raises(ValueError, match="singular"):
         unmixing_weights(red, 2 * red, cloth)
+
+
+def test_share_patches_equal_the_unmixed_maps_cut_out():
+    """The compiled patches equal :func:`unmixed_maps` over the frame, cut at each
+    corner (float32 sums in another order: within 1e-4 of values ~1)."""
+    rng = np.random.default_rng(7)
+    frame = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    w = unmixing_weights([45, 50, 200.0], [185, 80, 40.0], [222, 226, 230.0])
+    tl = np.array([[0, 0], [50, 30], [13, 7]])
+    which = np.array([0, 1, 1])
+    got = share_patches(frame, tl, 25, w[which].astype(np.float32))
+    maps = unmixed_maps(frame, w)
+    for k, (u, v) in enumerate(tl):
+        np.testing.assert_allclose(got[k], maps[which[k]][v : v + 25, u : u + 25], atol=1e-4)
 
 
 # ------------------------------------------------------------------ pose model
@@ -287,6 +302,27 @@ def test_tip_centre_of_a_synthetic_disc_on_two_backgrounds():
     assert got.ok
     np.testing.assert_allclose(got.centre_uv, centre, atol=0.05)
     assert got.radius_px == pytest.approx(30.0, abs=0.3)
+
+
+def test_blob_statistics_equal_opencvs():
+    rng = np.random.default_rng(11)
+    mask = (cv2.GaussianBlur(rng.random((90, 120)), (0, 0), 3) > 0.5).astype(np.uint8)
+    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    assert n > 3
+    areas, got_cents, boxes = _blob_stats(labels, n)
+    np.testing.assert_array_equal(areas, stats[1:, cv2.CC_STAT_AREA])
+    np.testing.assert_allclose(got_cents, cents[1:], atol=1e-9)
+    np.testing.assert_array_equal(boxes, stats[1:, :4])
+
+
+def test_brightness_is_max_channel_and_luma():
+    rng = np.random.default_rng(5)
+    bgr = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    gains = np.array([0.9, 1.0, 1.1], np.float32)
+    val, lum = brightness(bgr[::2, 1::3], gains)  # a strided view, as the coarse search uses
+    wb = bgr[::2, 1::3].astype(np.float64) * gains
+    np.testing.assert_allclose(val, wb.max(axis=2), rtol=1e-6)
+    np.testing.assert_allclose(lum, wb @ [0.114, 0.587, 0.299], rtol=1e-5)
 
 
 def test_tip_not_found_on_blank_frame():

@@ -10,6 +10,11 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.vision.paper`   the paper's eqs. (2)-(7) as printed
 - :mod:`~camwhisker.vision.tracker` the stateful front end, its generator
 - :mod:`~camwhisker.vision.bench`   speed and accuracy benchmark
+
+The per-pixel loops (the corners' LK and template warp, the colour-share
+patches, the tip's brightness, blob statistics, ray edges and rim fit) are
+numba-compiled functions (``cache=True``), each beside the Python function
+that states its contract; everything else is numpy and OpenCV.
 """
 
 from camwhisker.vision.detect import FeaturesNotFound

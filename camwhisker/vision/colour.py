@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 __all__ = [
     "cloth_samples",
@@ -30,6 +31,7 @@ __all__ = [
     "apply_gains",
     "unmixing_weights",
     "unmixed_maps",
+    "share_patches",
     "cloth_level",
 ]
 
@@ -184,6 +186,30 @@ def unmixed_maps(bgr: np.ndarray, weights: np.ndarray, gains=None, scale: float 
         m = cv2.addWeighted(b, float(row[0]), g, float(row[1]), 0.0, dtype=f32)
         out.append(cv2.scaleAdd(rf, float(row[2]), m))
     return out[0], out[1]
+
+
+def share_patches(frame: np.ndarray, top_left: np.ndarray, size: int, weights: np.ndarray):
+    """Square patches of one colour share each, shape (K, size, size), float32.
+
+    Patch k is ``frame[v:v + size, u:u + size] @ weights[k]`` with (u, v) =
+    ``top_left[k]`` (integer, inside the frame): a row of :func:`unmixing_weights`
+    with the gains and light level folded in, as :func:`unmixed_maps` uses them.
+    """
+    return _share_patches(np.ascontiguousarray(frame), np.asarray(top_left, np.intp), size,
+                          np.asarray(weights, np.float32))  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _share_patches(frame, top_left, size, weights):
+    out = np.empty((len(top_left), size, size), np.float32)
+    for k in range(len(top_left)):
+        u, v = top_left[k, 0], top_left[k, 1]
+        wb, wg, wr = weights[k, 0], weights[k, 1], weights[k, 2]
+        for i in range(size):
+            for j in range(size):
+                b, g, r = frame[v + i, u + j, 0], frame[v + i, u + j, 1], frame[v + i, u + j, 2]
+                out[k, i, j] = np.float32(b) * wb + np.float32(g) * wg + np.float32(r) * wr
+    return out
 
 
 def cloth_level(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, gains) -> float:

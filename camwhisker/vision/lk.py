@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 __all__ = [
     "PATCH_HALF_PX",
@@ -40,10 +41,10 @@ __all__ = [
 #: of the neighbouring features (the square's edge is 12 px beyond an arm's end,
 #: but it lies in the other polarity of the contrast map).
 PATCH_HALF_PX = 12
-#: Inverse-compositional iterations stop when the step is below this (px): well
-#: under a corner's ~0.05 px noise (the iteration converges by ~5x per step, so
-#: ~2e-3 px remain); 0.003 px gave the same benchmark errors, 15% slower.
-LK_STEP_TOL_PX = 0.01
+#: Inverse-compositional iterations stop, per point, when the step is below this
+#: (px): far under a corner's ~0.05 px noise (the iteration converges by ~5x per
+#: step, so ~4e-4 px remain). Compiled, an iteration costs ~2 us a point.
+LK_STEP_TOL_PX = 0.002
 LK_MAX_ITER = 20
 #: Scale of the contrast map into 8 bits for OpenCV's LK: G in [-2, 2] -> [8, 248].
 UINT8_SCALE = 60.0
@@ -81,26 +82,33 @@ def warp_templates(
     templates : ndarray, shape (K, 2 half + 1, 2 half + 1), float32
         ``templates[k][y, x]`` is the rest map at rest_uv[k] + A^-1 ((x, y) - half).
     """
-    n = 2 * half + 1
-    g = np.arange(n, dtype=float) - half
-    gx, gy = np.meshgrid(g, g)
-    grid = np.stack([gx.ravel(), gy.ravel()])  # (2, n*n)
-    inv = np.linalg.inv(affine)  # (K, 2, 2)
-    pos = np.einsum("kij,jm->kim", inv, grid) + (rest_uv - rest_origin)[:, :, None]
+    inv = np.linalg.inv(np.asarray(affine, float))  # (K, 2, 2)
+    centre = np.asarray(rest_uv, float) - np.asarray(rest_origin, float)
+    return _warp(np.ascontiguousarray(rest_map, np.float32), inv, centre, half)
+
+
+@njit(cache=True, nogil=True)
+def _warp(m, inv, centre, half):
     # Exact bilinear interpolation in float64, the same weights getRectSubPix uses,
     # so that an unmoved frame reproduces its template exactly (cv2.warpAffine
     # rounds the weights to 1/32 px).
-    h, w = rest_map.shape
-    x = np.clip(pos[:, 0], 0.0, w - 1.000001)
-    y = np.clip(pos[:, 1], 0.0, h - 1.000001)
-    x0 = np.floor(x).astype(np.intp)
-    y0 = np.floor(y).astype(np.intp)
-    fx, fy = x - x0, y - y0
-    m = rest_map
-    top = m[y0, x0] * (1 - fx) + m[y0, x0 + 1] * fx
-    bottom = m[y0 + 1, x0] * (1 - fx) + m[y0 + 1, x0 + 1] * fx
-    out = top * (1 - fy) + bottom * fy
-    return out.reshape(len(rest_uv), n, n).astype(np.float32)
+    n = 2 * half + 1
+    h, w = m.shape
+    out = np.empty((len(centre), n, n), np.float32)
+    for k in range(len(centre)):
+        for i in range(n):
+            for j in range(n):
+                gx, gy = j - half, i - half
+                x = inv[k, 0, 0] * gx + inv[k, 0, 1] * gy + centre[k, 0]
+                y = inv[k, 1, 0] * gx + inv[k, 1, 1] * gy + centre[k, 1]
+                x = min(max(x, 0.0), w - 1.000001)
+                y = min(max(y, 0.0), h - 1.000001)
+                x0, y0 = int(np.floor(x)), int(np.floor(y))
+                fx, fy = x - x0, y - y0
+                top = m[y0, x0] * (1 - fx) + m[y0, x0 + 1] * fx
+                bottom = m[y0 + 1, x0] * (1 - fx) + m[y0 + 1, x0 + 1] * fx
+                out[k, i, j] = top * (1 - fy) + bottom * fy
+    return out
 
 
 def refine_first_template(
@@ -135,72 +143,110 @@ def refine_first_template(
         Zero-mean normalised cross-correlation of the template and the final
         patch, in [-1, 1]; NaN where there is none.
     """
+    k_all = templates.shape[0]
+    image = np.asarray(image, np.float32)
+    stack = image.reshape((-1, *image.shape[-2:]))
+    which = np.arange(k_all) if image.ndim == 3 else np.zeros(k_all, np.intp)
+    origins = np.broadcast_to(np.asarray(origin, float), (k_all, 2))
+    d0 = np.asarray(start_uv, float) - origins
+    ok = np.asarray(active, bool) & np.isfinite(d0).all(axis=1)
+    d, quality = _refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
+                         LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
+    return d + origins, quality
+
+
+@njit(cache=True, nogil=True)
+def _refine(images, which, templates, d0, ok, tol, max_iter):
+    """Per point: inverse-compositional translation LK on the mean-removed window
+    (the template without its one-pixel gradient border), iterated until the step
+    is below ``tol``; then the zero-mean NCC at the result. NaN where it failed."""
     k_all, n, _ = templates.shape
     m = n - 2
-    uv = np.full((k_all, 2), np.nan)
-    quality = np.full(k_all, np.nan)
-    t_in = templates[:, 1:-1, 1:-1].astype(np.float64)
-    tx = (templates[:, 1:-1, 2:] - templates[:, 1:-1, :-2]).astype(np.float64) * 0.5
-    ty = (templates[:, 2:, 1:-1] - templates[:, :-2, 1:-1]).astype(np.float64) * 0.5
-    hxx = (tx * tx).sum(axis=(1, 2))
-    hxy = (tx * ty).sum(axis=(1, 2))
-    hyy = (ty * ty).sum(axis=(1, 2))
-    det = hxx * hyy - hxy * hxy
-    ok = np.asarray(active, bool) & (det > 1e-12) & np.isfinite(start_uv).all(axis=1)
-    idx = np.flatnonzero(ok)
-    if len(idx) == 0:
-        return uv, quality
-    stack = image.ndim == 3
-    h, w = image.shape[-2:]
-    flat = np.ascontiguousarray(image).ravel()
-    which = (idx if stack else np.zeros(len(idx), np.intp)) * (h * w)
-    origins = np.broadcast_to(np.asarray(origin, float), (k_all, 2))[idx]
-    d = (start_uv[idx] - origins).astype(np.float64)  # patch centres, region pixels
-    half = (m - 1) / 2
-    g = np.arange(m) - int(half)
-    grid = (g[:, None] * w + g[None, :]).ravel()  # flat offsets of the window
-    tx, ty, t_in = tx[idx].reshape(len(idx), -1), ty[idx].reshape(len(idx), -1), t_in[idx]
-    t_in = t_in.reshape(len(idx), -1)
-    hxx, hxy, hyy, det = hxx[idx], hxy[idx], hyy[idx], det[idx]
-    alive = np.ones(len(idx), bool)
-    patch = np.zeros_like(t_in)
-
-    def sample(sel):
-        ix = np.floor(d[sel, 0]).astype(np.intp)
-        iy = np.floor(d[sel, 1]).astype(np.intp)
-        fx = (d[sel, 0] - ix)[:, None]
-        fy = (d[sel, 1] - iy)[:, None]
-        base = (which[sel] + iy * w + ix)[:, None] + grid
-        top = flat[base] * (1 - fx) + flat[base + 1] * fx
-        bottom = flat[base + w] * (1 - fx) + flat[base + (w + 1)] * fx
-        return top * (1 - fy) + bottom * fy
-
+    half = (m - 1) // 2
+    h, w = images.shape[1], images.shape[2]
     lo, hi_x, hi_y = half + 1, w - 2 - half, h - 2 - half
-    for _ in range(LK_MAX_ITER):
-        alive &= (d[:, 0] >= lo) & (d[:, 0] <= hi_x) & (d[:, 1] >= lo) & (d[:, 1] <= hi_y)
-        if not alive.any():
-            break
-        patch[alive] = sample(alive)
-        e = patch - t_in
-        e -= e.mean(axis=1, keepdims=True)
-        bx = (tx * e).sum(axis=1)
-        by = (ty * e).sum(axis=1)
-        step = np.column_stack([(hyy * bx - hxy * by) / det, (hxx * by - hxy * bx) / det])
-        step[~alive] = 0.0
-        d -= step
-        if np.abs(step).max() < LK_STEP_TOL_PX:
-            break
-    alive &= (d[:, 0] >= lo) & (d[:, 0] <= hi_x) & (d[:, 1] >= lo) & (d[:, 1] <= hi_y)
-    if not alive.any():
-        return uv, quality
-    p = sample(alive)
-    pz = p - p.mean(axis=1, keepdims=True)
-    tz = t_in[alive] - t_in[alive].mean(axis=1, keepdims=True)
-    den = np.sqrt((pz * pz).sum(axis=1) * (tz * tz).sum(axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        quality[idx[alive]] = np.where(den > 0, (pz * tz).sum(axis=1) / den, np.nan)
-    uv[idx[alive]] = d[alive] + origins[alive]
-    return uv, quality
+    d_out = np.full((k_all, 2), np.nan)
+    quality = np.full(k_all, np.nan)
+    tx = np.empty((m, m))
+    ty = np.empty((m, m))
+    t = np.empty((m, m))
+    e = np.empty((m, m))
+    for k in range(k_all):
+        if not ok[k]:
+            continue
+        tk = templates[k]
+        img = images[which[k]]
+        hxx = hxy = hyy = 0.0
+        for i in range(m):
+            for j in range(m):
+                t[i, j] = tk[i + 1, j + 1]
+                tx[i, j] = (tk[i + 1, j + 2] - tk[i + 1, j]) * 0.5
+                ty[i, j] = (tk[i + 2, j + 1] - tk[i, j + 1]) * 0.5
+                hxx += tx[i, j] * tx[i, j]
+                hxy += tx[i, j] * ty[i, j]
+                hyy += ty[i, j] * ty[i, j]
+        det = hxx * hyy - hxy * hxy
+        if not det > 1e-12:
+            continue
+        dx, dy = d0[k, 0], d0[k, 1]
+        alive = True
+        for _ in range(max_iter):
+            if not (lo <= dx <= hi_x and lo <= dy <= hi_y):
+                alive = False
+                break
+            _sample(img, dx, dy, half, m, e)
+            mean = 0.0
+            for i in range(m):
+                for j in range(m):
+                    e[i, j] -= t[i, j]
+                    mean += e[i, j]
+            mean /= m * m
+            bx = by = 0.0
+            for i in range(m):
+                for j in range(m):
+                    bx += tx[i, j] * (e[i, j] - mean)
+                    by += ty[i, j] * (e[i, j] - mean)
+            sx = (hyy * bx - hxy * by) / det
+            sy = (hxx * by - hxy * bx) / det
+            dx -= sx
+            dy -= sy
+            if max(abs(sx), abs(sy)) < tol:
+                break
+        if not alive or not (lo <= dx <= hi_x and lo <= dy <= hi_y):
+            continue
+        _sample(img, dx, dy, half, m, e)
+        pm = tm = 0.0
+        for i in range(m):
+            for j in range(m):
+                pm += e[i, j]
+                tm += t[i, j]
+        pm /= m * m
+        tm /= m * m
+        pp = tt = pt = 0.0
+        for i in range(m):
+            for j in range(m):
+                pz, tz = e[i, j] - pm, t[i, j] - tm
+                pp += pz * pz
+                tt += tz * tz
+                pt += pz * tz
+        d_out[k, 0], d_out[k, 1] = dx, dy
+        den = np.sqrt(pp * tt)
+        quality[k] = pt / den if den > 0 else np.nan
+    return d_out, quality
+
+
+@njit(cache=True, nogil=True)
+def _sample(img, dx, dy, half, m, out):
+    """Bilinear m x m window of ``img`` centred at (dx, dy), into ``out`` (float64)."""
+    ix, iy = int(np.floor(dx)), int(np.floor(dy))
+    fx, fy = dx - ix, dy - iy
+    for i in range(m):
+        r = iy - half + i
+        for j in range(m):
+            c = ix - half + j
+            top = img[r, c] * (1 - fx) + img[r, c + 1] * fx
+            bottom = img[r + 1, c] * (1 - fx) + img[r + 1, c + 1] * fx
+            out[i, j] = top * (1 - fy) + bottom * fy
 
 
 def parabolic_peak(score: np.ndarray) -> tuple[float, float, float]:

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from camwhisker.plate import Pose, cross_arm_edges, cross_outline, rod_ends, square_corners
 from camwhisker.sensor import Sensor
@@ -65,11 +66,20 @@ def q_to_pose(q: np.ndarray) -> Pose:
     return Pose(float(q[0]), math.hypot(q[1], q[2]), math.atan2(q[2], q[1]), float(sx), float(sy))
 
 
+@njit(cache=True, nogil=True)
 def polygon_centroid(uv: np.ndarray) -> np.ndarray:
     """Area centroid of a closed polygon, shape (N, 2) -> (2,) (shoelace formula)."""
-    nxt = np.concatenate([uv[1:], uv[:1]])
-    cross = uv[:, 0] * nxt[:, 1] - nxt[:, 0] * uv[:, 1]
-    return cross @ (uv + nxt) / (3.0 * cross.sum())
+    n = uv.shape[0]
+    area = cx = cy = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        cross = uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
+        area += cross
+        cx += cross * (uv[i, 0] + uv[j, 0])
+        cy += cross * (uv[i, 1] + uv[j, 1])
+    out = np.empty(2)
+    out[0], out[1] = cx / (3.0 * area), cy / (3.0 * area)
+    return out
 
 
 class PlateModel:

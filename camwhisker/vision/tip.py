@@ -7,7 +7,7 @@
    between the window's dark and bright levels, and the connected component
    nearest the expected position, give a seed centre and radius.
 2. Sub-pixel edge. Along rays from the seed, the face's edge is where the
-   luma rises fastest (see :func:`luma`), searched near V's threshold
+   luma rises fastest (see :func:`brightness`), searched near V's threshold
    crossing. Unlike a threshold, the steepest point of a blurred step does
    not depend on how bright the other side is (red, blue or cloth), so the
    edge is unbiased wherever the face lies.
@@ -17,11 +17,15 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
+
+from camwhisker.vision.pose import polygon_centroid
 
 __all__ = [
     "TipMeasurement",
@@ -29,8 +33,7 @@ __all__ = [
     "tip_edge_points",
     "ellipse_centre",
     "rim_centre",
-    "brightness_max",
-    "luma",
+    "brightness",
 ]
 
 #: Threshold between the window's dark (face) and bright levels. Relative to the
@@ -49,6 +52,9 @@ LEVEL_STEP_PX = 3
 #: (the face is still ~18 grid pixels across): 16 times fewer pixels to look at.
 COARSE_ABOVE_PX = 80.0
 COARSE_STEP_PX = 4
+#: A face cut by its search window's edge is looked for again in a window centred
+#: on its visible part, this much wider than its radius (px), before a coarse search.
+RECENTRE_MARGIN_PX = 4.0
 #: Rays for the edge search; 48 keeps the ellipse centre's noise ~0.02 px.
 N_RAYS = 48
 #: The edge is searched within this many pixels of the threshold crossing (3 sigma
@@ -75,7 +81,6 @@ RIM_FIT_ITER = 10
 #: The rim fit stops when its step is below this (px): far below the noise, so
 #: the result does not depend on where it started.
 RIM_FIT_TOL_PX = 1e-6
-FIT_EDGE_OFFSET = False
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
 
@@ -91,27 +96,31 @@ class TipMeasurement:
     reason: str = ""
 
 
-def luma(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """Rec. 601 luma of the white-balanced pixels, float32, shape (h, w).
+def brightness(bgr: np.ndarray, gains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(V, Y) of the white-balanced pixels, float32 each, shape (h, w).
 
-    JPEG (and so MJPG) keeps luma at full resolution but halves the chroma; the
-    brightest channel of a red or blue pixel is mostly chroma, and its edges
-    come back from the codec ~0.7 px off and blocky. Edges are located in luma.
+    V = max(gB B, gG G, gR R) is the brightest channel, low only on the black
+    face. Y is Rec. 601 luma: JPEG (and so MJPG) keeps luma at full resolution
+    but halves the chroma; the brightest channel of a red or blue pixel is
+    mostly chroma, and its edges come back from the codec ~0.7 px off and
+    blocky. Edges are located in luma.
     """
-    b, g, r = cv2.split(np.asarray(bgr))
-    f32 = cv2.CV_32F
-    y = cv2.addWeighted(b, 0.114 * float(gains[0]), g, 0.587 * float(gains[1]), 0.0, dtype=f32)
-    return cv2.scaleAdd(r.astype(np.float32), 0.299 * float(gains[2]), y)
+    return _brightness(np.asarray(bgr), np.asarray(gains, np.float32))
 
 
-def brightness_max(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """max(gB B, gG G, gR R) per pixel, float32, shape (h, w)."""
-    b, g, r = cv2.split(np.asarray(bgr))
-    f32 = cv2.CV_32F
-    vb = cv2.multiply(b, float(gains[0]), dtype=f32)
-    vg = cv2.multiply(g, float(gains[1]), dtype=f32)
-    vr = cv2.multiply(r, float(gains[2]), dtype=f32)
-    return cv2.max(cv2.max(vb, vg), vr)
+@njit(cache=True, nogil=True)
+def _brightness(bgr, gains):
+    h, w = bgr.shape[0], bgr.shape[1]
+    val = np.empty((h, w), np.float32)
+    lum = np.empty((h, w), np.float32)
+    for i in range(h):
+        for j in range(w):
+            vb = np.float32(bgr[i, j, 0]) * gains[0]
+            vg = np.float32(bgr[i, j, 1]) * gains[1]
+            vr = np.float32(bgr[i, j, 2]) * gains[2]
+            val[i, j] = max(vb, vg, vr)
+            lum[i, j] = np.float32(0.114) * vb + np.float32(0.587) * vg + np.float32(0.299) * vr
+    return val, lum
 
 
 def _not_found(reason: str) -> TipMeasurement:
@@ -170,40 +179,34 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
             return None, "no dark blob of the tip's size where the tip can be"
         guess_uv, search_px = found, 2.0 * COARSE_STEP_PX + 4.0
     h, w = frame.shape[:2]
-    half = radius_px * 1.4 + search_px
-    u0 = max(int(guess_uv[0] - half), 0)
-    v0 = max(int(guess_uv[1] - half), 0)
-    u1 = min(int(guess_uv[0] + half) + 1, w)
-    v1 = min(int(guess_uv[1] + half) + 1, h)
-    if u1 - u0 < 8 or v1 - v0 < 8:
-        return None, "tip window outside the frame"
-    val, lum = _brightness(frame[v0:v1, u0:u1], gains)
-    found = _dark_blob(val, guess_uv - (u0, v0), radius_px, LEVEL_STEP_PX)
-    if isinstance(found, str):
-        return None, found
-    seed, r_seed, thr, (x, y, bw, bh) = found
-    touches = (x == 0 and u0 > 0) or (y == 0 and v0 > 0) or (
-        x + bw == val.shape[1] and u1 < w) or (y + bh == val.shape[0] and v1 < h)  # fmt: skip
-    if touches:
-        return None, "dark blob reaches the tip window's edge"
+    for attempt in range(2):
+        half = radius_px * 1.4 + search_px
+        u0 = max(int(guess_uv[0] - half), 0)
+        v0 = max(int(guess_uv[1] - half), 0)
+        u1 = min(int(guess_uv[0] + half) + 1, w)
+        v1 = min(int(guess_uv[1] + half) + 1, h)
+        if u1 - u0 < 8 or v1 - v0 < 8:
+            return None, "tip window outside the frame"
+        val, lum = brightness(frame[v0:v1, u0:u1], gains)
+        found = _dark_blob(val, guess_uv - (u0, v0), radius_px, LEVEL_STEP_PX)
+        if isinstance(found, str):
+            return None, found
+        seed, r_seed, thr, (x, y, bw, bh) = found
+        touches = (x == 0 and u0 > 0) or (y == 0 and v0 > 0) or (
+            x + bw == val.shape[1] and u1 < w) or (y + bh == val.shape[0] and v1 < h)  # fmt: skip
+        if not touches:
+            break
+        if attempt == 1:
+            return None, "dark blob reaches the tip window's edge"
+        # Cut by the window's edge: the face's centre lies within a radius of the
+        # visible part's; look again around it.
+        guess_uv, search_px = seed + (u0, v0), radius_px + RECENTRE_MARGIN_PX
     if x == 0 or y == 0 or x + bw == val.shape[1] or y + bh == val.shape[0]:
         return None, "tip touches the image border"
     pts = _edge_points(val, lum, seed, r_seed, thr)
     if pts is None or len(pts) < N_RAYS // 2:
         return None, "tip edge not found on enough rays"
     return pts + (u0, v0), ""
-
-
-def _brightness(bgr, gains):
-    """(max channel, luma) of the white-balanced pixels, float32 each."""
-    b, g, r = cv2.split(np.asarray(bgr))
-    f32 = cv2.CV_32F
-    vb = cv2.multiply(b, float(gains[0]), dtype=f32)
-    vg = cv2.multiply(g, float(gains[1]), dtype=f32)
-    vr = cv2.multiply(r, float(gains[2]), dtype=f32)
-    lum = cv2.addWeighted(vb, 0.114, vg, 0.587, 0.0)
-    lum = cv2.scaleAdd(vr, 0.299, lum)
-    return cv2.max(cv2.max(vb, vg), vr), lum
 
 
 def _dark_blob(val, guess_xy, radius_px, level_step):
@@ -223,17 +226,45 @@ def _dark_blob(val, guess_xy, radius_px, level_step):
         return "no contrast in the tip window"
     thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
     mask = cv2.threshold(val, thr, 1, cv2.THRESH_BINARY_INV)[1].astype(np.uint8)
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # Labels from OpenCV, statistics compiled (cv2.connectedComponentsWithStats
+    # takes ~4x as long as the labelling alone).
+    n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n < 2:
         return "no dark blob near the expected tip"
-    areas = stats[1:, cv2.CC_STAT_AREA]
+    areas, cents, boxes = _blob_stats(labels, n)
     good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
     if not good.any():
         return "no dark blob of the tip's size near the expected tip"
-    dist = np.hypot(*(cents[1:] - guess_xy).T)
+    dist = np.hypot(*(cents - guess_xy).T)
     dist[~good] = np.inf
-    k = int(np.argmin(dist)) + 1
-    return cents[k], math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi), thr, stats[k, :4]
+    k = int(np.argmin(dist))
+    return cents[k], math.sqrt(areas[k] / math.pi), thr, boxes[k]
+
+
+@njit(cache=True, nogil=True)
+def _blob_stats(labels, n):
+    """Area, centroid (x, y) and bounding box (x, y, width, height) of labels 1..n-1."""
+    area = np.zeros(n - 1)
+    sx = np.zeros(n - 1)
+    sy = np.zeros(n - 1)
+    box = np.empty((n - 1, 4), np.int64)
+    box[:, :2] = labels.shape[1] + labels.shape[0]
+    box[:, 2:] = -1
+    for i in range(labels.shape[0]):
+        for j in range(labels.shape[1]):
+            k = labels[i, j] - 1
+            if k >= 0:
+                area[k] += 1
+                sx[k] += j
+                sy[k] += i
+                box[k, 0] = min(box[k, 0], j)
+                box[k, 1] = min(box[k, 1], i)
+                box[k, 2] = max(box[k, 2], j)
+                box[k, 3] = max(box[k, 3], i)
+    cents = np.empty((n - 1, 2))
+    cents[:, 0], cents[:, 1] = sx / area, sy / area
+    box[:, 2:] -= box[:, :2] - 1
+    return area, cents, box
 
 
 def _coarse_blob(frame, gains, guess_uv, radius_px, search_px):
@@ -247,7 +278,7 @@ def _coarse_blob(frame, gains, guess_uv, radius_px, search_px):
     v1 = min(int(guess_uv[1] + half) + 1, h)
     if u1 - u0 < 8 * s or v1 - v0 < 8 * s:
         return None
-    val, _ = _brightness(frame[v0:v1:s, u0:u1:s], gains)
+    val, _ = brightness(frame[v0:v1:s, u0:u1:s], gains)
     found = _dark_blob(val, (guess_uv - (u0, v0)) / s, radius_px / s, 1)
     if isinstance(found, str):
         return None
@@ -290,67 +321,111 @@ def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> 
     within BODY_BLUR_PX (as an arc on the rim) of such a direction are flagged,
     since the blur spreads the body's shaded flank that far.
     """
-    from camwhisker.vision.pose import polygon_centroid
-
-    c0 = polygon_centroid(rim)
     hull = cv2.convexHull(np.asarray(body_hull_uv, np.float32)).reshape(-1, 2).astype(float)
-    rel_h = hull - c0
-    ang_h = np.arctan2(rel_h[:, 1], rel_h[:, 0])
-    o = np.argsort(ang_h)
-    rel_r = rim - c0
-    ang_r = np.arctan2(rel_r[:, 1], rel_r[:, 0])
-    orr = np.argsort(ang_r)
-    probe = np.linspace(-np.pi, np.pi, BODY_ANGLES, endpoint=False)
-    r_hull = np.interp(probe, ang_h[o], np.hypot(*rel_h[o].T), period=2 * np.pi)
-    r_rim = np.interp(probe, ang_r[orr], np.hypot(*rel_r[orr].T), period=2 * np.pi)
-    body = r_hull - r_rim > BODY_PROTRUSION_PX
+    return _beside_body_kernel(np.ascontiguousarray(pts, float), np.ascontiguousarray(rim, float),
+                               hull, BODY_ANGLES, BODY_PROTRUSION_PX, BODY_BLUR_PX)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _polar(uv, c0):
+    """Angles (sorted, with one wrapped copy at each end) and radii about c0, for np.interp."""
+    n = uv.shape[0]
+    ang = np.arctan2(uv[:, 1] - c0[1], uv[:, 0] - c0[0])
+    rad = np.hypot(uv[:, 0] - c0[0], uv[:, 1] - c0[1])
+    o = np.argsort(ang)
+    a = np.empty(n + 2)
+    r = np.empty(n + 2)
+    a[1:-1], r[1:-1] = ang[o], rad[o]
+    a[0], r[0] = a[n] - 2 * np.pi, r[n]
+    a[-1], r[-1] = a[1] + 2 * np.pi, r[1]
+    return a, r
+
+
+@njit(cache=True, nogil=True)
+def _beside_body_kernel(pts, rim, hull, n_angles, protrusion, blur):
+    c0 = polygon_centroid(rim)
+    ah, rh = _polar(hull, c0)
+    ar, rr = _polar(rim, c0)
+    probe = -np.pi + 2 * np.pi * np.arange(n_angles) / n_angles
+    r_rim = np.interp(probe, ar, rr)
+    body = np.interp(probe, ah, rh) - r_rim > protrusion
+    out = np.zeros(pts.shape[0], np.bool_)
     if not body.any():
-        return np.zeros(len(pts), bool)
-    margin = BODY_BLUR_PX / max(float(r_rim.mean()), 1.0)
-    d = pts - c0
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    diff = np.abs((ang[:, None] - probe[None, body] + np.pi) % (2 * np.pi) - np.pi)
-    return diff.min(axis=1) <= margin + np.pi / BODY_ANGLES
+        return out
+    reach = blur / max(r_rim.mean(), 1.0) + np.pi / n_angles
+    directions = probe[body]
+    for i in range(pts.shape[0]):
+        ang = np.arctan2(pts[i, 1] - c0[1], pts[i, 0] - c0[0])
+        for p in directions:
+            if abs((ang - p + np.pi) % (2 * np.pi) - np.pi) <= reach:
+                out[i] = True
+                break
+    return out
 
 
 def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
-    """Shift t and uniform edge offset dr that best put the model rim on the edge points.
+    """Shift t that best puts the model rim on the edge points.
 
-    Linearised radial residuals about the rim's centroid, iterated; returns
-    (rim centroid + t, mean radius) or (None, nan).
+    Linearised radial residuals about the rim's centroid, iterated (dropping
+    points off by more than OUTLIER_PX while MIN_RIM_RAYS remain); returns (rim
+    centroid + t, mean radius) or (None, nan).
     """
-    from camwhisker.vision.pose import polygon_centroid
-
-    c0 = polygon_centroid(rim)
-    rel = rim - c0
-    ang_r = np.arctan2(rel[:, 1], rel[:, 0])
-    rad_r = np.hypot(rel[:, 0], rel[:, 1])
-    order = np.argsort(ang_r)
-    ang_r, rad_r = ang_r[order], rad_r[order]
-    t = np.zeros(2)
-    for _ in range(RIM_FIT_ITER):
-        d = pts - (c0 + t)
-        rho = np.hypot(d[:, 0], d[:, 1])
-        u = d / rho[:, None]
-        model_r = np.interp(np.arctan2(d[:, 1], d[:, 0]), ang_r, rad_r, period=2 * np.pi)
-        res = rho - model_r
-        a = np.column_stack([u, np.ones(len(u))]) if FIT_EDGE_OFFSET else u
-        try:
-            sol = np.linalg.solve(a.T @ a, a.T @ res)
-            bad = np.abs(res - a @ sol) > OUTLIER_PX
-            if bad.any() and (~bad).sum() >= MIN_RIM_RAYS:
-                a, res = a[~bad], res[~bad]
-                sol = np.linalg.solve(a.T @ a, a.T @ res)
-        except np.linalg.LinAlgError:
-            return None, math.nan
-        t = t + sol[:2]
-        if np.abs(sol[:2]).max() < RIM_FIT_TOL_PX:
-            break
-    if not np.isfinite(t).all():
+    centre, radius = _rim_shift_kernel(np.ascontiguousarray(pts, float),
+                                       np.ascontiguousarray(rim, float), RIM_FIT_ITER,
+                                       RIM_FIT_TOL_PX, OUTLIER_PX, MIN_RIM_RAYS)  # fmt: skip
+    if not np.isfinite(centre).all():
         return None, math.nan
-    return c0 + t, float(rad_r.mean() + (sol[2] if FIT_EDGE_OFFSET else 0.0))
+    return centre, radius
 
 
+@njit(cache=True, nogil=True)
+def _rim_shift_kernel(pts, rim, n_iter, tol, outlier, min_rays):
+    c0 = polygon_centroid(rim)
+    ar, rr = _polar(rim, c0)
+    n = pts.shape[0]
+    ux, uy, res = np.empty(n), np.empty(n), np.empty(n)
+    tx = ty = 0.0
+    for _ in range(n_iter):
+        for i in range(n):
+            dx, dy = pts[i, 0] - c0[0] - tx, pts[i, 1] - c0[1] - ty
+            rho = np.hypot(dx, dy)
+            ux[i], uy[i] = dx / rho, dy / rho
+            res[i] = rho - np.interp(np.arctan2(dy, dx), ar, rr)
+        sx, sy, ok = _shift_step(ux, uy, res, np.ones(n, np.bool_))
+        if not ok:
+            return np.full(2, np.nan), np.nan
+        keep = np.abs(res - ux * sx - uy * sy) <= outlier
+        if not keep.all() and keep.sum() >= min_rays:
+            sx, sy, ok = _shift_step(ux, uy, res, keep)
+            if not ok:
+                return np.full(2, np.nan), np.nan
+        tx += sx
+        ty += sy
+        if max(abs(sx), abs(sy)) < tol:
+            break
+    out = np.empty(2)
+    out[0], out[1] = c0[0] + tx, c0[1] + ty
+    return out, rr[1:-1].mean()
+
+
+@njit(cache=True, nogil=True)
+def _shift_step(ux, uy, res, use):
+    """Least-squares (sx, sy) of res = u . s over the used points, and whether solvable."""
+    a = b = c = p = q = 0.0
+    for i in range(ux.shape[0]):
+        if use[i]:
+            a += ux[i] * ux[i]
+            b += ux[i] * uy[i]
+            c += uy[i] * uy[i]
+            p += ux[i] * res[i]
+            q += uy[i] * res[i]
+    det = a * c - b * b
+    if not abs(det) > 1e-12 * max(a * c, 1e-300):
+        return 0.0, 0.0, False
+    return (c * p - b * q) / det, (a * q - b * p) / det, True
+
+
+@functools.cache
 def _dog_kernel() -> np.ndarray:
     """Derivative-of-Gaussian kernel along a ray, per pixel of radius, shape (1, k)."""
     sig = EDGE_SMOOTH_PX / EDGE_STEP_PX
@@ -373,32 +448,51 @@ def _edge_points(val, lum, seed, r_seed, thr):
     my = (seed[1] + dirs[:, 1:] * radii).astype(np.float32)
     prof = cv2.remap(val, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     lprof = cv2.remap(lum, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    # Threshold crossing per ray: first sample at or above thr.
-    above = prof >= thr
-    first = np.where(above.any(axis=1), above.argmax(axis=1), -1)
     # Derivative of Gaussian along each ray (sigma EDGE_SMOOTH_PX): unbiased for a
     # symmetric edge, and it keeps the 5 DN noise from making false peaks.
     rise = cv2.filter2D(lprof, -1, _dog_kernel(), borderType=cv2.BORDER_REPLICATE)
     win = int(round(EDGE_SEARCH_PX / 2 / EDGE_STEP_PX))
-    idx = np.arange(len(radii))
-    near = np.abs(idx[None, :] - first[:, None]) <= win
-    near[:, 0] = near[:, -1] = False
-    masked = np.where(near, rise, -np.inf)
-    j = masked.argmax(axis=1)
-    rows = np.arange(N_RAYS)
-    peak = masked[rows, j]
-    valid = (first > 0) & np.isfinite(peak) & (j > 0) & (j < len(radii) - 1)
+    r_edge, valid = _ray_edges(prof, rise, thr, win, radii, EDGE_STEP_PX, MIN_RISE_FRACTION)
     if valid.sum() < N_RAYS // 2:
         return None
-    med = np.median(peak[valid])
-    valid &= peak >= MIN_RISE_FRACTION * med
-    jj = np.clip(j, 1, len(radii) - 2)
-    ym, y0, yp = rise[rows, jj - 1], rise[rows, jj], rise[rows, jj + 1]
-    den = ym - 2 * y0 + yp
-    frac = np.where(den < 0, 0.5 * (ym - yp) / np.where(den < 0, den, -1.0), 0.0)
-    r_edge = radii[jj] + np.clip(frac, -0.5, 0.5) * EDGE_STEP_PX
     pts = seed + dirs * r_edge[:, None]
     return pts[valid]
+
+
+@njit(cache=True, nogil=True)
+def _ray_edges(prof, rise, thr, win, radii, step, min_rise):
+    """Per ray: the steepest rise within ``win`` samples of the first sample at or
+    above ``thr``, placed by a parabola; radius and whether the ray is usable
+    (a crossing, an inner peak, a rise >= ``min_rise`` times the median)."""
+    n_rays, n = rise.shape
+    r_edge = np.full(n_rays, np.nan)
+    peak = np.full(n_rays, -np.inf)
+    valid = np.zeros(n_rays, np.bool_)
+    for k in range(n_rays):
+        first = -1
+        for i in range(n):
+            if prof[k, i] >= thr:
+                first = i
+                break
+        if first <= 0:
+            continue
+        j = -1
+        for i in range(max(first - win, 1), min(first + win, n - 2) + 1):
+            if j < 0 or rise[k, i] > rise[k, j]:
+                j = i
+        if j < 0:
+            continue
+        peak[k] = rise[k, j]
+        valid[k] = True
+        ym, y0, yp = rise[k, j - 1], rise[k, j], rise[k, j + 1]
+        den = ym - 2 * y0 + yp
+        frac = min(max(0.5 * (ym - yp) / den, -0.5), 0.5) if den < 0 else 0.0
+        r_edge[k] = radii[j] + frac * step
+    if valid.sum() >= 1:
+        med = np.median(peak[valid])
+        for k in range(n_rays):
+            valid[k] = valid[k] and peak[k] >= min_rise * med
+    return r_edge, valid
 
 
 def _fit_ellipse_centre(pts: np.ndarray):
