@@ -23,6 +23,7 @@ import pytest
 from camwhisker.plate import Pose, feature_pixels
 from camwhisker.sensor import Sensor
 from camwhisker.vision import paper
+from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import (
     cloth_samples,
     contrast_map,
@@ -33,7 +34,7 @@ from camwhisker.vision.colour import (
 )
 from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
 from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_centroid
-from camwhisker.vision.tip import _blob_stats, brightness, find_tip
+from camwhisker.vision.tip import brightness, find_tip
 
 # ------------------------------------------------------------------ paper eqs
 
@@ -174,6 +175,8 @@ def test_polygon_centroid_of_a_square_and_triangle():
     np.testing.assert_allclose(polygon_centroid(sq), [1, 1], atol=1e-12)
     tri = np.array([[0, 0], [3, 0], [0, 3.0]])
     np.testing.assert_allclose(polygon_centroid(tri), [1, 1], atol=1e-12)
+    # No area (a rim projected to one point): NaN, not an exception.
+    assert np.isnan(polygon_centroid(np.ones((4, 2)))).all()
 
 
 @pytest.mark.parametrize("shift", [True, False])
@@ -309,10 +312,12 @@ def test_blob_statistics_equal_opencvs():
     mask = (cv2.GaussianBlur(rng.random((90, 120)), (0, 0), 3) > 0.5).astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     assert n > 3
-    areas, got_cents, boxes = _blob_stats(labels, n)
-    np.testing.assert_array_equal(areas, stats[1:, cv2.CC_STAT_AREA])
-    np.testing.assert_allclose(got_cents, cents[1:], atol=1e-9)
-    np.testing.assert_array_equal(boxes, stats[1:, :4])
+    got = blobs(mask)
+    np.testing.assert_array_equal(got.labels, labels)
+    np.testing.assert_array_equal(got.area, stats[1:, cv2.CC_STAT_AREA])
+    np.testing.assert_allclose(got.centroid, cents[1:], atol=1e-9)
+    np.testing.assert_array_equal(got.box, stats[1:, :4])
+    assert len(blobs(np.zeros((5, 5), np.uint8))) == 0
 
 
 def test_brightness_is_max_channel_and_luma():

@@ -4,6 +4,7 @@ Modules, in the order the data flows:
 
 - :mod:`~camwhisker.vision.colour`  white balance from the cloth, eq. (1), colour unmixing
 - :mod:`~camwhisker.vision.detect`  finding the features without help
+- :mod:`~camwhisker.vision.blobs`   connected components and their statistics
 - :mod:`~camwhisker.vision.lk`      Lucas-Kanade with template update and drift correction
 - :mod:`~camwhisker.vision.tip`     the magnifier tip by colour and edge
 - :mod:`~camwhisker.vision.pose`    the pose fit through the exact camera model
@@ -12,7 +13,7 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.vision.bench`   speed and accuracy benchmark
 
 The per-pixel loops (the corners' LK and template warp, the colour-share
-patches, the tip's brightness, blob statistics, ray edges and rim fit) are
+patches, the tip's brightness, ray edges and rim fit, blob statistics) are
 numba-compiled functions (``cache=True``), each beside the Python function
 that states its contract; everything else is numpy and OpenCV.
 """

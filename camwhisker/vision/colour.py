@@ -199,7 +199,7 @@ def share_patches(frame: np.ndarray, top_left: np.ndarray, size: int, weights: n
                           np.asarray(weights, np.float32))  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _share_patches(frame, top_left, size, weights):
     out = np.empty((len(top_left), size, size), np.float32)
     for k in range(len(top_left)):

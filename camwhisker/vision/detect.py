@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
 from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel
 from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
@@ -77,19 +78,19 @@ class Detection:
 
 
 def _component(mask: np.ndarray, area_exp: float, near_uv: np.ndarray | None):
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n < 2:
+    found = blobs(mask)
+    if len(found) == 0:
         return None
-    areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
+    areas = found.area
     good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
     if not good.any():
         return None
     score = np.abs(np.log(areas / area_exp))
     if near_uv is not None:
-        score = score + np.hypot(*(cents[1:] - near_uv).T) / math.sqrt(area_exp)
+        score = score + np.hypot(*(found.centroid - near_uv).T) / math.sqrt(area_exp)
     score[~good] = np.inf
-    k = int(np.argmin(score)) + 1
-    return (labels == k).astype(np.uint8), cents[k]
+    k = int(np.argmin(score))
+    return (found.labels == k + 1).astype(np.uint8), found.centroid[k]
 
 
 def _assign_corners(hull: np.ndarray, centre: np.ndarray, model_dirs_deg: np.ndarray):

@@ -87,7 +87,7 @@ def warp_templates(
     return _warp(np.ascontiguousarray(rest_map, np.float32), inv, centre, half)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _warp(m, inv, centre, half):
     # Exact bilinear interpolation in float64, the same weights getRectSubPix uses,
     # so that an unmoved frame reproduces its template exactly (cv2.warpAffine
@@ -155,7 +155,7 @@ def refine_first_template(
     return d + origins, quality
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _refine(images, which, templates, d0, ok, tol, max_iter):
     """Per point: inverse-compositional translation LK on the mean-removed window
     (the template without its one-pixel gradient border), iterated until the step
@@ -235,7 +235,7 @@ def _refine(images, which, templates, d0, ok, tol, max_iter):
     return d_out, quality
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sample(img, dx, dy, half, m, out):
     """Bilinear m x m window of ``img`` centred at (dx, dy), into ``out`` (float64)."""
     ix, iy = int(np.floor(dx)), int(np.floor(dy))

@@ -66,7 +66,7 @@ def q_to_pose(q: np.ndarray) -> Pose:
     return Pose(float(q[0]), math.hypot(q[1], q[2]), math.atan2(q[2], q[1]), float(sx), float(sy))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def polygon_centroid(uv: np.ndarray) -> np.ndarray:
     """Area centroid of a closed polygon, shape (N, 2) -> (2,) (shoelace formula)."""
     n = uv.shape[0]

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from camwhisker.vision.blobs import blobs
 from camwhisker.vision.pose import polygon_centroid
 
 __all__ = [
@@ -108,7 +109,7 @@ def brightness(bgr: np.ndarray, gains: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return _brightness(np.asarray(bgr), np.asarray(gains, np.float32))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _brightness(bgr, gains):
     h, w = bgr.shape[0], bgr.shape[1]
     val = np.empty((h, w), np.float32)
@@ -226,45 +227,16 @@ def _dark_blob(val, guess_xy, radius_px, level_step):
         return "no contrast in the tip window"
     thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
     mask = cv2.threshold(val, thr, 1, cv2.THRESH_BINARY_INV)[1].astype(np.uint8)
-    # Labels from OpenCV, statistics compiled (cv2.connectedComponentsWithStats
-    # takes ~4x as long as the labelling alone).
-    n, labels = cv2.connectedComponents(mask, connectivity=8)
-    if n < 2:
+    found = blobs(mask)
+    if len(found) == 0:
         return "no dark blob near the expected tip"
-    areas, cents, boxes = _blob_stats(labels, n)
-    good = (areas > AREA_RANGE[0] * area_exp) & (areas < AREA_RANGE[1] * area_exp)
+    good = (found.area > AREA_RANGE[0] * area_exp) & (found.area < AREA_RANGE[1] * area_exp)
     if not good.any():
         return "no dark blob of the tip's size near the expected tip"
-    dist = np.hypot(*(cents - guess_xy).T)
+    dist = np.hypot(*(found.centroid - guess_xy).T)
     dist[~good] = np.inf
     k = int(np.argmin(dist))
-    return cents[k], math.sqrt(areas[k] / math.pi), thr, boxes[k]
-
-
-@njit(cache=True, nogil=True)
-def _blob_stats(labels, n):
-    """Area, centroid (x, y) and bounding box (x, y, width, height) of labels 1..n-1."""
-    area = np.zeros(n - 1)
-    sx = np.zeros(n - 1)
-    sy = np.zeros(n - 1)
-    box = np.empty((n - 1, 4), np.int64)
-    box[:, :2] = labels.shape[1] + labels.shape[0]
-    box[:, 2:] = -1
-    for i in range(labels.shape[0]):
-        for j in range(labels.shape[1]):
-            k = labels[i, j] - 1
-            if k >= 0:
-                area[k] += 1
-                sx[k] += j
-                sy[k] += i
-                box[k, 0] = min(box[k, 0], j)
-                box[k, 1] = min(box[k, 1], i)
-                box[k, 2] = max(box[k, 2], j)
-                box[k, 3] = max(box[k, 3], i)
-    cents = np.empty((n - 1, 2))
-    cents[:, 0], cents[:, 1] = sx / area, sy / area
-    box[:, 2:] -= box[:, :2] - 1
-    return area, cents, box
+    return found.centroid[k], math.sqrt(found.area[k] / math.pi), thr, found.box[k]
 
 
 def _coarse_blob(frame, gains, guess_uv, radius_px, search_px):
@@ -326,7 +298,7 @@ def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> 
                                hull, BODY_ANGLES, BODY_PROTRUSION_PX, BODY_BLUR_PX)  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _polar(uv, c0):
     """Angles (sorted, with one wrapped copy at each end) and radii about c0, for np.interp."""
     n = uv.shape[0]
@@ -341,7 +313,7 @@ def _polar(uv, c0):
     return a, r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _beside_body_kernel(pts, rim, hull, n_angles, protrusion, blur):
     c0 = polygon_centroid(rim)
     ah, rh = _polar(hull, c0)
@@ -378,7 +350,7 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
     return centre, radius
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rim_shift_kernel(pts, rim, n_iter, tol, outlier, min_rays):
     c0 = polygon_centroid(rim)
     ar, rr = _polar(rim, c0)
@@ -408,7 +380,7 @@ def _rim_shift_kernel(pts, rim, n_iter, tol, outlier, min_rays):
     return out, rr[1:-1].mean()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _shift_step(ux, uy, res, use):
     """Least-squares (sx, sy) of res = u . s over the used points, and whether solvable."""
     a = b = c = p = q = 0.0
@@ -459,7 +431,7 @@ def _edge_points(val, lum, seed, r_seed, thr):
     return pts[valid]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ray_edges(prof, rise, thr, win, radii, step, min_rise):
     """Per ray: the steepest rise within ``win`` samples of the first sample at or
     above ``thr``, placed by a parabola; radius and whether the ray is usable
