@@ -41,6 +41,16 @@ def test_pareto_front_speed_tolerance():
     assert pareto_front(speed, error, speed_tol=0.05).tolist() == [False, False, True, True]
 
 
+def test_pareto_front_several_error_axes():
+    # B is more accurate in phi, A in dz: neither dominates; C is worse in both than A
+    speed = np.array([100.0, 100.0, 100.0])
+    error = np.array([[0.015, 0.006], [0.014, 0.008], [0.016, 0.007]])
+    assert pareto_front(speed, error).tolist() == [True, True, False]
+    # one axis alone: B dominates A and C
+    assert pareto_front(speed, error[:, 0]).tolist() == [False, True, False]
+    assert not pareto_front(speed, np.array([[0.1, np.nan], [0.2, 0.1], [0.3, 0.2]]))[0]
+
+
 def test_timing_spread_from_repeats():
     from camwhisker.bench.run import SceneResult, timing_spread
 
