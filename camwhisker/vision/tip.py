@@ -47,7 +47,8 @@ TIP_THRESHOLD_FRACTION = 0.15
 #: BRIGHT_PERCENTILE of the window (red, blue or cloth, never the face).
 DARK_AREA_FRACTION = 0.25
 BRIGHT_PERCENTILE = 90.0
-#: Subsampling step for the level percentiles (speed; levels are smooth).
+#: Subsampling step for the level percentiles (speed; levels are smooth), at full
+#: resolution and on the coarse grid alike.
 LEVEL_STEP_PX = 3
 #: Searches wider than this (px) start on a grid of every COARSE_STEP_PX-th pixel
 #: (the face is still ~18 grid pixels across): 16 times fewer pixels to look at.
@@ -251,7 +252,7 @@ def _coarse_blob(frame, gains, guess_uv, radius_px, search_px):
     if u1 - u0 < 8 * s or v1 - v0 < 8 * s:
         return None
     val, _ = brightness(frame[v0:v1:s, u0:u1:s], gains)
-    found = _dark_blob(val, (guess_uv - (u0, v0)) / s, radius_px / s, 1)
+    found = _dark_blob(val, (guess_uv - (u0, v0)) / s, radius_px / s, LEVEL_STEP_PX)
     if isinstance(found, str):
         return None
     return found[0] * s + (u0, v0)
