@@ -241,6 +241,8 @@ class FrontEnd:
             CLOTH_EXCLUDE_FACTOR * reach_px,
         )  # fmt: skip
         self._is_square = np.arange(TIP) < N_SQUARE
+        #: Image directions of the corners' edges at rest (the warps start from them).
+        self._rest_dirs = self.model.edge_directions(np.zeros(5), step_mm=0.05)
         self._started = False
         self._lost = False
         self._index = -1
@@ -667,7 +669,7 @@ class FrontEnd:
         return out
 
     def _warp_templates(self, q):
-        d0 = self.model.edge_directions(np.zeros(5), step_mm=0.05)
+        d0 = self._rest_dirs
         d1 = self.model.edge_directions(q, step_mm=0.05)
         # A maps rest-image directions to current-image directions: A d0 = d1.
         a = np.einsum("kij,kjl->kil", np.swapaxes(d1, 1, 2), np.linalg.inv(np.swapaxes(d0, 1, 2)))
