@@ -32,6 +32,11 @@ def calibration(level):
 
 
 @functools.cache
+def extended_calibration(level):
+    return calibrate_simulated(CALIB_SEED, "rigid-extended", noise=NOISE_LEVELS[level])
+
+
+@functools.cache
 def evaluation(level, kind):
     return evaluate_kind(calibration(level), kind, EVAL_SEED, noise=NOISE_LEVELS[level])
 
@@ -98,7 +103,16 @@ def test_compliant_gm_biased_and_eq11_flags_it(level):
 # So r_GM - r_MF is ~20 mm for both runs and no per-sample score built on it can rank
 # them (the plain difference reaches AUC 0.66-0.69); eq. (11)'s division by
 # sigma_GM(phi) only reorders samples by phi. Lower noise does not change either effect.
-# These floors guard against regressions; they are not the issue's 0.9.
+# Calibrating on the "rigid-extended" runs instead (one more peg a step of the paper's
+# spacing beyond each end, 18.5 and 109.7 mm: CALIBRATION_EXTRA_RADII_MM) removes most of
+# that edge bias (tuning seeds 101/102, 201/202, 301/302: mean MF error of the 90 mm
+# rigid run +7.4 -> +3.6 mm) and lifts the AUC here to 0.821 / 0.797 (test below), still
+# short of 0.9: what is left is pauses with phi < 5 deg, where dz is too small to tell
+# radii apart and MF is the table's local mean (tuning seeds: AUC over phi >= 5 deg alone
+# 0.93-0.98). It is not the default because it lowers the bottle's score AUC (eq. (11)
+# 0.858 here at the front end's noise, below test_scores_flag_bottle_slide's 0.9; see
+# the constant's comment). These floors guard against regressions; they are not the
+# issue's 0.9.
 EQ11_COMPLIANT_AUC_FLOOR = {"paper": 0.72, "front-end": 0.62}
 
 
@@ -106,6 +120,21 @@ EQ11_COMPLIANT_AUC_FLOOR = {"paper": 0.72, "front-end": 0.62}
 def test_compliant_eq11_auc_reached(level):
     s = summary(evaluation(level, "compliant"))
     assert s["z_score_auc"] >= EQ11_COMPLIANT_AUC_FLOOR[level]
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_extended_calibration_lifts_compliant_eq11_auc(level):
+    """Pegs beyond the paper's outermost radii in the calibration take MF's edge bias off the
+    90 mm compliant run: eq. (11) separates compliant failures better (0.821 / 0.797 on these
+    seeds against 0.77 / 0.69), short of the issue's 0.9 (see the comment above)."""
+    calib = extended_calibration(level)
+    s = summary(evaluate_kind(calib, "compliant", EVAL_SEED, noise=NOISE_LEVELS[level]))
+    base = summary(evaluation(level, "compliant"))
+    print(f"\n{level} compliant eq. (11) AUC: paper radii {base['z_score_auc']:.3f}, "
+          f"extended {s['z_score_auc']:.3f}")
+    # A clear gain, not noise: the smallest gain on the 6 tuning cases (seeds 101-302, both
+    # noise levels) was 0.075, on these seeds it is ~0.05 (paper) and ~0.11 (front end).
+    assert s["z_score_auc"] >= base["z_score_auc"] + 0.04
 
 
 @pytest.mark.xfail(strict=True, reason="issue #4 asks eq. (11) AUC >= 0.9 on compliant contact "
@@ -178,6 +207,15 @@ def test_scores_flag_bottle_slide(level):
 # 3 mm floor): on the bottle that difference runs from -4 to +10 mm, so the fused estimate
 # stays GM (RMSE 6.6-6.8 mm) where MF alone does better (3.9-6.1 mm; tuning seeds 101-302,
 # prior, floor and memory varied: no setting fixes the bottle without costing elsewhere).
+# Also tried (tuning seeds, then these seeds): the "rigid-extended" calibration, with
+# which the RMS of the bias estimate m on rigid contacts falls from 3.28 to 1.99 mm, a 2 mm
+# floor, and the correction m max(0, 1 - se^2/m^2) (empirical Bayes) for (1 - p) m. The
+# bottle passed (tuning: fused 3.61 mm mean against MF 5.75, all 24 scene cases <= the
+# better method; here fused 3.36 / 3.20 against MF 5.88 / 4.42 mm), but the box's stuck
+# points moved ~8 mm (test_box_shape_within_3mm: 8.70 / 8.78 mm here) and the extended
+# calibration costs the bottle's score AUC (see EQ11_COMPLIANT_AUC_FLOOR's comment).
+# Clipping that correction to lie between MF and GM kept the box's shape on the tuning
+# seeds (not run on these) but not the bottle's AUC, so the fusion is unchanged.
 FUSION_FAILS = pytest.mark.xfail(strict=True, reason="issue #4: fused RMSE <= the better of GM "
                                  "and MF is not met on the bottle slide (fused = GM > MF)")
 

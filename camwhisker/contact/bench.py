@@ -39,7 +39,13 @@ def _log(run, with_r: bool):
 
 
 def calibrate_simulated(seed: int, kind: str = "rigid", **sim) -> Calibration:
-    """Calibrate on the simulated runs of ``kind`` ("rigid" or "eq8"); offsets estimated."""
+    """Calibrate on the simulated runs of ``kind``; offsets estimated.
+
+    ``kind``: "rigid" (default: pegs at the paper's radii), "rigid-extended" (the
+    same plus one peg a step of their spacing beyond each end; see
+    :data:`~camwhisker.mechanics.experiment.CALIBRATION_EXTRA_RADII_MM` for what it
+    does and why it is not the default) or "eq8" (phi from eq. (8), for C recovery).
+    """
     runs = simulate_runs(kind, seed, **sim)
     cal_runs = [CalibrationRun(r.signals, _log(r, True), f"<{kind}:{r.name} signals>")
                 for r in runs]
