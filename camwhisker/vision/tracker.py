@@ -337,7 +337,10 @@ class FrontEnd:
         tip_guess = (tip_still + tip_moving) / 2
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
         edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
-        if edges is None:  # search all the tip can reach, around its rest position
+        # Not in the window: the tip is farther from both predictions than the
+        # window reaches, so the rim is not tried at a prediction below.
+        lost = edges is None
+        if lost:  # search all the tip can reach, around its rest position
             edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
         q_guess = q_pred.copy()
         tip = None
@@ -347,8 +350,9 @@ class FrontEnd:
             middle = edges.mean(axis=0)
             near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
             q0, tip0 = (q_moving, tip_moving) if near_moving else (q_pred, tip_still)
-            tip = self._tip_at(edges, q0)
-            if not (tip.ok and np.hypot(*(tip.centre_uv - tip0)) <= PREDICTION_OK_PX):
+            tip = None if lost else self._tip_at(edges, q0)
+            if not (tip is not None and tip.ok
+                    and np.hypot(*(tip.centre_uv - tip0)) <= PREDICTION_OK_PX):
                 rough = ellipse_centre(edges)
                 why = why or rough.reason
                 q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
