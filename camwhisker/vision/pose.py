@@ -54,6 +54,11 @@ TIP = N_SQUARE + N_CROSS
 #: polygon's centroid differs from the ellipse's by < 1e-4 px at phi = 35 deg.
 N_RIM = 64
 
+#: cv2.projectPoints' Jacobian columns (rvec x, y, z, tvec x, y, z, ...) that make
+#: d / d (dz, a, b, sx, sy), with rvec = (b, -a, 0) and tvec = (sx, sy, z_i - dz).
+_JAC_COLUMNS = [5, 1, 0, 3, 4]
+_JAC_SIGNS = np.array([-1.0, -1.0, 1.0, 1.0, 1.0])
+
 #: Gauss-Newton stops when the largest step is below this (mm or rad): 1e-6 rad is
 #: 6e-5 deg, far below the noise (the step shrinks ~100x per iteration here).
 GN_STEP_TOL = 1e-6
@@ -185,8 +190,7 @@ class PlateModel:
         if not jacobian:
             return uv, None, rim
         j = jac[: 2 * (TIP + 1)].reshape(TIP + 1, 2, -1)
-        out = np.stack([-j[..., 5], -j[..., 1], j[..., 0], j[..., 3], j[..., 4]], axis=-1)
-        return uv, out, rim
+        return uv, j[..., _JAC_COLUMNS] * _JAC_SIGNS, rim
 
 
 @dataclass(frozen=True)
@@ -264,7 +268,7 @@ def fit_pose(
         res[TIP] = np.nan
         if not np.isfinite(res).any():
             return fit
-        k = int(np.nanargmax(res))
+        k = int(np.argmax(np.where(np.isfinite(res), res, -np.inf)))
         if not (res[k] > OUTLIER_MIN_PX and res[k] > OUTLIER_FACTOR * np.nanmedian(res)):
             return fit
         w[k] = 0.0
@@ -318,10 +322,12 @@ def _fit_once(
         uv, jac, _ = model.project(q)
         r = ((target[use] - uv[use]) * sw).reshape(-1)
         J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
-        try:
-            step = np.linalg.solve(J.T @ J, J.T @ r)
-        except np.linalg.LinAlgError:
+        # The normal equations (symmetric, positive definite unless singular) by
+        # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
+        solved, step = cv2.solve(J.T @ J, (J.T @ r)[:, None], flags=cv2.DECOMP_CHOLESKY)
+        if not solved:
             break
+        step = step.ravel()
         q[:n_par] += step
         if np.abs(step).max() < GN_STEP_TOL:
             converged = True
