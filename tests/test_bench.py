@@ -49,6 +49,10 @@ def test_pareto_front_several_error_axes():
     # one axis alone: B dominates A and C
     assert pareto_front(speed, error[:, 0]).tolist() == [False, True, False]
     assert not pareto_front(speed, np.array([[0.1, np.nan], [0.2, 0.1], [0.3, 0.2]]))[0]
+    # within an error tolerance of 1 %, 0.01500 and 0.01499 are one error: a tie
+    tie = np.array([[0.01500, 0.006], [0.01499, 0.006]])
+    assert pareto_front(speed[:2], tie).tolist() == [False, True]
+    assert pareto_front(speed[:2], tie, error_tol=0.01).tolist() == [True, True]
 
 
 def test_timing_spread_from_repeats():
