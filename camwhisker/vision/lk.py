@@ -1,4 +1,4 @@
-"""Translation-only Lucas-Kanade on small patches, vectorised over the tracked points.
+"""Translation-only Lucas-Kanade on small patches, all tracked points in one call.
 
 Two steps per frame, after Matthews, Ishikawa & Baker (2004), "The template
 update problem":
