@@ -21,7 +21,7 @@ import numpy as np
 
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
-from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel
+from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, polygon_area
 from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
 
 __all__ = [
@@ -217,7 +217,7 @@ def detect_features(
     missing = []
 
     sq_model = uv_model[:N_SQUARE]
-    sq_area = _poly_area(sq_model)
+    sq_area = polygon_area(sq_model)
     comp = _component((g > BLUE_MIN).astype(np.uint8), sq_area, sq_model.mean(axis=0))
     if comp is not None:
         mask, centre = comp
@@ -233,7 +233,7 @@ def detect_features(
 
     cr_model = uv_model[N_SQUARE:TIP]
     outline = _cross_outline_uv(model, q)
-    comp = _component((g < -RED_MIN).astype(np.uint8), _poly_area(outline) * 0.85,
+    comp = _component((g < -RED_MIN).astype(np.uint8), polygon_area(outline) * 0.85,
                       cr_model.mean(axis=0))  # fmt: skip
     if comp is not None:
         mask, centre = comp
@@ -246,7 +246,7 @@ def detect_features(
     if not np.isfinite(found_uv[N_SQUARE:TIP]).all():
         missing.append("cross arm ends")
 
-    radius = math.sqrt(abs(_poly_area(rim)) / math.pi)
+    radius = math.sqrt(polygon_area(rim) / math.pi)
     h, w = frame.shape[:2]
     edges, _ = tip_edge_points(frame, gains, uv_model[TIP], radius, search_px=0.25 * max(h, w))
     tip = None if edges is None else ellipse_centre(edges)
@@ -268,11 +268,6 @@ def detect_features(
 def _dirs(uv: np.ndarray, centre: np.ndarray) -> np.ndarray:
     d = uv - centre
     return np.degrees(np.arctan2(d[:, 1], d[:, 0]))
-
-
-def _poly_area(uv: np.ndarray) -> float:
-    x, y = uv[:, 0], uv[:, 1]
-    return float(abs((x * np.roll(y, -1) - np.roll(x, -1) * y).sum()) / 2)
 
 
 def _cross_outline_uv(model: PlateModel, q: np.ndarray) -> np.ndarray:

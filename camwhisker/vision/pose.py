@@ -38,6 +38,7 @@ __all__ = [
     "fit_pose",
     "q_to_pose",
     "polygon_centroid",
+    "polygon_area",
 ]
 
 POINT_NAMES = (
@@ -87,6 +88,17 @@ def polygon_centroid(uv: np.ndarray) -> np.ndarray:
     return out
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def polygon_area(uv: np.ndarray) -> float:
+    """Unsigned area of a closed polygon, shape (N, 2) (shoelace formula)."""
+    n = uv.shape[0]
+    twice = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        twice += uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
+    return abs(twice) / 2.0
+
+
 class PlateModel:
     """The forward model of :mod:`camwhisker.plate` for the tracked points, with Jacobian.
 
@@ -118,6 +130,7 @@ class PlateModel:
         cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
         self._edge_dirs_plate = np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
         self._cross_outline = cross_outline(plate)
+        self._rod_rims = {}
         self.K = cam.matrix
         self.dist = cam.dist_coeffs
         self.z_i_mm = plate.z_i_mm
@@ -147,14 +160,16 @@ class PlateModel:
         """Projected rims of the rod's two ends, shape (2 n, 2); their convex hull
         is the rod's outline in the image."""
         q = np.asarray(q, dtype=float)
-        plate = self.sensor.plate
-        rho = plate.rod_diameter_mm / 2
-        ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
-        ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
-        pts = np.concatenate([
-            np.column_stack([ring, np.full(n, -plate.cross_offset_mm)]),
-            np.column_stack([ring, np.full(n, -plate.h_r_mm)]),
-        ])  # fmt: skip
+        pts = self._rod_rims.get(n)
+        if pts is None:  # the plate-frame rims, made once per n
+            plate = self.sensor.plate
+            rho = plate.rod_diameter_mm / 2
+            ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+            ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
+            pts = self._rod_rims[n] = np.concatenate([
+                np.column_stack([ring, np.full(n, -plate.cross_offset_mm)]),
+                np.column_stack([ring, np.full(n, -plate.h_r_mm)]),
+            ])  # fmt: skip
         sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
         uv, _ = cv2.projectPoints(
             pts,
@@ -207,6 +222,8 @@ class PoseFit:
     converged : bool
     used : ndarray of bool, shape (13,)
         Points the final fit used (after outlier rejection).
+    model_uv : ndarray, shape (13, 2)
+        The model's pixels of the points at q (without the rest offsets).
     """
 
     q: np.ndarray
@@ -215,6 +232,7 @@ class PoseFit:
     n_points: int
     converged: bool
     used: np.ndarray | None = None
+    model_uv: np.ndarray | None = None
 
     @property
     def pose(self) -> Pose:
@@ -262,8 +280,7 @@ def fit_pose(
     for _ in range(MAX_REJECTED):
         if not fit.converged:
             return fit
-        uv, _, _ = model.project(fit.q, jacobian=False)
-        res = np.hypot(*(np.asarray(measured_uv, float) - offsets_uv - uv).T)
+        res = np.hypot(*(np.asarray(measured_uv, float) - offsets_uv - fit.model_uv).T)
         res[~fit.used] = np.nan
         res[TIP] = np.nan
         if not np.isfinite(res).any():
@@ -342,4 +359,4 @@ def _fit_once(
         cov[:n_par, :n_par] = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         converged = False
-    return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use)
+    return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use, uv)

@@ -53,7 +53,7 @@ LEVEL_STEP_PX = 3
 #: Searches wider than this (px) start on a grid of every COARSE_STEP_PX-th pixel
 #: (the face is still ~18 grid pixels across): 16 times fewer pixels to look at.
 COARSE_ABOVE_PX = 80.0
-COARSE_STEP_PX = 4
+COARSE_STEP_PX = 8
 #: A face cut by its search window's edge is looked for again in a window centred
 #: on its visible part, this much wider than its radius (px), before a coarse search.
 RECENTRE_MARGIN_PX = 4.0

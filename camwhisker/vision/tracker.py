@@ -65,7 +65,7 @@ from camwhisker.vision.lk import (
     warp_templates,
 )
 from camwhisker.vision.paper import PaperGeometry
-from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, PoseFit, fit_pose
+from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, PoseFit, fit_pose, polygon_area
 from camwhisker.vision.tip import TipMeasurement, ellipse_centre, rim_centre, tip_edge_points
 
 __all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_THETA_DEG"]
@@ -263,8 +263,9 @@ class FrontEnd:
         model_uv, _, _ = self.model.project(np.zeros(5), jacobian=False)
         self.offsets = det.uv - model_uv
         # Measure the tip exactly as update() will, until its window stops moving.
+        rest_rim = self.model.project(np.zeros(5), jacobian=False)[2]
+        radius = math.sqrt(polygon_area(rest_rim) / math.pi)
         for _ in range(REST_TIP_PASSES):
-            radius = math.sqrt(_area(self.model.project(np.zeros(5), jacobian=False)[2]) / math.pi)
             edges, why = tip_edge_points(frame, gains, det.uv[TIP], radius, TIP_SEARCH_PX)
             tip = None if edges is None else self._tip_at(edges, np.zeros(5))
             if tip is None or not tip.ok:
@@ -331,9 +332,11 @@ class FrontEnd:
         # Tip, then a first tilt guess from the tip alone. The window spans where
         # the tip would be if it stood still and if it kept moving.
         uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
-        radius = math.sqrt(_area(rim) / math.pi)
+        radius = math.sqrt(polygon_area(rim) / math.pi)
         tip_still = uv_pred[TIP] + self.offsets[TIP]
-        tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
+        tip_moving = tip_still
+        if not np.array_equal(q_moving, q_pred):
+            tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
         tip_guess = (tip_still + tip_moving) / 2
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
         edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
@@ -779,11 +782,6 @@ def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
     """Whether the pose changed enough to reshape the tip's model rim."""
     d = np.abs(np.asarray(q1) - q0)
     return bool(d[[0, 3, 4]].max() > RIM_REFIT_MM or d[1:3].max() > RIM_REFIT_RAD)
-
-
-def _area(uv: np.ndarray) -> float:
-    x, y = uv[:, 0], uv[:, 1]
-    return float(abs((x * np.roll(y, -1) - np.roll(x, -1) * y).sum()) / 2)
 
 
 def track(
