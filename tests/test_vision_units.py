@@ -33,8 +33,8 @@ from camwhisker.vision.colour import (
     white_balance_gains,
 )
 from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
-from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_centroid
-from camwhisker.vision.tip import brightness, find_tip
+from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_area, polygon_centroid
+from camwhisker.vision.tip import brightness, face_near, find_tip
 
 # ------------------------------------------------------------------ paper eqs
 
@@ -179,6 +179,14 @@ def test_polygon_centroid_of_a_square_and_triangle():
     assert np.isnan(polygon_centroid(np.ones((4, 2)))).all()
 
 
+def test_polygon_area_hand_values():
+    sq = np.array([[0, 0], [2, 0], [2, 2], [0, 2.0]])
+    assert polygon_area(sq) == 4.0
+    assert polygon_area(sq[::-1].copy()) == 4.0  # either winding
+    assert polygon_area(np.array([[0, 0], [3, 0], [0, 3.0]])) == 4.5
+    assert polygon_area(np.ones((4, 2))) == 0.0
+
+
 @pytest.mark.parametrize("shift", [True, False])
 def test_fit_recovers_pose_exactly(shift):
     m = PlateModel(Sensor())
@@ -286,25 +294,50 @@ def test_lk_inactive_points_come_back_nan():
 # ------------------------------------------------------------------ tip
 
 
-def test_tip_centre_of_a_synthetic_disc_on_two_backgrounds():
+DISC_CENTRE, DISC_RADIUS = (131.37, 96.81), 30.0
+
+
+def _disc_frame():
+    """A dark antialiased disc (the face) on red and blue halves, blurred 1.4 px."""
     h, w = 200, 260
     k = 8
     v, u = np.mgrid[0 : h * k, 0 : w * k]
     u = (u + 0.5) / k - 0.5
     v = (v + 0.5) / k - 0.5
-    centre = (131.37, 96.81)
-    disc = ((u - centre[0]) ** 2 + (v - centre[1]) ** 2 <= 30.0**2).astype(np.float32)
+    centre = DISC_CENTRE
+    disc = ((u - centre[0]) ** 2 + (v - centre[1]) ** 2 <= DISC_RADIUS**2).astype(np.float32)
     cover = cv2.resize(disc, (w, h), interpolation=cv2.INTER_AREA)[..., None]
     back = np.zeros((h, w, 3), np.float32)
     back[:, : w // 2] = (45, 50, 200)  # red on the left
     back[:, w // 2 :] = (185, 80, 40)  # blue on the right
     img = back * (1 - cover) + cover * np.array([24, 24, 26], np.float32)
     img = cv2.GaussianBlur(img, (0, 0), 1.4)
-    frame = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def test_tip_centre_of_a_synthetic_disc_on_two_backgrounds():
+    frame, centre = _disc_frame(), DISC_CENTRE
     got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
     assert got.ok
     np.testing.assert_allclose(got.centre_uv, centre, atol=0.05)
     assert got.radius_px == pytest.approx(30.0, abs=0.3)
+
+
+@pytest.mark.parametrize("angle_deg", [0, 45, 150, 270])
+def test_face_near_sees_the_disc_within_one_radius_and_not_beyond_two(angle_deg):
+    # V on the face is ~26 DN, on the red and blue halves >= 185 DN; with a cloth
+    # level of 200 DN the dark limit is 50 DN. The 3 x 3 grid (spacing r / 2) has a
+    # sample inside the face when the face is within 1.5 r of the position; at 2 r
+    # the nearest sample (a diagonal one) lies 8.8 px, 6 blur sigmas, off its edge.
+    frame, r = _disc_frame(), DISC_RADIUS
+    d = np.array([math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))])
+    c = np.array(DISC_CENTRE)
+    assert face_near(frame, np.ones(3), c[None], r, 200.0)
+    assert face_near(frame, np.ones(3), (c + 1.2 * r * d)[None], r, 200.0)
+    assert not face_near(frame, np.ones(3), (c + 2.0 * r * d)[None], r, 200.0)
+    # Any of several positions will do; positions off the frame are read at its edge.
+    assert face_near(frame, np.ones(3), np.array([[-500.0, 40.0], c + 1.2 * r * d]), r, 200.0)
+    assert not face_near(frame, np.ones(3), np.array([[-500.0, 40.0]]), r, 200.0)
 
 
 def test_blob_statistics_equal_opencvs():

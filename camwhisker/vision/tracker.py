@@ -7,8 +7,10 @@ the model. :meth:`FrontEnd.update` then does, per frame:
 
 1. white balance from the cloth (or the locked rest gains);
 2. the tip, segmented near where the last pose (and the last velocity) put it,
-   a coarse search of its whole reach if not there; its centroid from its edge
-   and the model's rim; a first tilt guess from the tip alone;
+   a coarse search of its whole reach if not there (straight away when no
+   pixel near either prediction is dark enough to be the face: a jump); its
+   centroid from its edge and the model's rim; a first tilt guess from the
+   tip alone;
 3. drift correction of the square's and the cross's corners against their rest
    patches, warped by the model's rest-to-current affine map, from where that
    guess puts them (:func:`~camwhisker.vision.lk.refine_first_template`), on
@@ -66,7 +68,13 @@ from camwhisker.vision.lk import (
 )
 from camwhisker.vision.paper import PaperGeometry
 from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, PoseFit, fit_pose, polygon_area
-from camwhisker.vision.tip import TipMeasurement, ellipse_centre, rim_centre, tip_edge_points
+from camwhisker.vision.tip import (
+    TipMeasurement,
+    ellipse_centre,
+    face_near,
+    rim_centre,
+    tip_edge_points,
+)
 
 __all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_THETA_DEG"]
 
@@ -339,9 +347,13 @@ class FrontEnd:
             tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
         tip_guess = (tip_still + tip_moving) / 2
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
-        edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
-        # Not in the window: the tip is farther from both predictions than the
-        # window reaches, so the rim is not tried at a prediction below.
+        edges, why = None, ""
+        if face_near(frame, gains, np.array([tip_still, tip_moving]), radius,
+                     cloth_level(frame, *self._cloth, gains)):  # fmt: skip
+            edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
+        # Not in the window (or nothing dark where either prediction puts it: a
+        # jump): the tip is farther from both predictions than the window reaches,
+        # so the rim is not tried at a prediction below.
         lost = edges is None
         if lost:  # search all the tip can reach, around its rest position
             edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
