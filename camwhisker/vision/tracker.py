@@ -268,10 +268,9 @@ class FrontEnd:
         gains = white_balance_gains(frame, *self._cloth)
         det = detect_features(frame, gains, self.model)
         self.gains_rest = gains
-        model_uv, _, _ = self.model.project(np.zeros(5), jacobian=False)
+        model_uv, _, rest_rim = self.model.project(np.zeros(5), jacobian=False)
         self.offsets = det.uv - model_uv
         # Measure the tip exactly as update() will, until its window stops moving.
-        rest_rim = self.model.project(np.zeros(5), jacobian=False)[2]
         radius = math.sqrt(polygon_area(rest_rim) / math.pi)
         for _ in range(REST_TIP_PASSES):
             edges, why = tip_edge_points(frame, gains, det.uv[TIP], radius, TIP_SEARCH_PX)
