@@ -266,3 +266,19 @@ def test_latency_bench_on_the_mjpg_sample(capsys):
     assert "p99" in out and "11 frames of 1280x720, 1 OpenCV thread" in out
     assert "100% rows ok, phi RMSE 0.0" in out  # the sample's truth is beside it
     np.testing.assert_array_less(0, [p["mean_ms"], b.decode["p50_ms"]])
+
+
+def test_latency_bench_least_over_passes(capsys):
+    """Each frame's least CPU time over passes is at most its first pass's; the rows repeat."""
+    jpegs = _jpegs(SAMPLES / "nominal_mjpg.avi")
+    sensor = load_sensor(SAMPLES / "nominal_mjpg.sensor.toml")
+    b = bench_frames(jpegs, sensor, passes=3)
+    assert b.passes == 3 and b.cpu_least["n"] == b.cpu["n"] == 11
+    assert 0 < b.cpu_least["p50_ms"] <= b.cpu["max_ms"]
+    assert b.cpu_least["mean_ms"] <= b.cpu["mean_ms"] and b.cpu_least["max_ms"] <= b.cpu["max_ms"]
+    assert bench_frames(jpegs, sensor).cpu_least is None
+    with pytest.raises(ValueError, match="passes"):
+        bench_frames(jpegs, sensor, passes=0)
+    assert bench_main(["--video", str(SAMPLES / "nominal_mjpg.avi"), "--passes", "2",
+                       "--sensor", str(SAMPLES / "nominal_mjpg.sensor.toml")]) == 0  # fmt: skip
+    assert "least CPU time over 2 passes: p50" in capsys.readouterr().out
