@@ -453,8 +453,14 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
 
 
 def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
-    """frames/s (CPU) against nominal phi RMSE and against dz RMSE, log axes; the
-    rows on the Pareto front (of all three) in red."""
+    """frames/s (CPU) against nominal phi RMSE and against dz RMSE.
+
+    Top row: every configuration, log axes. Bottom row: the front end's own
+    configurations (no peer, not the paper's equations), linear axes, where the
+    Pareto front is decided. Points carry their row number in the table; the
+    key beside the plot names them. The rows on the Pareto front (of all three
+    axes) are red.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -462,23 +468,33 @@ def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
 
     summ = summarise(results, configs)
     axis = error_scene(results)
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
-    for ax, (key, label) in zip(axes, (("phi_rmse_deg", "phi RMSE (deg)"),
-                                       ("dz_rmse_mm", "dz RMSE (mm)")), strict=True):  # fmt: skip
-        pts = [(getattr(s.by_scene[axis], key), s.fps_cpu, s) for s in summ]
-        for err, fps, s in (p for p in pts if np.isfinite(p[0]) and p[0] > 0):
-            ax.scatter(err, fps, c="C3" if s.on_front else "C0", zorder=3)
-            ax.annotate(s.config, (err, fps), textcoords="offset points", xytext=(4, 4),
-                        fontsize=7)  # fmt: skip
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel(f"{label} on {axis}")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel("frames/s (one core, CPU time, decode excluded)")
-    axes[0].scatter([], [], c="C3", label="on the Pareto front (speed, phi, dz)")
-    axes[0].scatter([], [], c="C0", label="dominated or < 90% ok")
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
+    by_name = {c.name: c for c in configs}
+    number = {s.config: k + 1 for k, s in enumerate(summ)}
+    own = [s for s in summ if by_name[s.config].peer is None
+           and by_name[s.config].options.mode == "model"]  # fmt: skip
+    fig, axes = plt.subplots(2, 2, figsize=(15, 10), sharey="row")
+    errors = (("phi_rmse_deg", "phi RMSE (deg)"), ("dz_rmse_mm", "dz RMSE (mm)"))
+    for row, (rows, log) in enumerate(((summ, True), (own, False))):
+        for ax, (key, label) in zip(axes[row], errors, strict=True):
+            for s in rows:
+                err = getattr(s.by_scene[axis], key)
+                if not (np.isfinite(err) and err > 0):
+                    continue
+                ax.scatter(err, s.fps_cpu, c="C3" if s.on_front else "C0", zorder=3)
+                ax.annotate(str(number[s.config]), (err, s.fps_cpu), textcoords="offset points",
+                            xytext=(4, 3), fontsize=8)  # fmt: skip
+            if log:
+                ax.set_xscale("log")
+                ax.set_yscale("log")
+            ax.set_xlabel(f"{label} on {axis}" + ("" if log else ", the front end's own"))
+            ax.grid(True, which="both", alpha=0.3)
+        axes[row, 0].set_ylabel("frames/s (one core, CPU time, decode excluded)")
+    axes[0, 0].scatter([], [], c="C3", label="on the Pareto front (speed, phi, dz)")
+    axes[0, 0].scatter([], [], c="C0", label="dominated or < 90% ok")
+    axes[0, 0].legend(fontsize=8, loc="lower left")
+    key = "\n".join(f"{number[s.config]:>2}  {s.config}" for s in summ)
+    fig.text(0.77, 0.5, key, fontsize=8, family="monospace", va="center")
+    fig.tight_layout(rect=(0, 0, 0.76, 1))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
