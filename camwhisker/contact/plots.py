@@ -27,9 +27,16 @@ from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
 __all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes"]
 
 
+#: Share of the figure's height kept above the axes for the provenance line.
+HEADER_HEIGHT = 0.035
+
+
 def _save(fig, path, how: str) -> None:
-    fig.text(0.01, 0.005, f"camwhisker {__version__}: {how}", fontsize=6, color="0.4",
-             va="bottom")
+    # The panels (constrained layout, legends below them included) end under a strip
+    # that says how the figure was made.
+    fig.get_layout_engine().set(rect=(0, 0, 1, 1 - HEADER_HEIGHT))
+    fig.text(0.01, 0.995, f"camwhisker {__version__}: {how}", fontsize=6, color="0.4",
+             va="top")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120,
                 metadata={"Software": f"camwhisker {__version__}", "Description": how})
@@ -48,6 +55,10 @@ def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
     ax.boxplot(groups, positions=radii, orientation="horizontal", widths=2.5,
                manage_ticks=False)
     qq = np.linspace(1e-3, max(q.max(), 1e-2) * 1.05, 200)
+    beam = calib.gm.alternatives.get("beam")
+    if beam is not None:  # r from dx and phi apart: no one curve in dx / phi, so per sample
+        ax.plot(q, beam.r_mm(data["dx_mm"][ok], data["phi_deg"][ok]), ".", ms=3, color="C2",
+                label="beam model at each sample", zorder=3)
     eq8 = calib.gm.alternatives.get("eq8")
     if eq8 is not None:
         c = eq8.params["c"]
@@ -107,7 +118,13 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
         ax.set_title(kind)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
-        ax.legend(loc="upper left", fontsize=7)
         cb = fig.colorbar(sc, ax=ax, ticks=[0.5, 1.0], label="Z, eq. (11)")
         cb.ax.set_yticklabels(["0.5", "1"])
+    # One legend below the panels: inside them it hid points.
+    entries = {}
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=4,
+               fontsize=8)  # fmt: skip
     _save(fig, path, how or "shape reconstruction (Fig. 9)")
