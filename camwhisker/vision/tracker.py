@@ -254,6 +254,10 @@ class FrontEnd:
         self._started = False
         self._lost = False
         self._index = -1
+        #: The cloth's white-balanced brightness in the frame being processed (DN),
+        #: read once per frame by start() and update(); the tip's quick look and
+        #: every corner step of the frame use it.
+        self._cloth_now = math.nan
 
     # ------------------------------------------------------------------ start
     def start(self, frame: np.ndarray, index: int = 0) -> FrameResult:
@@ -284,6 +288,7 @@ class FrontEnd:
         g, origin = self._region_map(frame, gains, det.uv[:TIP])
         self.rest_origin = origin
         self._measure_colours(frame, gains, g, origin)
+        self._cloth_now = self.cloth_rest
         self.rest_red, self.rest_blue = self._shares(frame, gains, origin, g.shape)
         # Updated templates: one image per corner (shared until they diverge).
         u0, v0 = origin.astype(int)
@@ -334,6 +339,7 @@ class FrontEnd:
             self.redetect(frame)
         opts = self.options
         gains = self._gains(frame)
+        self._cloth_now = cloth_level(frame, *self._cloth, gains)
         q_pred, q_moving = self._predict()
 
         # Tip, then a first tilt guess from the tip alone. The window spans where
@@ -348,7 +354,7 @@ class FrontEnd:
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
         edges, why = None, ""
         if face_near(frame, gains, np.array([tip_still, tip_moving]), radius,
-                     cloth_level(frame, *self._cloth, gains)):  # fmt: skip
+                     self._cloth_now):  # fmt: skip
             edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
         # Not in the window (or nothing dark where either prediction puts it: a
         # jump): the tip is farther from both predictions than the window reaches,
@@ -667,14 +673,13 @@ class FrontEnd:
         tl[ok] = np.round(uv[ok]).astype(np.intp) - half
         inside = ok & (tl[:, 0] >= 0) & (tl[:, 1] >= 0) & (tl[:, 0] + n <= w) & (tl[:, 1] + n <= h)
         tl[~inside] = 0
-        scale = self._cloth_scale(frame, gains)
+        scale = self._cloth_now / self.cloth_rest
         wgt = (self.weights * gains[None, :] / scale).astype(np.float32)  # (2, 3) red, blue
         # The cross's corners read the red share, the square's the blue share.
         patches = share_patches(frame, tl, n, wgt[self._is_square.astype(int)])
         return patches, tl.astype(float), inside
 
-    def _cloth_scale(self, frame, gains) -> float:
-        return cloth_level(frame, *self._cloth, gains) / self.cloth_rest
+
 
     def _templates(self, q):
         """Rest patches warped to pose q, shape (12, n, n); reused while q stays
