@@ -679,8 +679,6 @@ class FrontEnd:
         patches = share_patches(frame, tl, n, wgt[self._is_square.astype(int)])
         return patches, tl.astype(float), inside
 
-
-
     def _templates(self, q):
         """Rest patches warped to pose q, shape (12, n, n); reused while q stays
         within TEMPLATE_REUSE of the pose they were warped for."""
