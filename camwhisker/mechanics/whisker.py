@@ -29,7 +29,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import fsolve
 
 __all__ = [
     "WhiskerMechanics",
@@ -264,6 +263,8 @@ def solve_elastica(
     def residual(u):
         st = _state(mech, base_x_mm, u, n_steps)
         return [st["mc"] / k_phi, *constraint(st, u)]
+
+    from scipy.optimize import fsolve  # here: see camwhisker.contact.gm on import time
 
     u, info, ier, msg = fsolve(residual, np.asarray(guess, float), full_output=True,
                                xtol=_SOLVE_XTOL)
