@@ -129,6 +129,10 @@ REFINE_MARGIN_PX = 20
 RIM_REFIT_MM = 0.01
 #: ... or the tilt by this (rad, 0.06 deg: < 0.02 px of rim radius at 30 deg).
 RIM_REFIT_RAD = 1e-3
+#: At most this many such measurements per frame. Each moves the fit by a few
+#: hundredths of the previous move (the tip moves ~0.03 px per 1e-3 rad of its
+#: rim's pose, the model tip ~0.5 px), so a jump from rest settles in two.
+RIM_REFITS = 3
 #: The model's rim placed at a prediction is kept when the tip it finds lies within
 #: this of the predicted tip (px): the rim's shape changes by < 0.01 px over it.
 PREDICTION_OK_PX = 3.0
@@ -364,19 +368,20 @@ class FrontEnd:
             edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
         q_guess = q_pred.copy()
         tip = None
+        tip_q = None  # the pose the tip's model rim and the rod's outline were placed at
         if edges is not None:
             # Place the model's rim at the prediction the tip came closest to; when
             # neither is close, first at a tilt solved from an ellipse's centre.
             middle = edges.mean(axis=0)
             near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
             q0, tip0 = (q_moving, tip_moving) if near_moving else (q_pred, tip_still)
-            tip = None if lost else self._tip_at(edges, q0)
+            tip, tip_q = (None, None) if lost else (self._tip_at(edges, q0), q0)
             if not (tip is not None and tip.ok
                     and np.hypot(*(tip.centre_uv - tip0)) <= PREDICTION_OK_PX):
                 rough = ellipse_centre(edges)
                 why = why or rough.reason
                 q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
-                tip = None if q0 is None else self._tip_at(edges, q0)
+                tip, tip_q = (None, None) if q0 is None else (self._tip_at(edges, q0), q0)
             if tip is not None and tip.ok:
                 q_guess = self._tilt_from_tip(q0, tip.centre_uv)
         if tip is None:
@@ -455,9 +460,13 @@ class FrontEnd:
         measured[TIP] = tip.centre_uv if tip.ok else np.nan
         quality = np.append(qual, 1.0 if tip.ok else np.nan)
         fit = self._fit(measured, q_guess)
-        if fit.converged and edges is not None and _moved(fit.q, q_guess):
-            # The tip's rim and the rod's outline were placed at q_guess: again at the fit.
-            tip = self._tip_at(edges, fit.q)
+        for _ in range(RIM_REFITS):
+            # The tip was measured with its rim placed at tip_q (not q_guess, which is
+            # solved from that measurement): measure it again at the fit, until the
+            # fit stays within RIM_REFIT of where the rim was placed.
+            if not (fit.converged and tip_q is not None and _moved(fit.q, tip_q)):
+                break
+            tip, tip_q = self._tip_at(edges, fit.q), fit.q
             measured[TIP] = tip.centre_uv if tip.ok else np.nan
             fit = self._fit(measured, fit.q)
         n_corners = int(good.sum())
