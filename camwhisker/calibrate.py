@@ -14,7 +14,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ from camwhisker.contact.gm import PHI_MIN_DEG, GMFit, fit_gm, r_gm
 from camwhisker.contact.io import write_csv
 from camwhisker.contact.mf import (
     DZ_SCALE_MM,
+    MF_CURVE_STEP_DEG,
     MF_DOMAIN_RADIUS,
     MF_K,
     PHI_SCALE_DEG,
@@ -35,8 +36,15 @@ from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
 
-__all__ = ["CalibrationError", "CalibrationRun", "calibrate", "write_calibration",
-           "read_calibration", "mf_table_path"]
+__all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
+           "mf_phi_floor", "write_calibration", "read_calibration", "mf_table_path"]
+
+# MF gives no estimate below the phi from which its scatter from noise alone (the
+# calibration's pauses against the curves of their own runs) stays within this in every
+# phi bin: the paper's 15 mm GM failure, which an MF with a wider scatter cannot tell
+# from its own noise. Below ~5 deg (2.5 deg at the front end's noise) the axial force is
+# too small for dz to tell radii apart (Table II's sigma_MF: 20-30 mm there).
+MF_MAX_SPREAD_MM = 15.0
 
 
 class CalibrationError(ValueError):
@@ -86,11 +94,16 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         gm = fit_gm(data["dx_mm"], data["phi_deg"], data["r_mm"], l_w_mm, groups=data["run"])
         data["r_gm_mm"] = r_gm(gm, data["dx_mm"], data["phi_deg"])
         gm_spread = spread_table(data["phi_deg"], data["r_mm"] - data["r_gm_mm"])
-        table = MFTable.build(data["phi_deg"], data["dz_mm"], data["r_mm"])
-        # Leave-one-out over the table's own rows gives MF's spread on unseen samples.
-        loo = r_mf(table, table.phi_deg, table.dz_mm, exclude_self=True)
-        mf_err = table.r_mm - loo.r_mm
-        mf_spread = spread_table(table.phi_deg, mf_err)
+        if np.unique(data["run"]).size < 2:
+            raise ValueError("MF needs runs at two or more radii (its spread is measured by "
+                             "leaving one run out)")
+        mf_spread = spread_table(data["phi_deg"], _mf_leave_one_run_out(data))
+        table = MFTable.from_runs(data["phi_deg"], data["dz_mm"], data["r_mm"], data["run"])
+        # The pauses against the curves fitted through them: the scatter the pause
+        # medians' noise gives MF, without the error between calibrated radii.
+        own = r_mf(table, data["phi_deg"], data["dz_mm"], domain_radius=np.inf)
+        mf_noise = spread_table(data["phi_deg"], data["r_mm"] - own.r_mm)
+        table = replace(table, phi_min_deg=mf_phi_floor(mf_noise))
     except ValueError as exc:
         raise CalibrationError(f"calibration from {len(runs)} run(s) failed: {exc}") from exc
 
@@ -108,8 +121,34 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         ],
     }
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
-                        l_w_mm=float(l_w_mm), provenance=provenance)
+                        mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance)
     return calib, analyses, data
+
+
+def _mf_leave_one_run_out(data: dict) -> np.ndarray:
+    """r - r_MF per pause, each run's pauses looked up in the table of the other runs.
+
+    A run's own curve would pass through its pauses; leaving the whole run out
+    gives MF's error at a radius it was not calibrated at, as in use.
+    """
+    err = np.full(data["r_mm"].size, np.nan)
+    cols = ("phi_deg", "dz_mm", "r_mm", "run")
+    for i in np.unique(data["run"]):
+        own = data["run"] == i
+        others = MFTable.from_runs(*(data[k][~own] for k in cols))
+        err[own] = data["r_mm"][own] - r_mf(others, data["phi_deg"][own], data["dz_mm"][own]).r_mm
+    return err
+
+
+def mf_phi_floor(spread: SpreadTable, max_spread_mm: float = MF_MAX_SPREAD_MM) -> float:
+    """The lower edge of the lowest phi bin from which every bin's spread <= max_spread_mm.
+
+    inf if the highest bin's spread is wider (MF then gives no estimate at all).
+    """
+    wide = np.flatnonzero(~(spread.std_mm <= max_spread_mm))
+    if not wide.size:
+        return float(spread.edges_deg[0])
+    return float(spread.edges_deg[wide[-1] + 1]) if wide[-1] + 1 < spread.std_mm.size else math.inf
 
 
 def mf_table_path(calib_path: str | Path) -> Path:
@@ -201,9 +240,16 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         f"phi_scale_deg = {_toml_value(PHI_SCALE_DEG)}",
         f"dz_scale_mm = {_toml_value(DZ_SCALE_MM)}",
         f"domain_radius = {_toml_value(MF_DOMAIN_RADIUS)}",
+        "# Points every curve_step_deg along each run's fitted dz(phi) and r(phi).",
+        f"curve_step_deg = {_toml_value(MF_CURVE_STEP_DEG)}",
         f"rows = {len(calib.mf_table)}",
+        f"# No MF estimate below phi_min_deg: MF's noise scatter > {MF_MAX_SPREAD_MM:g} mm.",
+        f"phi_min_deg = {_toml_value(calib.mf_table.phi_min_deg)}",
         "",
-        *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave-one-out)"),
+        *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave one run out)"),
+        *_spread_lines("mf_noise", calib.mf_noise,
+                       "MF's scatter from noise alone (pauses against their own runs' curves),"
+                       " for the fusion"),
     ]
     for run in prov.get("runs", []):
         lines.append("[[provenance.runs]]")
@@ -267,11 +313,13 @@ def read_calibration(path: str | Path) -> Calibration:
         arr = np.genfromtxt(mf_path, delimiter=",", names=True)
     except (OSError, ValueError) as exc:
         raise CalibrationError(f"{mf_path}: cannot read MF table ({exc})") from exc
+    phi_min = float(_get(mf_doc, "phi_min_deg", f"{path}: [mf]"))
     try:
         table = MFTable.build(np.atleast_1d(arr["phi_deg"]), np.atleast_1d(arr["dz_mm"]),
-                              np.atleast_1d(arr["r_mm"]))
+                              np.atleast_1d(arr["r_mm"]), phi_min)
     except (ValueError, KeyError) as exc:
         raise CalibrationError(f"{mf_path}: bad MF table ({exc})") from exc
     return Calibration(gm=gm, gm_spread=_spread_from(doc, "gm_spread", path), mf_table=table,
-                       mf_spread=_spread_from(doc, "mf_spread", path), l_w_mm=l_w,
+                       mf_spread=_spread_from(doc, "mf_spread", path),
+                       mf_noise=_spread_from(doc, "mf_noise", path), l_w_mm=l_w,
                        provenance=doc.get("provenance", {}))

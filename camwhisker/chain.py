@@ -214,13 +214,18 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
         if role not in ev:
             continue
         e = ev[role]
-        low = (e["z_score"] < LOW_Z) & np.isfinite(e["profile_dist_mm"])
+        drawn = np.isfinite(e["profile_dist_mm"])
+        low = (e["z_score"] < LOW_Z) & drawn
         d = e["profile_dist_mm"][low]
         # Fig. 9's slip stretch: slipping points with a defined score, and those shown doubtful.
         slip = np.asarray(e["slipping"], bool) & np.isfinite(e["z_score"])
         out["shapes"][role] = {
             "n_low_z": int(low.sum()),
             "max_dist_mm": float(d.max()) if d.size else math.nan,
+            # Every point, each from the fused r: the shape as drawn.
+            "n_points": int(drawn.sum()),
+            "max_dist_all_mm": float(e["profile_dist_mm"][drawn].max()) if drawn.any()
+            else math.nan,
             "within_tol": int((d <= SHAPE_TOL_MM).sum()),
             "n_slipping": int(slip.sum()),
             "slipping_z_ge_1": int((e["z_score"][slip] >= 1.0).sum()),
@@ -291,7 +296,8 @@ def format_summary(s: dict) -> str:
         lines.append(
             f"{role}: {sh['n_low_z']} points with Z < {LOW_Z}, "
             f"{sh['within_tol']} within {SHAPE_TOL_MM} mm of the profile "
-            f"(max {sh['max_dist_mm']:.2f} mm); slipping points shown doubtful (Z >= 1): "
+            f"(max {sh['max_dist_mm']:.2f} mm); all {sh['n_points']} points within "
+            f"{sh['max_dist_all_mm']:.2f} mm; slipping points shown doubtful (Z >= 1): "
             f"{sh['slipping_z_ge_1']}/{sh['n_slipping']}"
         )
     t = s["timings"]

@@ -10,11 +10,13 @@ from camwhisker.calibrate import (
     CalibrationError,
     CalibrationRun,
     calibrate,
+    mf_phi_floor,
     mf_table_path,
     read_calibration,
     write_calibration,
 )
 from camwhisker.contact.pipeline import CONTACT_COLUMNS, contact_rows
+from camwhisker.contact.zscore import SpreadTable
 from camwhisker.mechanics import simulate_runs
 from camwhisker.stage import stage_log_from_arrays
 
@@ -43,7 +45,33 @@ def test_round_trip(tmp_path):
         calib.gm.alternatives["eq8"].params["c"], rel=1e-12)
     assert np.allclose(back.gm_spread.std_mm, calib.gm_spread.std_mm, rtol=1e-12)
     assert np.allclose(back.mf_table.r_mm, calib.mf_table.r_mm, rtol=1e-8)
+    assert back.mf_table.phi_min_deg == calib.mf_table.phi_min_deg
+    assert np.allclose(back.mf_noise.std_mm, calib.mf_noise.std_mm, rtol=1e-12)
     assert not list(tmp_path.glob(".*tmp"))  # atomic writes left no temporaries
+
+
+def test_mf_phi_floor_from_spread():
+    edges = np.array([0.0, 2.5, 5.0, 10.0, 20.0, np.inf])
+
+    def spread(std):
+        return SpreadTable(edges, np.full(5, 10), np.zeros(5), np.array(std, float))
+
+    assert mf_phi_floor(spread([25, 20, 9, 3, 1]), 15.0) == 5.0
+    assert mf_phi_floor(spread([25, 12, 9, 3, 1]), 15.0) == 2.5
+    assert mf_phi_floor(spread([14, 12, 9, 3, 1]), 15.0) == 0.0
+    assert mf_phi_floor(spread([25, 12, 16, 3, 1]), 15.0) == 10.0  # every bin above it
+    assert mf_phi_floor(spread([25, 12, 9, 3, 16]), 15.0) == np.inf  # no MF at all
+
+
+def test_calibration_mf_floor_and_spreads():
+    """The paper's 8 radii at the paper's noise: MF starts where its noise scatter falls
+    under 15 mm (2.5 or 5 deg on every seed looked at). The scatter from noise alone is
+    below the spread at a left-out radius in every bin above the floor."""
+    calib = calibration()
+    assert calib.mf_table.phi_min_deg in (2.5, 5.0)
+    above = calib.mf_spread.edges_deg[:-1] >= calib.mf_table.phi_min_deg
+    assert np.all(calib.mf_noise.std_mm[above] < calib.mf_spread.std_mm[above])
+    assert np.all(calib.mf_noise.std_mm[above] <= 15.0)
 
 
 def test_missing_key_is_named(tmp_path):

@@ -55,7 +55,12 @@ def test_simulate_calibrate_contact(root, capsys):
     assert r_gm.size > 500 and np.all((r_gm > 0) & (r_gm < 150))
     assert (tmp_path_png := __import__("pathlib").Path(f"{root}/figs/gm_model.png")).exists()
     assert tmp_path_png.read_bytes()[:4] == b"\x89PNG"
-    assert "wrote" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "wrote" in printed
+    # Where MF starts, from the calibration's own noise (2.5-10 deg for 4 runs at the
+    # paper's noise).
+    floor = doc["mf"]["phi_min_deg"]
+    assert 2.5 <= floor <= 10.0 and f"estimates from phi >= {floor:g} deg" in printed
 
 
 def test_bad_stage_log_is_a_clean_error(root, tmp_path, capsys):

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from camwhisker.contact.gm import PHI_MIN_DEG
 from camwhisker.contact.mf import MF_DOMAIN_RADIUS, MFTable, r_mf
 
 
@@ -57,9 +58,56 @@ def test_empty_table_is_an_error():
         MFTable.build([np.nan], [0.1], [40.0])
 
 
-def test_leave_one_out_never_uses_itself():
-    t = table()
-    res = r_mf(t, t.phi_deg, t.dz_mm, k=1, exclude_self=True)
-    # Each point's nearest other point; none of them is an exact match of itself.
-    assert np.all(np.isfinite(res.r_mm) | res.outside)
-    assert np.all(res.nearest[np.isfinite(res.nearest)] > 0)
+def _runs(radii, phi):
+    """Synthetic calibration runs: dz = a(r) phi^2 (1 + phi / 60), r constant per run; the
+    radii lie about as close in dz as in the simulator (~0.004 mm apart at 10 deg)."""
+    cols = {"phi": [], "dz": [], "r": [], "run": []}
+    for i, r in enumerate(radii):
+        cols["phi"].append(phi)
+        cols["dz"].append(1e-3 * (1.0 + r / 200.0) * phi**2 * (1.0 + phi / 60.0))
+        cols["r"].append(np.full(phi.size, r))
+        cols["run"].append(np.full(phi.size, i))
+    return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def test_curve_table_samples_each_run_along_its_fit():
+    phi = np.arange(2.0, 30.1, 2.5)  # pause medians ~2.5 deg apart, as in a stage run
+    d = _runs([30.0, 60.0], phi)
+    t = MFTable.from_runs(d["phi"], d["dz"], d["r"], d["run"], step_deg=0.1)
+    per_run = phi.max() - phi.min()
+    assert len(t) == 2 * (round(per_run / 0.1) + 1)
+    # The law is in the fitted family (phi^2 .. phi^4), so the points lie on it exactly.
+    expect = 1e-3 * (1.0 + t.r_mm / 200.0) * t.phi_deg**2 * (1.0 + t.phi_deg / 60.0)
+    assert np.max(np.abs(t.dz_mm - expect)) < 1e-9
+    assert set(np.round(t.r_mm, 9)) == {30.0, 60.0}
+
+
+def test_curve_table_finds_the_nearer_radius_between_pause_rows():
+    """A query on a run's curve between its pauses: the dense table answers with that run's
+    radius; the pause rows alone answer with a mix of radii (eq. (10)'s mean of the k
+    nearest, which at the pauses' phi spacing come from every run)."""
+    phi = np.arange(2.0, 30.1, 2.5)
+    radii = [22.5, 27.5, 33.5, 42.5, 50.0, 60.0, 72.5, 90.0]
+    d = _runs(radii, phi)
+    dense = MFTable.from_runs(d["phi"], d["dz"], d["r"], d["run"])
+    rows = MFTable.build(d["phi"], d["dz"], d["r"])
+    q_phi = 13.25  # halfway between two pauses
+    for r in (33.5, 72.5):
+        q_dz = 1e-3 * (1.0 + r / 200.0) * q_phi**2 * (1.0 + q_phi / 60.0)  # on the r curve
+        assert abs(r_mf(dense, q_phi, q_dz).r_mm[0] - r) < 2.0
+        assert abs(r_mf(rows, q_phi, q_dz).r_mm[0] - r) > 10.0
+
+
+def test_short_run_keeps_its_pause_rows():
+    d = _runs([40.0], np.array([5.0, 10.0, 15.0]))  # fewer than MIN_CURVE_PAUSES
+    t = MFTable.from_runs(d["phi"], d["dz"], d["r"], d["run"])
+    assert np.array_equal(t.phi_deg, d["phi"]) and np.array_equal(t.dz_mm, d["dz"])
+
+
+def test_phi_floor_leaves_small_phi_empty():
+    t = MFTable.build(table().phi_deg, table().dz_mm, table().r_mm, phi_min_deg=7.5)
+    res = r_mf(t, [5.0, 10.0], [0.05, 0.2])
+    assert np.isnan(res.r_mm[0]) and not res.outside[0]
+    assert res.r_mm[1] == 30.0
+    # Never below the estimators' own floor (PHI_MIN_DEG), whatever is asked.
+    assert MFTable.build([10.0], [0.3], [55.0], phi_min_deg=0.0).phi_min_deg == PHI_MIN_DEG

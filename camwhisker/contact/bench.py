@@ -41,10 +41,8 @@ def _log(run, with_r: bool):
 def calibrate_simulated(seed: int, kind: str = "rigid", **sim) -> Calibration:
     """Calibrate on the simulated runs of ``kind``; offsets estimated.
 
-    ``kind``: "rigid" (default: pegs at the paper's radii), "rigid-extended" (the
-    same plus one peg a step of their spacing beyond each end; see
-    :data:`~camwhisker.mechanics.experiment.CALIBRATION_EXTRA_RADII_MM` for what it
-    does and why it is not the default) or "eq8" (phi from eq. (8), for C recovery).
+    ``kind``: "rigid" (default: pegs at the paper's radii) or "eq8" (phi from
+    eq. (8), for C recovery).
     """
     runs = simulate_runs(kind, seed, **sim)
     cal_runs = [CalibrationRun(r.signals, _log(r, True), f"<{kind}:{r.name} signals>")
@@ -94,8 +92,10 @@ def evaluate_kind(calib: Calibration, kind: str, seed: int, **sim) -> dict:
 def summary(ev: dict) -> dict:
     """Errors and score quality on samples where GM, MF and the truth are all defined."""
     r = ev["r_true_mm"]
-    both = np.isfinite(r) & np.isfinite(ev["r_gm_mm"]) & np.isfinite(ev["r_mf_mm"])
-    out = {"n": int(both.sum())}
+    gm = np.isfinite(r) & np.isfinite(ev["r_gm_mm"])
+    both = gm & np.isfinite(ev["r_mf_mm"])
+    # n_gm - n: pauses below MF's phi floor (or outside its table), left out of every number.
+    out = {"n": int(both.sum()), "n_gm": int(gm.sum())}
     for name in ("r_gm_mm", "r_mf_mm", "r_fused_mm"):
         err = (r - ev[name])[both]
         key = name[2:-3]
@@ -188,12 +188,13 @@ def format_report(result: dict) -> str:
         lines.append("")
         lines.append(f"noise level '{name}': phi {noise.phi_deg} deg, dz {noise.dz_mm} mm"
                      " per frame")
-        lines.append(f"{'kind':<13}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
+        lines.append(f"{'kind':<13}{'n/N':>8}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
                      f"{'bad':>5}{'Z11 AUC':>9}{'Z11 hit':>8}{'Z11 ff':>7}{'Zc AUC':>8}"
                      f"{'Zc hit':>7}{'Zc ff':>6}{'Pb AUC':>8}{'Pb hit':>7}{'Pb ff':>6}")
         for kind, s in level["summaries"].items():
+            n = f"{s['n']}/{s['n_gm']}"
             lines.append(
-                f"{kind:<13}{s['n']:>5}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
+                f"{kind:<13}{n:>8}{s['gm_rmse_mm']:>9.2f}{s['gm_mean_mm']:>9.2f}"
                 f"{s['mf_rmse_mm']:>9.2f}{s['fused_rmse_mm']:>8.2f}{s['n_bad']:>5}"
                 f"{s['z_score_auc']:>9.3f}{s['z_score_hit']:>8.2f}{s['z_score_false']:>7.2f}"
                 f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}"
@@ -206,7 +207,9 @@ def format_report(result: dict) -> str:
             lines.append(f"    {g[0]:4.1f}-{g[1]:<4.1f} {g[2]:>4d} {g[3]:6.2f} {g[4]:6.2f}  "
                          f"{m[3]:6.2f} {m[4]:6.2f}")
     lines.append("")
-    lines.append("errors in mm (r - r_hat, pause medians); bad: |GM error| > 15 mm; hit / ff:"
+    lines.append("n/N: pauses with GM and MF / with GM (MF starts at the calibration's phi"
+                 " floor); errors in mm (r - r_hat, pause medians) over the n; bad: |GM error| >"
+                 " 15 mm; hit / ff:"
                  " share of bad / good samples flagged (Z > 1; Pb > 0.5); paper's ff: 0.26;"
                  " Z11: eq. (11); Zc: combined spread; Pb: fusion's P(GM failed); nan: no bad"
                  " samples in that scene")

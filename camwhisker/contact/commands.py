@@ -7,7 +7,9 @@ the CLI's error class, so they print without a traceback.
 
 from __future__ import annotations
 
+import math
 import shlex
+import sys
 from pathlib import Path
 
 __all__ = ["add_commands"]
@@ -58,7 +60,12 @@ def _run_simulate(args) -> int:
 
 
 def _run_calibrate(args) -> int:
-    from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
+    from camwhisker.calibrate import (
+        MF_MAX_SPREAD_MM,
+        CalibrationRun,
+        calibrate,
+        write_calibration,
+    )
     from camwhisker.contact.io import read_signal_table
     from camwhisker.stage import read_stage_log
 
@@ -82,6 +89,14 @@ def _run_calibrate(args) -> int:
     print(f"eq. (8): C = {eq8.params['c']:.2f} (95 % CI {lo:.2f}-{hi:.2f}), "
           f"RMSE {eq8.rmse_mm:.2f} mm; GM model used: {calib.gm.kind} "
           f"(RMSE {calib.gm.rmse_mm:.2f} mm)")
+    floor = calib.mf_table.phi_min_deg
+    if math.isinf(floor):
+        print(f"warning: MF's scatter from noise exceeds {MF_MAX_SPREAD_MM:g} mm at every phi: "
+              "MF, z_score and the fusion will be empty (calibrate with more runs, or with "
+              "less noise)", file=sys.stderr)
+    else:
+        print(f"MF: {len(calib.mf_table)} table points from {len(runs)} run(s), estimates "
+              f"from phi >= {floor:g} deg")
     if args.plots:
         from camwhisker.contact.plots import plot_gm_model
 

@@ -14,9 +14,23 @@ Defined outputs for degenerate cases:
   the mean r of those points (the limit of eq. (10));
 - duplicate table points are fine (they are separate neighbours);
 - a table with fewer than k rows uses all rows;
-- NaN inputs, or phi below :data:`~camwhisker.contact.gm.PHI_MIN_DEG`, give NaN;
+- NaN inputs, or phi below the table's ``phi_min_deg`` (at least
+  :data:`~camwhisker.contact.gm.PHI_MIN_DEG`), give NaN;
 - a query farther than :data:`MF_DOMAIN_RADIUS` from every table point is
   outside the table's domain: NaN and ``outside = True``.
+
+The table a calibration builds (:meth:`MFTable.from_runs`) is not the pause
+medians themselves but points every :data:`MF_CURVE_STEP_DEG` along a smooth
+curve fitted through each calibration run's pause medians: dz(phi) =
+a2 phi^2 + a3 phi^3 + a4 phi^4 (the axial force is second order in the
+deflection) and r(phi) a cubic (the contact slides out along the bending
+whisker). Pause medians lie ~2.5 deg apart along a run (0.07 in eq. (9)'s
+units), while neighbouring radii are 0.003-0.05 apart in dz: among raw pause
+rows the k = 7 nearest are the rows of many radii at the nearest sampled phi,
+at nearly equal distances, and eq. (10) returns their mean. Along dense curves
+the nearest rows are those of the nearest radii. Noise-free, the curves fit a
+run's pause medians to 0.7 um in dz and 0.015 mm in r (tuning seed 0), below
+the pause medians' noise (several um).
 """
 
 from __future__ import annotations
@@ -28,8 +42,8 @@ from scipy.spatial import cKDTree
 
 from camwhisker.contact.gm import PHI_MIN_DEG
 
-__all__ = ["MF_K", "PHI_SCALE_DEG", "DZ_SCALE_MM", "MF_DOMAIN_RADIUS", "MFTable", "MFResult",
-           "r_mf"]
+__all__ = ["MF_K", "PHI_SCALE_DEG", "DZ_SCALE_MM", "MF_DOMAIN_RADIUS", "MF_CURVE_STEP_DEG",
+           "MIN_CURVE_PAUSES", "MFTable", "MFResult", "r_mf"]
 
 MF_K = 7  # the paper's k
 PHI_SCALE_DEG = 35.0  # Eq. (9): the largest expected phi
@@ -38,6 +52,29 @@ DZ_SCALE_MM = 1.0  # Eq. (9): the largest expected dz
 # 3.5 deg or 0.1 mm, more than the widest phi spacing of a calibration run
 # (about 2.5 deg per 1 mm step at r = 22.5 mm) plus its noise.
 MF_DOMAIN_RADIUS = 0.1
+# Spacing of the table's points along each calibration run's fitted curve: under
+# half the paper's per-frame phi noise (0.22 deg), 0.003 in eq. (9)'s units, about
+# the dz gap between neighbouring calibration radii at phi = 5 deg.
+MF_CURVE_STEP_DEG = 0.1
+# Fewest pauses for which a run's curves are fitted (twice the 4 coefficients of
+# r(phi)); a shorter run enters the table as its pause rows.
+MIN_CURVE_PAUSES = 8
+_DZ_POWERS = (2, 3, 4)
+_R_POWERS = (0, 1, 2, 3)
+
+
+def _powers(x, powers):
+    return np.column_stack([x**k for k in powers])
+
+
+def _run_curve(phi, dz, r, step):
+    """Points every ``step`` deg along one run's least-squares dz(phi) and r(phi) curves."""
+    if phi.size < MIN_CURVE_PAUSES:
+        return phi, dz, r
+    a_dz = np.linalg.lstsq(_powers(phi, _DZ_POWERS), dz, rcond=None)[0]
+    a_r = np.linalg.lstsq(_powers(phi, _R_POWERS), r, rcond=None)[0]
+    g = np.arange(phi.min(), phi.max() + 0.5 * step, step)
+    return g, _powers(g, _DZ_POWERS) @ a_dz, _powers(g, _R_POWERS) @ a_r
 
 
 @dataclass(frozen=True)
@@ -48,22 +85,41 @@ class MFTable:
     dz_mm: np.ndarray
     r_mm: np.ndarray
     tree: cKDTree = field(repr=False, compare=False, default=None)
+    # Queries below this phi get no estimate (a calibration sets it where MF's scatter
+    # from noise exceeds what it must detect: camwhisker.calibrate.MF_MAX_SPREAD_MM).
+    phi_min_deg: float = PHI_MIN_DEG
 
     @classmethod
-    def build(cls, phi_deg, dz_mm, r_mm) -> MFTable:
+    def build(cls, phi_deg, dz_mm, r_mm, phi_min_deg: float = PHI_MIN_DEG) -> MFTable:
         """Keep the finite rows with phi >= PHI_MIN_DEG; raise ValueError if none remain."""
-        phi = np.asarray(phi_deg, float).ravel()
-        dz = np.asarray(dz_mm, float).ravel()
-        r = np.asarray(r_mm, float).ravel()
-        keep = np.isfinite(phi) & np.isfinite(dz) & np.isfinite(r) & (phi >= PHI_MIN_DEG)
-        if not keep.any():
+        phi, dz, r = _finite_rows(phi_deg, dz_mm, r_mm)
+        if not phi.size:
             raise ValueError("MF table needs at least one row with finite phi >= "
                              f"{PHI_MIN_DEG} deg, dz and r")
-        phi, dz, r = phi[keep], dz[keep], r[keep]
-        return cls(phi, dz, r, cKDTree(_coords(phi, dz)))
+        return cls(phi, dz, r, cKDTree(_coords(phi, dz)), max(PHI_MIN_DEG, float(phi_min_deg)))
+
+    @classmethod
+    def from_runs(cls, phi_deg, dz_mm, r_mm, run, step_deg: float = MF_CURVE_STEP_DEG,
+                  phi_min_deg: float = PHI_MIN_DEG) -> MFTable:
+        """The table of points along each run's fitted curves (module docstring).
+
+        ``run``: a run id per row; rows of a run need not be in order.
+        """
+        run = np.asarray(run).ravel()
+        phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
+        parts = [_run_curve(*_finite_rows(phi[run == i], dz[run == i], r[run == i]), step_deg)
+                 for i in np.unique(run)]
+        return cls.build(*(np.concatenate([p[j] for p in parts]) for j in range(3)),
+                         phi_min_deg=phi_min_deg)
 
     def __len__(self) -> int:
         return self.r_mm.size
+
+
+def _finite_rows(phi_deg, dz_mm, r_mm):
+    phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
+    keep = np.isfinite(phi) & np.isfinite(dz) & np.isfinite(r) & (phi >= PHI_MIN_DEG)
+    return phi[keep], dz[keep], r[keep]
 
 
 def _coords(phi_deg, dz_mm):
@@ -80,7 +136,7 @@ class MFResult:
     nearest: np.ndarray
 
 
-def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K, exclude_self: bool = False,
+def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
          domain_radius: float = MF_DOMAIN_RADIUS) -> MFResult:
     """Inverse-distance-weighted kNN estimate of r, eqs. (9)-(10).
 
@@ -90,9 +146,8 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K, exclude_self: bool = Fal
     phi_deg, dz_mm : array_like, shape (N,)
     k : int
         Neighbours (the paper: 7); fewer if the table is smaller.
-    exclude_self : bool
-        Leave-one-out: the queries are the table's own rows (in order) and each
-        row is left out of its own estimate. For the spread sigma_MF.
+    domain_radius : float
+        Normalised distance beyond which a query is outside the table.
     """
     phi = np.atleast_1d(np.asarray(phi_deg, float))
     dz = np.atleast_1d(np.asarray(dz_mm, float))
@@ -101,21 +156,13 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K, exclude_self: bool = Fal
     r_out = np.full(n, np.nan)
     outside = np.zeros(n, bool)
     nearest = np.full(n, np.nan)
-    valid = np.isfinite(phi) & np.isfinite(dz) & (phi >= PHI_MIN_DEG)
-    extra = 1 if exclude_self else 0
-    kk = min(k + extra, len(table))
-    if not valid.any() or kk - extra < 1:
+    valid = np.isfinite(phi) & np.isfinite(dz) & (phi >= table.phi_min_deg)
+    kk = min(k, len(table))
+    if not valid.any() or kk < 1:
         return MFResult(r_out, outside, nearest)
     d, j = table.tree.query(_coords(phi[valid], dz[valid]), k=kk)  # Eq. (9), Euclidean
     d = d.reshape(-1, kk)
     j = j.reshape(-1, kk)
-    if exclude_self:
-        own = np.flatnonzero(valid)[:, None]
-        not_self = j != own
-        # Drop the query's own row (or the last neighbour if it was not among them).
-        order = np.argsort(~not_self, axis=1, kind="stable")[:, : kk - 1]
-        d = np.take_along_axis(d, order, axis=1)
-        j = np.take_along_axis(j, order, axis=1)
     labels = table.r_mm[j]
     exact = d == 0.0
     any_exact = exact.any(axis=1)

@@ -37,7 +37,8 @@ class Calibration:
     gm: GMFit
     gm_spread: SpreadTable
     mf_table: MFTable
-    mf_spread: SpreadTable
+    mf_spread: SpreadTable  # at a radius not calibrated (leave one run out): Table II
+    mf_noise: SpreadTable  # from the pause medians' noise alone: what the fusion averages
     l_w_mm: float
     provenance: dict
 
@@ -101,7 +102,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     sm = calib.mf_spread.sigma_at(phi)
     z = z_dissimilarity(rg, mf.r_mm, sg)
     zc = z_combined(rg, mf.r_mm, sg, sm)
-    fused, p_good, bias = fuse(rg, mf.r_mm, sg, sm, calib.l_w_mm, segment)
+    fused, p_good, bias = fuse(rg, mf.r_mm, sg, calib.mf_noise.sigma_at(phi), calib.l_w_mm,
+                               segment)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign)
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside,

@@ -9,9 +9,7 @@ jittered length (>= 1 s, like the paper), a rest. The run produces
   offset from the stage's by several seconds (``t_camera = t_stage + offset_s``),
 - the truth per frame (contact point, r, slipping, ...).
 
-Kinds (see :data:`KINDS`): ``rigid`` (pegs at the paper's radii), ``rigid-extended``
-(the same runs plus one peg a step of the paper's spacing beyond each end,
-:data:`CALIBRATION_EXTRA_RADII_MM`, an alternative calibration), ``compliant``
+Kinds (see :data:`KINDS`): ``rigid`` (pegs at the paper's radii), ``compliant``
 (pegs on springs, the paper's pipe cleaner radii), ``slide-box`` (a tilted box:
 stick at its corner, then Coulomb slip up its face), ``slide-circle`` (a water
 bottle swept past on both sides, the stage travelling +x then -x: the whisker's
@@ -41,7 +39,6 @@ from camwhisker.mechanics.whisker import WhiskerMechanics, beam_dz_from_phi
 __all__ = [
     "KINDS",
     "PAPER_RIGID_RADII_MM",
-    "CALIBRATION_EXTRA_RADII_MM",
     "PAPER_COMPLIANT_RADII_MM",
     "PAPER_C",
     "StageProtocol",
@@ -56,36 +53,6 @@ __all__ = [
 ]
 
 PAPER_RIGID_RADII_MM = (22.5, 27.5, 33.5, 42.5, 50.0, 60.0, 72.5, 90.0)
-# Calibration pegs beyond the measured radii, so that the MF table (k = 7 nearest
-# neighbours) has rows on both sides of the paper's outermost radii. The paper's
-# radii are close to geometric, ratio (90 / 22.5)^(1/7) = 1.219; these are one
-# such step beyond each end (22.5 / 1.219 = 18.5, 90 * 1.219 = 109.7 mm).
-# Measured on tuning seeds only (calibration seeds 101, 201, 301, evaluation seeds
-# 102, 202, 302, both noise levels; means over the 6 pairs):
-# - reach: of the k = 7 neighbours of the 90 mm rigid run's pauses with phi >= 5 deg,
-#   40 % came from the 72.5 mm run, 50 % from its own radius, none from beyond; with
-#   the 109.7 mm peg 29 % / 42 % / 26 %. At the small end the neighbours reach three
-#   runs or more (the (phi, dz) curves of small radii lie close together): 18.5 mm
-#   gives the 22.5 mm run 11 % of its neighbours from below (none before).
-# - per-run mean MF error of the rigid runs (truth - MF): 90 mm +7.4 -> +3.6 mm,
-#   22.5 mm -9.1 -> -8.2 mm, RMS over the 8 radii 5.4 -> 4.5 mm; on compliant
-#   contact eq. (11)'s AUC 0.70 -> 0.82 and MF RMSE 10.2 -> 8.9 mm.
-# - cost: a larger peg adds many rows at small phi, where dz does not tell radii
-#   apart, and pulls MF up there (box, phi < 3 deg: mean MF error -25 -> -35 mm);
-#   MF RMSE on the box 8.5 -> 9.8 mm, bottle 5.1 -> 5.75 mm, rigid 7.7 -> 7.8 mm.
-#   Hence no more: a second step above (133.7 mm) gave AUC 0.83 but MF RMSE box
-#   11.9, bottle 9.0, rigid 9.0 mm; two more below (15.1, 12.4 mm) AUC 0.82, bottle
-#   MF 6.2 mm.
-# Not the default calibration (``rigid`` is): it still leaves eq. (11)'s compliant
-# AUC short of issue #4's 0.9 (the rest is pauses with phi < 5 deg, where MF cannot
-# tell radii apart: with these pegs the AUC over phi >= 5 deg alone was 0.93-0.98),
-# and it costs the bottle's scores: tests/test_contact_scores.py's bottle assertions
-# (eq. (11) and combined Z AUC >= 0.9), run on the tuning pairs, failed in 4 of the
-# 6 (pair, noise level) cases with it against 1 of 6 with the paper's radii (with
-# 109.7 mm alone, 2 of 6). On the held-out seeds of that test file (5150 / 6021) it
-# gave compliant eq. (11) AUC 0.821 / 0.797 (0.77 / 0.69 with the paper's radii)
-# and bottle eq. (11) AUC 0.918 / 0.858 (paper / front-end noise).
-CALIBRATION_EXTRA_RADII_MM = (18.5, 109.7)
 PAPER_COMPLIANT_RADII_MM = (35.0, 55.0, 90.0)
 PAPER_C = 132.0
 
@@ -116,7 +83,7 @@ BOTTLE = CircleScene(0.0, 55.0, 45.0)
 PAPER_NOISE_PHI_DEG, PAPER_NOISE_DZ_MM = 0.22, 0.04
 FRONT_END_NOISE_PHI_DEG, FRONT_END_NOISE_DZ_MM = 0.05, 0.02
 
-KINDS = ("rigid", "rigid-extended", "compliant", "slide-box", "slide-circle", "eq8")
+KINDS = ("rigid", "compliant", "slide-box", "slide-circle", "eq8")
 
 
 @dataclass(frozen=True)
@@ -171,10 +138,6 @@ def _scenes(kind: str):
     """The runs of an experiment kind: (name, scene in the lab frame, travel sign)."""
     if kind in ("rigid", "eq8"):
         return [(f"r{r:g}", PegScene(r), 1.0) for r in PAPER_RIGID_RADII_MM]
-    if kind == "rigid-extended":
-        # The paper's runs first, so that a seed gives them the same noise as in "rigid".
-        return [(f"r{r:g}", PegScene(r), 1.0)
-                for r in PAPER_RIGID_RADII_MM + CALIBRATION_EXTRA_RADII_MM]
     if kind == "compliant":
         return [(f"c{r:g}", PegScene(r, k_obj_n_per_mm=COMPLIANT_K_N_PER_MM), 1.0)
                 for r in PAPER_COMPLIANT_RADII_MM]
@@ -289,7 +252,7 @@ def simulate_run(
         out = np.interp(x, xs_used[good], v[good])
         return np.where(x > x_first, out, np.nan)
 
-    if kind in ("rigid", "rigid-extended", "eq8"):
+    if kind in ("rigid", "eq8"):
         stage["r_mm"] = along_x(steps.r_mm, x_stage)
         stage["r_mm"] = np.where(np.isfinite(stage["r_mm"]), stage["r_mm"], scene.r_mm)
 
