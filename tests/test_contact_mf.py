@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from camwhisker.contact.gm import PHI_MIN_DEG
 from camwhisker.contact.mf import MF_DOMAIN_RADIUS, MFTable, r_mf
@@ -111,3 +113,16 @@ def test_phi_floor_leaves_small_phi_empty():
     assert res.r_mm[1] == 30.0
     # Never below the estimators' own floor (PHI_MIN_DEG), whatever is asked.
     assert MFTable.build([10.0], [0.3], [55.0], phi_min_deg=0.0).phi_min_deg == PHI_MIN_DEG
+
+
+@settings(max_examples=80, deadline=None)
+@given(phi=st.floats(-5.0, 45.0), dz=st.floats(-0.5, 2.5), floor=st.sampled_from([1.0, 5.0]))
+def test_mf_is_a_weighted_mean_of_table_radii_or_empty(phi, dz, floor):
+    """Eq. (10) is a convex combination of the k nearest labels: any query gives NaN or an r
+    within the table's radii, never a value outside them."""
+    d = _runs([22.5, 50.0, 90.0], np.arange(2.0, 30.1, 2.5))
+    t = MFTable.from_runs(d["phi"], d["dz"], d["r"], d["run"], phi_min_deg=floor)
+    res = r_mf(t, phi, dz, domain_radius=np.inf)
+    r = res.r_mm[0]
+    assert np.isnan(r) == (phi < floor)
+    assert np.isnan(r) or 22.5 - 1e-9 <= r <= 90.0 + 1e-9
