@@ -297,13 +297,16 @@ def test_lk_inactive_points_come_back_nan():
 DISC_CENTRE, DISC_RADIUS = (131.37, 96.81), 30.0
 
 
+def _fine_grid(h, w, k=8):
+    """Pixel coordinates (u, v) of a k-times finer grid over an h x w image."""
+    v, u = np.mgrid[0 : h * k, 0 : w * k]
+    return (u + 0.5) / k - 0.5, (v + 0.5) / k - 0.5
+
+
 def _disc_frame():
     """A dark antialiased disc (the face) on red and blue halves, blurred 1.4 px."""
     h, w = 200, 260
-    k = 8
-    v, u = np.mgrid[0 : h * k, 0 : w * k]
-    u = (u + 0.5) / k - 0.5
-    v = (v + 0.5) / k - 0.5
+    u, v = _fine_grid(h, w)
     centre = DISC_CENTRE
     disc = ((u - centre[0]) ** 2 + (v - centre[1]) ** 2 <= DISC_RADIUS**2).astype(np.float32)
     cover = cv2.resize(disc, (w, h), interpolation=cv2.INTER_AREA)[..., None]
@@ -327,14 +330,11 @@ def _disc_beside_blue_band(band_px=3.5):
     """The face on the cloth, with a blue band ``band_px`` wide along its left half (the
     face just inside the blue square's edge), blurred 1.4 px."""
     h, w = 200, 260
-    k = 8
-    v, u = np.mgrid[0 : h * k, 0 : w * k]
-    u = (u + 0.5) / k - 0.5
-    v = (v + 0.5) / k - 0.5
+    u, v = _fine_grid(h, w)
     cu, cv_ = DISC_CENTRE
     disc = (u - cu) ** 2 + (v - cv_) ** 2 <= DISC_RADIUS**2
     band = (u >= cu - DISC_RADIUS - band_px) & (u <= cu)
-    colour = np.zeros((h * k, w * k, 3), np.float32)
+    colour = np.zeros((*u.shape, 3), np.float32)
     colour[:] = (215, 220, 225)  # cloth
     colour[band] = (185, 80, 40)  # blue
     colour[disc] = (24, 24, 26)  # face

@@ -492,17 +492,11 @@ def _ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
                 break
         if first <= 0:
             continue
-        j = -1
-        for i in range(max(first - win, 1), min(first + win, n - 2) + 1):
-            if j < 0 or rise[k, i] > rise[k, j]:
-                j = i
-        if j < 0:
+        lo, hi = max(first - win, 1), min(first + win, n - 2)
+        if hi < lo:
             continue
-        jv = -1
-        for i in range(max(first - win, 1), min(first + win, n - 2) + 1):
-            if jv < 0 or vrise[k, i] > vrise[k, jv]:
-                jv = i
-        if abs(j - jv) * step > agree:
+        j = lo + np.argmax(rise[k, lo : hi + 1])
+        if abs(j - lo - np.argmax(vrise[k, lo : hi + 1])) * step > agree:
             continue
         peak[k] = rise[k, j]
         valid[k] = True
