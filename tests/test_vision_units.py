@@ -7,6 +7,7 @@ Tolerances (and why):
 | paper equations | 1e-9 relative | closed-form arithmetic |
 | eq. (1) | 1e-6 | float32 arithmetic |
 | pose round trip | 1e-9 mm / rad | Gauss-Newton to GN_STEP_TOL on exact data |
+| pose refit, tip moves <= 2 px | 1e-5 rad, 2e-4 mm | one Gauss-Newton step leaves ~step^2 |
 | LK, noise-free shift | 0.02 px | bilinear interpolation of a blurred edge |
 | LK, zero motion | 1e-6 px | template == image: the first step is exactly 0 |
 | tip centre, noise-free | 0.05 px | 48 edge points on an antialiased disc |
@@ -33,7 +34,14 @@ from camwhisker.vision.colour import (
     white_balance_gains,
 )
 from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
-from camwhisker.vision.pose import TIP, PlateModel, fit_pose, polygon_area, polygon_centroid
+from camwhisker.vision.pose import (
+    TIP,
+    PlateModel,
+    fit_pose,
+    polygon_area,
+    polygon_centroid,
+    refit_pose,
+)
 from camwhisker.vision.tip import brightness, face_near, find_tip
 
 # ------------------------------------------------------------------ paper eqs
@@ -209,6 +217,32 @@ def test_fit_rejects_one_outlier():
     fit = fit_pose(m, meas, np.zeros_like(uv), np.zeros(5))
     assert not fit.used[2]
     assert abs(math.degrees(math.hypot(*fit.q[1:3])) - 10.0) < 0.01
+
+
+@pytest.mark.parametrize("tip_move_px", [0.05, 0.5, 2.0])
+def test_refit_after_the_tip_moves_matches_a_full_fit(tip_move_px):
+    """One step from the fit's own Jacobian (no projection) against Gauss-Newton
+    to GN_STEP_TOL: within 1e-5 rad and 2e-4 mm up to a 2 px tip move (the live
+    clip's refits moved the tip < 1 px and left <= 7e-6 rad, 1.2e-4 mm)."""
+    m = PlateModel(Sensor())
+    q = _q(0.4, 27.0, 130.0, 0.05, -0.08)
+    uv, _, _ = m.project(q)
+    rng = np.random.default_rng(1)
+    meas = uv + 0.05 * rng.standard_normal(uv.shape)
+    meas[3] += (2.5, 1.5)  # an outlier the first fit drops, and the refit leaves out
+    w = np.where(np.arange(TIP + 1) == TIP, 4.0, 1.0)
+    offsets = np.zeros_like(uv)
+    fit = fit_pose(m, meas, offsets, np.zeros(5), w)
+    assert fit.converged and not fit.used[3]
+    meas[TIP] += tip_move_px * np.array([0.6, -0.8])
+    again = refit_pose(m, fit, meas, offsets, w)
+    full = fit_pose(m, meas, offsets, fit.q, w * fit.used, reject_outliers=False)
+    assert again.converged and not again.used[3]
+    np.testing.assert_allclose(again.q[1:3], full.q[1:3], atol=1e-5)
+    np.testing.assert_allclose(again.q[[0, 3, 4]], full.q[[0, 3, 4]], atol=2e-4)
+    assert abs(again.rms_px - full.rms_px) < 1e-3
+    # The tip moved: the refit moved q by much more than what it leaves unsolved.
+    assert np.abs(again.q[1:3] - fit.q[1:3]).max() > 20 * np.abs(again.q - full.q)[1:3].max()
 
 
 def test_fit_with_too_few_points_is_not_converged():

@@ -253,7 +253,7 @@ def detect_features(
     if tip is not None and tip.ok:
         # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).
         shift = tip.centre_uv - uv_model[TIP]
-        tip = rim_centre(edges, rim + shift, model.rod_outline(q) + shift)
+        tip = rim_centre(edges, rim + shift, model.outlines(q)[1] + shift)
     if tip is not None and tip.ok:
         found_uv[TIP] = tip.centre_uv
     else:

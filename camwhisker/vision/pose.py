@@ -36,6 +36,7 @@ __all__ = [
     "PlateModel",
     "PoseFit",
     "fit_pose",
+    "refit_pose",
     "q_to_pose",
     "polygon_centroid",
     "polygon_area",
@@ -55,6 +56,8 @@ TIP = N_SQUARE + N_CROSS
 #: polygon's centroid differs from the ellipse's by < 1e-4 px at phi = 35 deg.
 N_RIM = 64
 
+#: Points on each of the rod's end rims for its outline.
+ROD_RIM = 24
 #: cv2.projectPoints' Jacobian columns (rvec x, y, z, tvec x, y, z, ...) that make
 #: d / d (dz, a, b, sx, sy), with rvec = (b, -a, 0) and tvec = (sx, sy, z_i - dz).
 _JAC_COLUMNS = [5, 1, 0, 3, 4]
@@ -64,6 +67,11 @@ _JAC_SIGNS = np.array([-1.0, -1.0, 1.0, 1.0, 1.0])
 #: 6e-5 deg, far below the noise (the step shrinks ~100x per iteration here).
 GN_STEP_TOL = 1e-6
 GN_MAX_ITER = 12
+#: :func:`refit_pose` takes one step up to this (mm or rad); a larger one is
+#: iterated. On the live clip's 103 refits (steps up to 0.023 mm and 3.7e-3 rad)
+#: one step left <= 7e-6 rad (4e-4 deg) of tilt and <= 1.2e-4 mm of dz and shift
+#: unsolved: 3% and 2% of the front end's phi and dz errors, added in quadrature.
+REFIT_STEP_MAX = 0.03
 
 
 def q_to_pose(q: np.ndarray) -> Pose:
@@ -129,56 +137,47 @@ class PlateModel:
         )  # arms +x +y -x -y
         cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
         self._edge_dirs_plate = np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
-        self._cross_outline = cross_outline(plate)
-        self._rod_rims = {}
+        # Plate-frame outlines (see outlines()): the end face's rim, the rod's two
+        # end rims, the cross.
+        ang = np.linspace(0.0, 2 * np.pi, ROD_RIM, endpoint=False)
+        ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
+        self._outline_points = np.ascontiguousarray(
+            np.concatenate([
+                rim,
+                np.column_stack([ring, np.full(ROD_RIM, -plate.cross_offset_mm)]),
+                np.column_stack([ring, np.full(ROD_RIM, -plate.h_r_mm)]),
+                cross_outline(plate),
+            ])
+        )  # fmt: skip
         self.K = cam.matrix
         self.dist = cam.dist_coeffs
         self.z_i_mm = plate.z_i_mm
 
     def edge_directions(self, q: np.ndarray, step_mm: float = 0.05) -> np.ndarray:
         """Image directions of the two edges leaving each of the 12 corners, (12, 2, 2)."""
+        corners = self.object_points[:TIP]
+        d = self._edge_dirs_plate / np.linalg.norm(self._edge_dirs_plate, axis=-1, keepdims=True)
+        pts = np.concatenate([corners, (corners[:, None] + step_mm * d).reshape(-1, 3)])
+        uv = self._project(pts, q)[0]
+        return uv[TIP:].reshape(TIP, 2, 2) - uv[:TIP, None]
+
+    def outlines(self, q: np.ndarray):
+        """The end face's rim (N_RIM, 2), the rod's two end rims (2 ROD_RIM, 2;
+        their convex hull is the rod's outline) and the cross's outline (12, 2)
+        in the image at pose q, from one projection."""
+        uv = self._project(self._outline_points, q)[0]
+        rod_end = N_RIM + 2 * ROD_RIM
+        return uv[:N_RIM], uv[N_RIM:rod_end], uv[rod_end:]
+
+    def _project(self, pts: np.ndarray, q: np.ndarray):
+        """cv2.projectPoints of plate-frame points (n, 3) at pose q: pixels (n, 2) and
+        OpenCV's Jacobian (2 n, 15)."""
         q = np.asarray(q, dtype=float)
         sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
         rvec = np.array([q[2], -q[1], 0.0])
         tvec = np.array([sx, sy, self.z_i_mm - q[0]])
-        corners = self.object_points[:TIP]
-        d = self._edge_dirs_plate / np.linalg.norm(self._edge_dirs_plate, axis=-1, keepdims=True)
-        pts = np.concatenate([corners, (corners[:, None] + step_mm * d).reshape(-1, 3)])
-        uv, _ = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
-        uv = uv.reshape(-1, 2)
-        return uv[TIP:].reshape(TIP, 2, 2) - uv[:TIP, None]
-
-    def cross_outline(self, q: np.ndarray) -> np.ndarray:
-        """The red cross's outline in the image, shape (12, 2)."""
-        q = np.asarray(q, dtype=float)
-        sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
-        uv, _ = cv2.projectPoints(self._cross_outline, np.array([q[2], -q[1], 0.0]),
-                                  np.array([sx, sy, self.z_i_mm - q[0]]), self.K, self.dist)
-        return uv.reshape(-1, 2)
-
-    def rod_outline(self, q: np.ndarray, n: int = 24) -> np.ndarray:
-        """Projected rims of the rod's two ends, shape (2 n, 2); their convex hull
-        is the rod's outline in the image."""
-        q = np.asarray(q, dtype=float)
-        pts = self._rod_rims.get(n)
-        if pts is None:  # the plate-frame rims, made once per n
-            plate = self.sensor.plate
-            rho = plate.rod_diameter_mm / 2
-            ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
-            ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
-            pts = self._rod_rims[n] = np.concatenate([
-                np.column_stack([ring, np.full(n, -plate.cross_offset_mm)]),
-                np.column_stack([ring, np.full(n, -plate.h_r_mm)]),
-            ])  # fmt: skip
-        sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
-        uv, _ = cv2.projectPoints(
-            pts,
-            np.array([q[2], -q[1], 0.0]),
-            np.array([sx, sy, self.z_i_mm - q[0]]),
-            self.K,
-            self.dist,
-        )
-        return uv.reshape(-1, 2)
+        uv, jac = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
+        return uv.reshape(-1, 2), jac
 
     def project(self, q: np.ndarray, jacobian: bool = True):
         """Model pixels of the 13 tracked points (tip = face centroid), shape (13, 2).
@@ -192,12 +191,7 @@ class PlateModel:
         rim_uv : ndarray, shape (N_RIM, 2)
             Projected rim of the end face.
         """
-        q = np.asarray(q, dtype=float)
-        sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
-        rvec = np.array([q[2], -q[1], 0.0])
-        tvec = np.array([sx, sy, self.z_i_mm - q[0]])
-        pts, jac = cv2.projectPoints(self.object_points, rvec, tvec, self.K, self.dist)
-        pts = pts.reshape(-1, 2)
+        pts, jac = self._project(self.object_points, q)
         uv = np.empty((TIP + 1, 2))
         uv[:TIP] = pts[:TIP]
         rim = pts[TIP + 1 :]
@@ -224,6 +218,8 @@ class PoseFit:
         Points the final fit used (after outlier rejection).
     model_uv : ndarray, shape (13, 2)
         The model's pixels of the points at q (without the rest offsets).
+    jac : ndarray, shape (13, 2, 5)
+        d model_uv / d q at q (what :func:`refit_pose` steps with).
     """
 
     q: np.ndarray
@@ -233,6 +229,7 @@ class PoseFit:
     converged: bool
     used: np.ndarray | None = None
     model_uv: np.ndarray | None = None
+    jac: np.ndarray | None = None
 
     @property
     def pose(self) -> Pose:
@@ -324,28 +321,17 @@ def _fit_once(
         normal equations are singular.
     """
     n_par = 5 if fit_shift else 3
-    target = np.asarray(measured_uv, float) - offsets_uv
-    use = np.isfinite(target).all(axis=1)
-    w = np.ones(TIP + 1) if weights is None else np.asarray(weights, float)
-    use &= w > 0
+    target, use, sw = _observations(measured_uv, offsets_uv, weights)
     q = np.zeros(5)
     q[:n_par] = np.asarray(q0, float)[:n_par]
-    n_obs = 2 * int(use.sum())
-    if n_obs < n_par + 1:
+    if 2 * int(use.sum()) < n_par + 1:
         return PoseFit(q, np.zeros((5, 5)), math.nan, int(use.sum()), False, use)
-    sw = np.sqrt(w[use])[:, None]
     converged = False
     for _ in range(GN_MAX_ITER):
         uv, jac, _ = model.project(q)
-        r = ((target[use] - uv[use]) * sw).reshape(-1)
-        J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
-        # The normal equations (symmetric, positive definite unless singular) by
-        # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
-        solved, step = cv2.solve(J.T @ J, (J.T @ r)[:, None], flags=cv2.DECOMP_CHOLESKY)
-        if not solved:
+        step = _gn_step(q, uv, jac, target, use, sw, n_par)
+        if step is None:
             break
-        step = step.ravel()
-        q[:n_par] += step
         if np.abs(step).max() < GN_STEP_TOL:
             converged = True
             break
@@ -354,17 +340,78 @@ def _fit_once(
         # moved along its Jacobian, to 1e-6 px (the tip row, whose Jacobian is the
         # disc centre's; 200 random poses), and the Jacobian at q differs from the
         # last one by < 1e-6 relative. q is unchanged; one projection is saved.
-        uv = uv + jac[..., :n_par] @ step
-        r = r - J @ step
-    else:
-        uv, jac, _ = model.project(q)
-        r = ((target[use] - uv[use]) * sw).reshape(-1)
-        J = (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
-    dof = max(n_obs - n_par, 1)
-    s2 = float(r @ r) / dof
+        return _pose_fit(q, uv + jac @ step, jac, target, use, sw, n_par, True)
+    uv, jac, _ = model.project(q)
+    return _pose_fit(q, uv, jac, target, use, sw, n_par, False)
+
+
+def refit_pose(
+    model: PlateModel,
+    fit: PoseFit,
+    measured_uv: np.ndarray,
+    offsets_uv: np.ndarray,
+    weights: np.ndarray,
+    fit_shift: bool = True,
+) -> PoseFit:
+    """``fit`` again after a measurement moved by a little (the tip measured anew).
+
+    One Gauss-Newton step from ``fit.q`` with the fit's own model pixels and
+    Jacobian, so no projection; the points ``fit`` left out stay out. A step
+    above REFIT_STEP_MAX is iterated by Gauss-Newton from ``fit.q`` instead;
+    a smaller one leaves a little unsolved (see REFIT_STEP_MAX).
+    """
+    if not fit.converged or fit.jac is None:
+        raise ValueError("refit_pose needs a converged fit with its Jacobian")
+    n_par = 5 if fit_shift else 3
+    weights = np.asarray(weights, float) * fit.used
+    target, use, sw = _observations(measured_uv, offsets_uv, weights)
+    if 2 * int(use.sum()) < n_par + 1:
+        return PoseFit(fit.q.copy(), np.zeros((5, 5)), math.nan, int(use.sum()), False, use)
+    q = fit.q.copy()
+    step = _gn_step(q, fit.model_uv, fit.jac, target, use, sw, n_par)
+    if step is None or np.abs(step).max() > REFIT_STEP_MAX:
+        return _fit_once(model, measured_uv, offsets_uv, fit.q, weights, fit_shift)
+    return _pose_fit(q, fit.model_uv + fit.jac @ step, fit.jac, target, use, sw, n_par, True)
+
+
+def _observations(measured_uv, offsets_uv, weights):
+    """Targets (13, 2), the points used (13,) and their sqrt weights (n_used, 1)."""
+    target = np.asarray(measured_uv, float) - offsets_uv
+    use = np.isfinite(target).all(axis=1)
+    w = np.ones(TIP + 1) if weights is None else np.asarray(weights, float)
+    use &= w > 0
+    return target, use, np.sqrt(w[use])[:, None]
+
+
+def _weighted(uv, jac, target, use, sw, n_par):
+    """Weighted residuals (2 n_used,) and Jacobian (2 n_used, n_par)."""
+    r = ((target[use] - uv[use]) * sw).reshape(-1)
+    return r, (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
+
+
+def _gn_step(q, uv, jac, target, use, sw, n_par):
+    """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
+    r, J = _weighted(uv, jac, target, use, sw, n_par)
+    # The normal equations (symmetric, positive definite unless singular) by
+    # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
+    solved, step = cv2.solve(J.T @ J, (J.T @ r)[:, None], flags=cv2.DECOMP_CHOLESKY)
+    if not solved:
+        return None
+    full = np.zeros(5)
+    full[:n_par] = step.ravel()
+    q += full
+    return full
+
+
+def _pose_fit(q, uv, jac, target, use, sw, n_par, converged) -> PoseFit:
+    """The fit at q, given the model pixels and Jacobian there."""
+    r, J = _weighted(uv, jac, target, use, sw, n_par)
+    n_obs = 2 * int(use.sum())
+    s2 = float(r @ r) / max(n_obs - n_par, 1)
     cov = np.zeros((5, 5))
     try:
         cov[:n_par, :n_par] = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         converged = False
-    return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use, uv)
+    return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use, uv,
+                   jac)

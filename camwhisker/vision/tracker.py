@@ -19,7 +19,10 @@ the model. :meth:`FrontEnd.update` then does, per frame:
    missing corners predicted again from a fit to the others and corrected
    again (and other depths tried, and the features detected afresh, when
    too few lock at all);
-5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`),
+5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`);
+   the tip measured again with the model's rim at the fitted pose while the
+   fit moves away from where the rim was placed, each time refitted by one
+   step from the fit's own Jacobian (:func:`~camwhisker.vision.pose.refit_pose`);
    and the paper's eqs. (2)-(7) on the same points.
 
 The template-updating tracker of the paper (pyramidal LK from each corner's
@@ -67,7 +70,15 @@ from camwhisker.vision.lk import (
     warp_templates,
 )
 from camwhisker.vision.paper import PaperGeometry
-from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, PoseFit, fit_pose, polygon_area
+from camwhisker.vision.pose import (
+    N_SQUARE,
+    TIP,
+    PlateModel,
+    PoseFit,
+    fit_pose,
+    polygon_area,
+    refit_pose,
+)
 from camwhisker.vision.tip import (
     TipMeasurement,
     ellipse_centre,
@@ -133,11 +144,8 @@ RIM_REFIT_RAD = 1e-3
 #: ~0.03 px per 1e-3 rad of its rim's pose (the model tip ~0.5 px); a rim placed
 #: a few tenths of a degree off also misplaces the rays left out beside the rod,
 #: which moves it more. On the live clip one or two suffice: after them every
-#: frame's rim lies within 7e-4 rad of its reported pose.
+#: frame's rim lies within 9e-4 rad and 0.01 mm of its reported pose.
 RIM_REFITS = 3
-#: The model's rim placed at a prediction is kept when the tip it finds lies within
-#: this of the predicted tip (px): the rim's shape changes by < 0.01 px over it.
-PREDICTION_OK_PX = 3.0
 #: The second chances (re-prediction from the corners that locked, then the
 #: updated templates) run when fewer corners than this locked on the warped rest
 #: patches (a big jump); a corner or two lost to noise is not worth their ~2 ms.
@@ -148,8 +156,10 @@ MIN_REPREDICT = 2
 #: Depths tried when too few corners lock (mm): the range of dz and beyond, in
 #: steps (0.2 mm: ~1.5 px at the corners) within the LK's reach.
 DZ_HYPOTHESES_MM = np.arange(-0.2, 1.41, 0.2)
-#: The tip-only tilt guess stops at this step (rad; 6e-4 deg) or iteration count.
-TILT_TOL_RAD = 1e-5
+#: The tip-only tilt guess (Newton) stops after a step below this (rad) or at the
+#: iteration count: the step after a step s is <= 1.6 s^2 + 1e-3 s (live clip), so
+#: < 1e-5 rad (6e-4 deg) is left; the guess only starts the corners and the fit.
+TILT_LAST_STEP_RAD = 2e-3
 TILT_MAX_ITER = 8
 #: Rest-frame colours are medians over pixels with |G| above this, eroded by
 #: COLOUR_ERODE_PX so that no blurred edge pixel enters.
@@ -257,6 +267,8 @@ class FrontEnd:
         self._is_square = np.arange(TIP) < N_SQUARE
         #: Image directions of the corners' edges at rest (the warps start from them).
         self._rest_dirs = self.model.edge_directions(np.zeros(5), step_mm=0.05)
+        #: Weights of the pose fit: the tip counts TIP_WEIGHT corners.
+        self._weights = np.where(np.arange(TIP + 1) == TIP, TIP_WEIGHT, 1.0)
         self._started = False
         self._lost = False
         self._index = -1
@@ -372,14 +384,15 @@ class FrontEnd:
         tip = None
         tip_q = None  # the pose the tip's model rim and the rod's outline were placed at
         if edges is not None:
-            # Place the model's rim at the prediction the tip came closest to; when
-            # neither is close, first at a tilt solved from an ellipse's centre.
+            # Place the model's rim at the prediction the tip came closest to (the
+            # refits below place it again at the fitted pose); when the tip was
+            # searched for afar, or the rim finds no tip there, first at a tilt
+            # solved from an ellipse's centre.
             middle = edges.mean(axis=0)
             near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
-            q0, tip0 = (q_moving, tip_moving) if near_moving else (q_pred, tip_still)
+            q0 = q_moving if near_moving else q_pred
             tip, tip_q = (None, None) if lost else (self._tip_at(edges, q0), q0)
-            if not (tip is not None and tip.ok
-                    and np.hypot(*(tip.centre_uv - tip0)) <= PREDICTION_OK_PX):
+            if not (tip is not None and tip.ok):
                 rough = ellipse_centre(edges)
                 why = why or rough.reason
                 q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
@@ -470,7 +483,8 @@ class FrontEnd:
                 break
             tip, tip_q = self._tip_at(edges, fit.q), fit.q
             measured[TIP] = tip.centre_uv if tip.ok else np.nan
-            fit = self._fit(measured, fit.q)
+            fit = refit_pose(self.model, fit, measured, self.offsets, self._weights,
+                             self.options.fit_shift)
         n_corners = int(good.sum())
         if opts.updated_template != "off":
             self._keep_previous(frame, gains, measured[:TIP], start_uv, tracked)
@@ -523,9 +537,8 @@ class FrontEnd:
         found = np.isfinite(uv).all(axis=1)
         if not found[TIP] or found[:TIP].sum() < MIN_REPREDICT:
             return None
-        w = np.where(found, 1.0, 0.0)
-        w[TIP] *= TIP_WEIGHT
-        fit = fit_pose(self.model, uv, self.offsets, self.q, w, self.options.fit_shift)
+        fit = fit_pose(self.model, uv, self.offsets, self.q, self._weights * found,
+                       self.options.fit_shift)
         return fit if fit.converged else None
 
     def _measure_colours(self, frame, gains, g, origin) -> None:
@@ -593,10 +606,8 @@ class FrontEnd:
 
     def _tip_at(self, edges, q) -> TipMeasurement:
         """The tip's centroid from its edge points, with the model's rim at pose q."""
-        _, _, rim = self.model.project(q, jacobian=False)
-        return rim_centre(
-            edges, rim + self.offsets[TIP], self.model.rod_outline(q) + self.offsets[TIP]
-        )
+        rim, rod, _ = self.model.outlines(q)
+        return rim_centre(edges, rim + self.offsets[TIP], rod + self.offsets[TIP])
 
     def _tilt_from_tip(self, q: np.ndarray, tip_uv: np.ndarray) -> np.ndarray:
         """Solve (a, b) so the model's tip meets the measured one, dz and shift held."""
@@ -611,7 +622,7 @@ class FrontEnd:
             except np.linalg.LinAlgError:
                 break
             q[1:3] += step
-            if np.abs(step).max() < TILT_TOL_RAD:
+            if np.abs(step).max() < TILT_LAST_STEP_RAD:
                 break
         return q
 
@@ -717,8 +728,9 @@ class FrontEnd:
 
         The rod can cover any corner; the cross can cover the square's corners
         (at large tilts its arm ends pass over them)."""
-        hull = cv2.convexHull(self.model.rod_outline(q).astype(np.float32))
-        cross = self.model.cross_outline(q).astype(np.float32)
+        _, rod, cross = self.model.outlines(q)
+        hull = cv2.convexHull(rod.astype(np.float32))
+        cross = cross.astype(np.float32)
         reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
         for k in range(TIP):
@@ -729,9 +741,8 @@ class FrontEnd:
         return out
 
     def _fit(self, measured, q0) -> PoseFit:
-        w = np.ones(TIP + 1)
-        w[TIP] = TIP_WEIGHT
-        return fit_pose(self.model, measured, self.offsets, q0, w, self.options.fit_shift)
+        return fit_pose(self.model, measured, self.offsets, q0, self._weights,
+                        self.options.fit_shift)
 
     @staticmethod
     def _paper_widths(uv) -> np.ndarray:
