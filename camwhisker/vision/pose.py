@@ -60,7 +60,7 @@ N_RIM = 64
 ROD_RIM = 24
 #: cv2.projectPoints' Jacobian columns (rvec x, y, z, tvec x, y, z, ...) that make
 #: d / d (dz, a, b, sx, sy), with rvec = (b, -a, 0) and tvec = (sx, sy, z_i - dz).
-_JAC_COLUMNS = [5, 1, 0, 3, 4]
+_JAC_COLUMNS = np.array([5, 1, 0, 3, 4])
 _JAC_SIGNS = np.array([-1.0, -1.0, 1.0, 1.0, 1.0])
 
 #: Gauss-Newton stops when the largest step is below this (mm or rad): 1e-6 rad is
@@ -375,18 +375,23 @@ def refit_pose(
 
 
 def _observations(measured_uv, offsets_uv, weights):
-    """Targets (13, 2), the points used (13,) and their sqrt weights (n_used, 1)."""
+    """Targets (13, 2), the points used (13,) and their sqrt weights (13, 1).
+
+    An unused point gets weight 0 and target 0, so its rows of the weighted
+    problem are exact zeros: the normal equations are those of the used points,
+    without selecting them anew at every step."""
     target = np.asarray(measured_uv, float) - offsets_uv
     use = np.isfinite(target).all(axis=1)
     w = np.ones(TIP + 1) if weights is None else np.asarray(weights, float)
     use &= w > 0
-    return target, use, np.sqrt(w[use])[:, None]
+    target[~use] = 0.0
+    return target, use, np.sqrt(np.where(use, w, 0.0))[:, None]
 
 
 def _weighted(uv, jac, target, use, sw, n_par):
-    """Weighted residuals (2 n_used,) and Jacobian (2 n_used, n_par)."""
-    r = ((target[use] - uv[use]) * sw).reshape(-1)
-    return r, (jac[use][..., :n_par] * sw[..., None]).reshape(-1, n_par)
+    """Weighted residuals (26,) and Jacobian (26, n_par); zero rows where not used."""
+    r = ((target - uv) * sw).reshape(-1)
+    return r, (jac[..., :n_par] * sw[..., None]).reshape(-1, n_par)
 
 
 def _gn_step(q, uv, jac, target, use, sw, n_par):
@@ -409,9 +414,10 @@ def _pose_fit(q, uv, jac, target, use, sw, n_par, converged) -> PoseFit:
     n_obs = 2 * int(use.sum())
     s2 = float(r @ r) / max(n_obs - n_par, 1)
     cov = np.zeros((5, 5))
-    try:
-        cov[:n_par, :n_par] = s2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
+    invertible, inverse = cv2.invert(J.T @ J, flags=cv2.DECOMP_CHOLESKY)
+    if invertible:
+        cov[:n_par, :n_par] = s2 * inverse
+    else:
         converged = False
     return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use, uv,
                    jac)
