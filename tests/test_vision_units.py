@@ -42,7 +42,7 @@ from camwhisker.vision.pose import (
     polygon_centroid,
     refit_pose,
 )
-from camwhisker.vision.tip import brightness, face_near, find_tip
+from camwhisker.vision.tip import _conic_centre, brightness, ellipse_centre, face_near, find_tip
 
 # ------------------------------------------------------------------ paper eqs
 
@@ -431,6 +431,21 @@ def test_tip_not_found_on_blank_frame():
     frame = np.full((200, 260, 3), 200, np.uint8)
     got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
     assert not got.ok and "blob" in got.reason or "contrast" in got.reason
+
+
+def test_ellipse_centre_exact_on_an_ellipse_and_no_conic_on_a_line():
+    """Noise-free points on a tilted ellipse: the conic's centre to 1e-9 px
+    (float64 least squares); collinear points (a degenerate conic) give no
+    conic centre."""
+    t = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
+    c, s = math.cos(0.4), math.sin(0.4)
+    x, y = 21.0 * np.cos(t), 13.0 * np.sin(t)
+    pts = np.column_stack([612.25 + c * x - s * y, 301.5 + s * x + c * y])
+    got = ellipse_centre(pts)
+    assert got.ok
+    np.testing.assert_allclose(got.centre_uv, (612.25, 301.5), atol=1e-9)
+    for line in (np.column_stack([t, 2 * t]), np.column_stack([t, np.zeros_like(t)])):
+        assert _conic_centre(600.0 + line) is None
 
 
 # ------------------------------------------------------------------ bench
