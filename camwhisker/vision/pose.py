@@ -219,7 +219,8 @@ class PoseFit:
     model_uv : ndarray, shape (13, 2)
         The model's pixels of the points at q (without the rest offsets).
     jac : ndarray, shape (13, 2, 5)
-        d model_uv / d q at q (what :func:`refit_pose` steps with).
+        d model_uv / d q, what :func:`refit_pose` steps with: at q, or after
+        such a step at the pose it stepped from (and model_uv moved along it).
     """
 
     q: np.ndarray
@@ -329,7 +330,7 @@ def _fit_once(
     converged = False
     for _ in range(GN_MAX_ITER):
         uv, jac, _ = model.project(q)
-        step = _gn_step(q, uv, jac, target, use, sw, n_par)
+        step = _gn_step(q, uv, jac, target, sw, n_par)
         if step is None:
             break
         if np.abs(step).max() < GN_STEP_TOL:
@@ -368,7 +369,7 @@ def refit_pose(
     if 2 * int(use.sum()) < n_par + 1:
         return PoseFit(fit.q.copy(), np.zeros((5, 5)), math.nan, int(use.sum()), False, use)
     q = fit.q.copy()
-    step = _gn_step(q, fit.model_uv, fit.jac, target, use, sw, n_par)
+    step = _gn_step(q, fit.model_uv, fit.jac, target, sw, n_par)
     if step is None or np.abs(step).max() > REFIT_STEP_MAX:
         return _fit_once(model, measured_uv, offsets_uv, fit.q, weights, fit_shift)
     return _pose_fit(q, fit.model_uv + fit.jac @ step, fit.jac, target, use, sw, n_par, True)
@@ -388,15 +389,15 @@ def _observations(measured_uv, offsets_uv, weights):
     return target, use, np.sqrt(np.where(use, w, 0.0))[:, None]
 
 
-def _weighted(uv, jac, target, use, sw, n_par):
+def _weighted(uv, jac, target, sw, n_par):
     """Weighted residuals (26,) and Jacobian (26, n_par); zero rows where not used."""
     r = ((target - uv) * sw).reshape(-1)
     return r, (jac[..., :n_par] * sw[..., None]).reshape(-1, n_par)
 
 
-def _gn_step(q, uv, jac, target, use, sw, n_par):
+def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
-    r, J = _weighted(uv, jac, target, use, sw, n_par)
+    r, J = _weighted(uv, jac, target, sw, n_par)
     # The normal equations (symmetric, positive definite unless singular) by
     # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
     solved, step = cv2.solve(J.T @ J, (J.T @ r)[:, None], flags=cv2.DECOMP_CHOLESKY)
@@ -410,7 +411,7 @@ def _gn_step(q, uv, jac, target, use, sw, n_par):
 
 def _pose_fit(q, uv, jac, target, use, sw, n_par, converged) -> PoseFit:
     """The fit at q, given the model pixels and Jacobian there."""
-    r, J = _weighted(uv, jac, target, use, sw, n_par)
+    r, J = _weighted(uv, jac, target, sw, n_par)
     n_obs = 2 * int(use.sum())
     s2 = float(r @ r) / max(n_obs - n_par, 1)
     cov = np.zeros((5, 5))
