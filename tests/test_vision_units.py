@@ -124,6 +124,22 @@ def test_white_balance_undoes_a_cast():
     assert spread < 0.005  # the cast was 45% between B and R
 
 
+def test_white_balance_leaves_out_shadows_and_clipped_samples():
+    frame = np.empty((64, 64, 3), np.uint8)
+    frame[:] = (160, 200, 250)  # the cloth under a cast
+    rows, cols = cloth_samples(frame.shape[:2], np.array([32.0, 32.0]), 0.0, grid_px=4)
+    frame[rows[::4], cols[::4]] = (10, 60, 20)  # shadowed and off-colour
+    frame[rows[1::4], cols[1::4]] = (200, 230, 255)  # red clipped
+    mean = np.array([160.0, 200.0, 250.0])
+    want = mean.mean() / mean
+    # Either kind of sample left in would move the gains by over 3%; float32 sums.
+    np.testing.assert_allclose(white_balance_gains(frame, rows, cols), want / want.mean(),
+                               rtol=1e-6)  # fmt: skip
+    # No usable sample (black, or fewer than three): the gains do nothing.
+    assert (white_balance_gains(np.zeros_like(frame), rows, cols) == 1).all()
+    assert (white_balance_gains(frame, rows[2:10:4], cols[2:10:4]) == 1).all()
+
+
 def test_unmixing_reads_mixing_fractions_linearly():
     red, blue, cloth = (
         np.array([45, 50, 200.0]),

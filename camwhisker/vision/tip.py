@@ -153,16 +153,30 @@ def face_near(frame, gains, centres_uv, radius_px: float, cloth_dn: float) -> bo
     FACE_DARK_FRACTION of ``cloth_dn``, the cloth's white-balanced brightness. A
     face that covers none of the samples lies over 1.5 radii from every position.
     """
-    h, w = frame.shape[:2]
-    step = np.array([-0.5, 0.0, 0.5]) * radius_px
-    du, dv = np.meshgrid(step, step)
-    uv = (np.asarray(centres_uv, float).reshape(-1, 1, 2)
-          + np.stack([du.ravel(), dv.ravel()], axis=1)).reshape(-1, 2)  # fmt: skip
-    uv = uv[np.isfinite(uv).all(axis=1)]
-    cols = np.clip(np.round(uv[:, 0]).astype(np.intp), 0, w - 1)
-    rows = np.clip(np.round(uv[:, 1]).astype(np.intp), 0, h - 1)
-    val = (frame[rows, cols].astype(np.float32) * np.asarray(gains, np.float32)).max(axis=1)
-    return bool((val < FACE_DARK_FRACTION * cloth_dn).any())
+    level = np.float32(FACE_DARK_FRACTION * cloth_dn)
+    return _any_dark(np.asarray(frame), np.asarray(gains, np.float32),
+                     np.asarray(centres_uv, float).reshape(-1, 2), float(radius_px), level)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _any_dark(frame, gains, centres, radius, level):
+    """:func:`face_near`'s samples in one compiled pass (numpy's calls cost ~0.1 ms)."""
+    h, w = frame.shape[0], frame.shape[1]
+    step = np.array([-0.5, 0.0, 0.5]) * radius
+    for k in range(centres.shape[0]):
+        for dv in step:
+            for du in step:
+                u, v = centres[k, 0] + du, centres[k, 1] + dv
+                if not (np.isfinite(u) and np.isfinite(v)):
+                    continue
+                col = int(np.rint(min(max(u, 0.0), w - 1.0)))
+                row = int(np.rint(min(max(v, 0.0), h - 1.0)))
+                val = max(np.float32(frame[row, col, 0]) * gains[0],
+                          np.float32(frame[row, col, 1]) * gains[1],
+                          np.float32(frame[row, col, 2]) * gains[2])  # fmt: skip
+                if val < level:
+                    return True
+    return False
 
 
 def _not_found(reason: str) -> TipMeasurement:
