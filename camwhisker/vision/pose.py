@@ -137,6 +137,8 @@ class PlateModel:
         )  # arms +x +y -x -y
         cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
         self._edge_dirs_plate = np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
+        #: The corners and points step_mm along their edges, by step_mm (see edge_directions).
+        self._edge_points: dict[float, np.ndarray] = {}
         # Plate-frame outlines (see outlines()): the end face's rim, the rod's two
         # end rims, the cross.
         ang = np.linspace(0.0, 2 * np.pi, ROD_RIM, endpoint=False)
@@ -155,9 +157,13 @@ class PlateModel:
 
     def edge_directions(self, q: np.ndarray, step_mm: float = 0.05) -> np.ndarray:
         """Image directions of the two edges leaving each of the 12 corners, (12, 2, 2)."""
-        corners = self.object_points[:TIP]
-        d = self._edge_dirs_plate / np.linalg.norm(self._edge_dirs_plate, axis=-1, keepdims=True)
-        pts = np.concatenate([corners, (corners[:, None] + step_mm * d).reshape(-1, 3)])
+        pts = self._edge_points.get(step_mm)
+        if pts is None:
+            corners = self.object_points[:TIP]
+            d = self._edge_dirs_plate / np.linalg.norm(self._edge_dirs_plate, axis=-1,
+                                                       keepdims=True)  # fmt: skip
+            pts = np.concatenate([corners, (corners[:, None] + step_mm * d).reshape(-1, 3)])
+            self._edge_points[step_mm] = pts
         uv = self._project(pts, q)[0]
         return uv[TIP:].reshape(TIP, 2, 2) - uv[:TIP, None]
 

@@ -267,7 +267,9 @@ class FrontEnd:
         )  # fmt: skip
         self._is_square = np.arange(TIP) < N_SQUARE
         #: Image directions of the corners' edges at rest (the warps start from them).
-        self._rest_dirs = self.model.edge_directions(np.zeros(5), step_mm=0.05)
+        rest_dirs = self.model.edge_directions(np.zeros(5), step_mm=0.05)
+        #: (D0^T)^-1 of the rest directions D0 (columns): A = D1^T (D0^T)^-1 maps them to D1.
+        self._rest_dirs_inv = np.linalg.inv(np.swapaxes(rest_dirs, 1, 2))
         #: Weights of the pose fit: the tip counts TIP_WEIGHT corners.
         self._weights = np.where(np.arange(TIP + 1) == TIP, TIP_WEIGHT, 1.0)
         self._started = False
@@ -713,10 +715,9 @@ class FrontEnd:
         return out
 
     def _warp_templates(self, q):
-        d0 = self._rest_dirs
         d1 = self.model.edge_directions(q, step_mm=0.05)
         # A maps rest-image directions to current-image directions: A d0 = d1.
-        a = np.einsum("kij,kjl->kil", np.swapaxes(d1, 1, 2), np.linalg.inv(np.swapaxes(d0, 1, 2)))
+        a = np.swapaxes(d1, 1, 2) @ self._rest_dirs_inv
         half = self.options.lk_half_px
         sq = warp_templates(self.rest_blue, self.rest_origin, self.rest_uv[:N_SQUARE],
                             a[:N_SQUARE], half)  # fmt: skip
@@ -750,7 +751,7 @@ class FrontEnd:
         """Projected widths (px) for eq. (2): cross b_u, b_v, square t_u, t_v, shape (4,).
 
         Each is NaN where one of its points is not tracked."""
-        arm = [uv[N_SQUARE + 2 * i : N_SQUARE + 2 * i + 2].mean(axis=0) for i in range(4)]
+        arm = uv[N_SQUARE:TIP].reshape(4, 2, 2).mean(axis=1)
         sq = uv[:N_SQUARE]
         return np.array([
             arm[0][0] - arm[2][0],
