@@ -42,7 +42,17 @@ from camwhisker.vision.pose import (
     polygon_centroid,
     refit_pose,
 )
-from camwhisker.vision.tip import _conic_centre, brightness, ellipse_centre, face_near, find_tip
+from camwhisker.vision.tip import (
+    BODY_ANGLES,
+    BODY_BLUR_PX,
+    BODY_PROTRUSION_PX,
+    _beside_body,
+    _conic_centre,
+    brightness,
+    ellipse_centre,
+    face_near,
+    find_tip,
+)
 
 # ------------------------------------------------------------------ paper eqs
 
@@ -374,6 +384,41 @@ def test_tip_centre_of_a_synthetic_disc_on_two_backgrounds():
     assert got.ok
     np.testing.assert_allclose(got.centre_uv, centre, atol=0.05)
     assert got.radius_px == pytest.approx(30.0, abs=0.3)
+
+
+def _polar_radius(poly, c0, at):
+    """A polygon's radius about c0 in the directions ``at`` (linear in angle)."""
+    a = np.arctan2(*(poly - c0).T[::-1])
+    o = np.argsort(a)
+    return np.interp(at, a[o], np.hypot(*(poly - c0).T)[o], period=2 * np.pi)
+
+
+def test_rays_beside_the_body_are_those_any_body_direction_reaches():
+    # The kernel tests only the probe directions near each ray; every one of them,
+    # tested here by brute force, must give the same flags (rays set exactly on
+    # probe directions included).
+    rng = np.random.default_rng(1)
+    ang = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+    probe = -np.pi + 2 * np.pi * np.arange(BODY_ANGLES) / BODY_ANGLES
+    flagged = 0
+    for trial in range(200):
+        r = rng.uniform(5.0, 40.0)
+        rim = np.column_stack([r * np.cos(ang), rng.uniform(0.6, 1.0) * r * np.sin(ang)])
+        rim += rng.uniform(100.0, 500.0, 2)
+        body = np.concatenate([rim, rim + rng.uniform(-1.5 * r, 1.5 * r, 2)])
+        c0 = polygon_centroid(rim)
+        on_probes = probe[rng.integers(0, BODY_ANGLES, 40)]
+        ray = on_probes if trial % 2 else rng.uniform(-np.pi, np.pi, 40)
+        pts = c0 + r * np.column_stack([np.cos(ray), np.sin(ray)])
+        hull = cv2.convexHull(body.astype(np.float32)).reshape(-1, 2).astype(float)
+        r_rim = _polar_radius(rim, c0, probe)
+        shows = probe[_polar_radius(hull, c0, probe) - r_rim > BODY_PROTRUSION_PX]
+        reach = BODY_BLUR_PX / r_rim.mean() + np.pi / BODY_ANGLES
+        gap = np.abs((ray[:, None] - shows[None, :] + np.pi) % (2 * np.pi) - np.pi)
+        want = (gap <= reach).any(axis=1)
+        np.testing.assert_array_equal(_beside_body(pts, rim, body), want)
+        flagged += want.sum()
+    assert 0.2 < flagged / (200 * 40) < 0.8  # both answers are exercised
 
 
 def _disc_beside_blue_band(band_px=3.5):

@@ -128,6 +128,7 @@ class PlateModel:
                  rod_ends(plate)[1:], rim]
             )
         )  # fmt: skip
+        self._tip_points = self.object_points[TIP:]  # the face's centre, then its rim
         # Edge directions at each tracked corner, in the plate frame: (12, 2, 3).
         sq = square_corners(plate)
         sq_dirs = np.stack([np.roll(sq, 1, axis=0) - sq, np.roll(sq, -1, axis=0) - sq], axis=1)
@@ -184,6 +185,12 @@ class PlateModel:
         tvec = np.array([sx, sy, self.z_i_mm - q[0]])
         uv, jac = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
         return uv.reshape(-1, 2), jac
+
+    def tip(self, q: np.ndarray):
+        """The tip's row of :meth:`project` alone, from one smaller projection: the
+        face centroid (2,) and its Jacobian (2, 5)."""
+        pts, jac = self._project(self._tip_points, q)
+        return polygon_centroid(pts[1:]), jac[:2, _JAC_COLUMNS] * _JAC_SIGNS
 
     def project(self, q: np.ndarray, jacobian: bool = True):
         """Model pixels of the 13 tracked points (tip = face centroid), shape (13, 2).

@@ -380,11 +380,16 @@ def _beside_body_kernel(pts, rim, hull, n_angles, protrusion, blur):
     if not body.any():
         return out
     reach = blur / max(r_rim.mean(), 1.0) + np.pi / n_angles
-    directions = probe[body]
+    # Only the probes within reach of a ray can flag it: test those (and one more
+    # on each side, so that rounding cannot leave one out).
+    step = 2 * np.pi / n_angles
+    span = int(reach / step) + 2
     for i in range(pts.shape[0]):
         ang = np.arctan2(pts[i, 1] - c0[1], pts[i, 0] - c0[0])
-        for p in directions:
-            if abs((ang - p + np.pi) % (2 * np.pi) - np.pi) <= reach:
+        nearest = int(np.floor((ang + np.pi) / step))
+        for k in range(nearest - span, nearest + span + 1):
+            k %= n_angles
+            if body[k] and abs((ang - probe[k] + np.pi) % (2 * np.pi) - np.pi) <= reach:
                 out[i] = True
                 break
     return out

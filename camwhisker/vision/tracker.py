@@ -617,9 +617,9 @@ class FrontEnd:
         q = q.copy()
         target = tip_uv - self.offsets[TIP]
         for _ in range(TILT_MAX_ITER):
-            uv, jac, _ = self.model.project(q)
-            r = target - uv[TIP]
-            j = jac[TIP][:, 1:3]
+            uv, jac = self.model.tip(q)
+            r = target - uv
+            j = jac[:, 1:3]
             try:
                 step = np.linalg.solve(j, r)
             except np.linalg.LinAlgError:
