@@ -236,5 +236,14 @@ def _share_patches(frame, top_left, size, weights):
 
 def cloth_level(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, gains) -> float:
     """Mean white-balanced brightness (B + G + R) / 3 of the cloth samples (DN)."""
-    px = frame[rows, cols].astype(np.float32) * np.asarray(gains, np.float32)
-    return float(px.mean())
+    return _cloth_level(np.asarray(frame), np.asarray(rows, np.intp), np.asarray(cols, np.intp),
+                        np.asarray(gains, np.float32))  # fmt: skip
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cloth_level(frame, rows, cols, gains):
+    total = 0.0
+    for k in range(rows.shape[0]):
+        for c in range(3):
+            total += np.float32(frame[rows[k], cols[k], c]) * gains[c]
+    return total / (3 * rows.shape[0])
