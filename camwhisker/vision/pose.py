@@ -402,18 +402,38 @@ def _observations(measured_uv, offsets_uv, weights):
     return target, use, np.sqrt(np.where(use, w, 0.0))[:, None]
 
 
-def _weighted(uv, jac, target, sw, n_par):
-    """Weighted residuals (26,) and Jacobian (26, n_par); zero rows where not used."""
-    r = ((target - uv) * sw).reshape(-1)
-    return r, (jac[..., :n_par] * sw[..., None]).reshape(-1, n_par)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normal_equations(uv, jac, target, sw, n_par):
+    """J^T J (n_par, n_par), J^T r (n_par, 1) and r^T r of the weighted problem:
+    residuals r = sw (target - uv), Jacobian J = sw jac[..., :n_par]; unused
+    points have sw = 0 and add nothing."""
+    jtj = np.zeros((n_par, n_par))
+    jtr = np.zeros((n_par, 1))
+    rr = 0.0
+    for k in range(uv.shape[0]):
+        w = sw[k, 0]
+        if w == 0.0:
+            continue
+        for c in range(2):
+            r = w * (target[k, c] - uv[k, c])
+            rr += r * r
+            for i in range(n_par):
+                ji = w * jac[k, c, i]
+                jtr[i, 0] += ji * r
+                for j in range(i + 1):
+                    jtj[i, j] += ji * w * jac[k, c, j]
+    for i in range(n_par):
+        for j in range(i):
+            jtj[j, i] = jtj[i, j]
+    return jtj, jtr, rr
 
 
 def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
-    r, J = _weighted(uv, jac, target, sw, n_par)
+    jtj, jtr, _ = _normal_equations(uv, jac, target, sw, n_par)
     # The normal equations (symmetric, positive definite unless singular) by
     # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
-    solved, step = cv2.solve(J.T @ J, (J.T @ r)[:, None], flags=cv2.DECOMP_CHOLESKY)
+    solved, step = cv2.solve(jtj, jtr, flags=cv2.DECOMP_CHOLESKY)
     if not solved:
         return None
     full = np.zeros(5)
@@ -424,14 +444,13 @@ def _gn_step(q, uv, jac, target, sw, n_par):
 
 def _pose_fit(q, uv, jac, target, use, sw, n_par, converged) -> PoseFit:
     """The fit at q, given the model pixels and Jacobian there."""
-    r, J = _weighted(uv, jac, target, sw, n_par)
+    jtj, _, rr = _normal_equations(uv, jac, target, sw, n_par)
     n_obs = 2 * int(use.sum())
-    s2 = float(r @ r) / max(n_obs - n_par, 1)
+    s2 = rr / max(n_obs - n_par, 1)
     cov = np.zeros((5, 5))
-    invertible, inverse = cv2.invert(J.T @ J, flags=cv2.DECOMP_CHOLESKY)
+    invertible, inverse = cv2.invert(jtj, flags=cv2.DECOMP_CHOLESKY)
     if invertible:
         cov[:n_par, :n_par] = s2 * inverse
     else:
         converged = False
-    return PoseFit(q, cov, math.sqrt(float(r @ r) / n_obs), int(use.sum()), converged, use, uv,
-                   jac)
+    return PoseFit(q, cov, math.sqrt(rr / n_obs), int(use.sum()), converged, use, uv, jac)
