@@ -458,6 +458,13 @@ def _shift_step(ux, uy, res, use):
 
 
 @functools.cache
+def _ray_directions() -> np.ndarray:
+    """Unit directions of the N_RAYS edge-search rays, shape (N_RAYS, 2)."""
+    ang = np.linspace(0.0, 2 * np.pi, N_RAYS, endpoint=False)
+    return np.column_stack([np.cos(ang), np.sin(ang)])
+
+
+@functools.cache
 def _dog_kernel() -> np.ndarray:
     """Derivative-of-Gaussian kernel along a ray, per pixel of radius, shape (1, k)."""
     sig = EDGE_SMOOTH_PX / EDGE_STEP_PX
@@ -472,8 +479,7 @@ def _dog_kernel() -> np.ndarray:
 def _edge_points(val, lum, seed, r_seed, thr):
     """Edge points (N, 2) in window pixels: along rays from ``seed``, the steepest
     rise of ``lum`` near where ``val`` crosses ``thr``; None if too few."""
-    ang = np.linspace(0.0, 2 * np.pi, N_RAYS, endpoint=False)
-    dirs = np.column_stack([np.cos(ang), np.sin(ang)])
+    dirs = _ray_directions()
     lo = max(r_seed - EDGE_SEARCH_PX - 2, 1.0)
     radii = np.arange(lo, r_seed + EDGE_SEARCH_PX + 2, EDGE_STEP_PX)
     mx = (seed[0] + dirs[:, :1] * radii).astype(np.float32)
