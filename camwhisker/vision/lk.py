@@ -147,7 +147,8 @@ def refine_first_template(
     image = np.asarray(image, np.float32)
     stack = image.reshape((-1, *image.shape[-2:]))
     which = np.arange(k_all) if image.ndim == 3 else np.zeros(k_all, np.intp)
-    origins = np.broadcast_to(np.asarray(origin, float), (k_all, 2))
+    origins = np.empty((k_all, 2))
+    origins[:] = origin
     d0 = np.asarray(start_uv, float) - origins
     ok = np.asarray(active, bool) & np.isfinite(d0).all(axis=1)
     d, quality = _refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
@@ -286,7 +287,8 @@ def match_parabolic(
     quality = np.full(k_all, np.nan)
     window = np.ascontiguousarray(templates[:, 1:-1, 1:-1], np.float32)  # as the LK's
     half = (window.shape[1] - 1) / 2
-    origins = np.broadcast_to(np.asarray(origin, float), (k_all, 2))
+    origins = np.empty((k_all, 2))
+    origins[:] = origin
     for k in np.flatnonzero(np.asarray(active, bool) & np.isfinite(start_uv).all(axis=1)):
         if not window[k].std() > 0:
             continue

@@ -618,12 +618,11 @@ class FrontEnd:
         target = tip_uv - self.offsets[TIP]
         for _ in range(TILT_MAX_ITER):
             uv, jac = self.model.tip(q)
-            r = target - uv
-            j = jac[:, 1:3]
-            try:
-                step = np.linalg.solve(j, r)
-            except np.linalg.LinAlgError:
+            # OpenCV's LU solve: ~10x less overhead than np.linalg.solve at 2 x 2.
+            solved, step = cv2.solve(jac[:, 1:3], (target - uv)[:, None])
+            if not solved:
                 break
+            step = step.ravel()
             q[1:3] += step
             if np.abs(step).max() < TILT_LAST_STEP_RAD:
                 break
