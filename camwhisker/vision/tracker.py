@@ -750,13 +750,16 @@ class FrontEnd:
         """Projected widths (px) for eq. (2): cross b_u, b_v, square t_u, t_v, shape (4,).
 
         Each is NaN where one of its points is not tracked."""
-        arm = uv[N_SQUARE:TIP].reshape(4, 2, 2).mean(axis=1)
-        sq = uv[:N_SQUARE]
+        p = uv.tolist()  # a few sums: Python floats, without numpy's per-call cost
+        ends = p[N_SQUARE:TIP]
+        arm = [[(a + b) / 2 for a, b in zip(ends[2 * i], ends[2 * i + 1], strict=True)]
+               for i in range(4)]  # fmt: skip
+        sq = p[:N_SQUARE]
         return np.array([
             arm[0][0] - arm[2][0],
             arm[1][1] - arm[3][1],
-            (sq[1, 0] + sq[2, 0] - sq[0, 0] - sq[3, 0]) / 2,
-            (sq[2, 1] + sq[3, 1] - sq[0, 1] - sq[1, 1]) / 2,
+            (sq[1][0] + sq[2][0] - sq[0][0] - sq[3][0]) / 2,
+            (sq[2][1] + sq[3][1] - sq[0][1] - sq[1][1]) / 2,
         ])  # fmt: skip
 
     def _paper_solve(self, uv):
