@@ -242,6 +242,7 @@ def cloth_level(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, gains) ->
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _cloth_level(frame, rows, cols, gains):
+    """:func:`cloth_level` in one compiled pass, summed in float64."""
     total = 0.0
     for k in range(rows.shape[0]):
         for c in range(3):

@@ -751,9 +751,8 @@ class FrontEnd:
 
         Each is NaN where one of its points is not tracked."""
         p = uv.tolist()  # a few sums: Python floats, without numpy's per-call cost
-        ends = p[N_SQUARE:TIP]
-        arm = [[(a + b) / 2 for a, b in zip(ends[2 * i], ends[2 * i + 1], strict=True)]
-               for i in range(4)]  # fmt: skip
+        arm = [((p[k][0] + p[k + 1][0]) / 2, (p[k][1] + p[k + 1][1]) / 2)
+               for k in range(N_SQUARE, TIP, 2)]  # fmt: skip
         sq = p[:N_SQUARE]
         return np.array([
             arm[0][0] - arm[2][0],
