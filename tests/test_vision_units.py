@@ -47,7 +47,6 @@ from camwhisker.vision.tip import (
     BODY_BLUR_PX,
     BODY_PROTRUSION_PX,
     _beside_body,
-    _conic_centre,
     brightness,
     ellipse_centre,
     face_near,
@@ -494,19 +493,21 @@ def test_tip_not_found_on_blank_frame():
     assert not got.ok and "blob" in got.reason or "contrast" in got.reason
 
 
-def test_ellipse_centre_exact_on_an_ellipse_and_no_conic_on_a_line():
-    """Noise-free points on a tilted ellipse: the conic's centre to 1e-9 px
-    (float64 least squares); collinear points (a degenerate conic) give no
-    conic centre."""
+def test_ellipse_centre_exact_on_an_ellipse_and_none_on_a_line():
+    """Noise-free points on a tilted ellipse far from the origin: the centre to
+    1e-5 px (fitted centred, though OpenCV works in float32); collinear points
+    are refused, not given a centre."""
     t = np.linspace(0.0, 2 * np.pi, 40, endpoint=False)
     c, s = math.cos(0.4), math.sin(0.4)
     x, y = 21.0 * np.cos(t), 13.0 * np.sin(t)
-    pts = np.column_stack([612.25 + c * x - s * y, 301.5 + s * x + c * y])
-    got = ellipse_centre(pts)
-    assert got.ok
-    np.testing.assert_allclose(got.centre_uv, (612.25, 301.5), atol=1e-9)
+    for centre in ((612.25, 301.5), (1001.3, 707.7)):
+        pts = np.column_stack([centre[0] + c * x - s * y, centre[1] + s * x + c * y])
+        got = ellipse_centre(pts)
+        assert got.ok
+        np.testing.assert_allclose(got.centre_uv, centre, atol=1e-5)
+        assert got.radius_px == pytest.approx(17.0, abs=1e-4)
     for line in (np.column_stack([t, 2 * t]), np.column_stack([t, np.zeros_like(t)])):
-        assert _conic_centre(600.0 + line) is None
+        assert not ellipse_centre(600.0 + line).ok
 
 
 # ------------------------------------------------------------------ bench

@@ -100,6 +100,10 @@ RIM_FIT_ITER = 10
 RIM_FIT_TOL_PX = 1e-6
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
+#: An ellipse fitted to the edge is refused when its minor axis is under this
+#: fraction of its major one: the model's rim projects to 0.50 or more at tilts
+#: to 45 deg (every direction, dz -0.5 to 1 mm); collinear points give ~0.003.
+ELLIPSE_MIN_AXIS_RATIO = 0.3
 #: A pixel is dark enough to be the face when V is below this fraction of the
 #: cloth's brightness: the face is at ~0.1 of the cloth, the rod's darkest flank
 #: at ~0.4 (~0.28 where vignetting takes 30% off). Used only to tell that the face
@@ -537,13 +541,17 @@ def _ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
 
 
 def _fit_ellipse_centre(pts: np.ndarray):
-    """Centre of a least-squares ellipse, with one round of outlier rejection."""
+    """Centre of a least-squares ellipse (OpenCV's direct fit), with one round of
+    outlier rejection; (None, nan) for no ellipse or one too flat to be the face."""
     for _ in range(2):
         if len(pts) < 6:
             return None, math.nan
-        (cx, cy), (da, db), ang = cv2.fitEllipse(pts.astype(np.float32))
-        if not (np.isfinite(cx) and da > 0 and db > 0):
+        # Centred first: OpenCV fits and returns float32 (steps of 6e-5 px at 1000 px).
+        m = pts.mean(axis=0)
+        (cx, cy), (da, db), ang = cv2.fitEllipseDirect((pts - m).astype(np.float32))
+        if not (np.isfinite(cx) and min(da, db) > ELLIPSE_MIN_AXIS_RATIO * max(da, db)):
             return None, math.nan
+        cx, cy = cx + m[0], cy + m[1]
         # Distance of each point from the ellipse, approximately (radial).
         t = math.radians(ang)
         c, s = math.cos(t), math.sin(t)
@@ -555,27 +563,4 @@ def _fit_ellipse_centre(pts: np.ndarray):
         if keep.all():
             break
         pts = pts[keep]
-    # fitEllipse works in float32 coordinates; refit the centre in float64 by
-    # a linear conic fit for full sub-pixel precision.
-    centre = _conic_centre(pts)
-    if centre is None:
-        centre = np.array([cx, cy])
-    return centre, (da + db) / 4
-
-
-def _conic_centre(pts: np.ndarray):
-    """Centre of the conic a x^2 + b xy + c y^2 + d x + e y = 1 through pts (centred)."""
-    m = pts.mean(axis=0)
-    x, y = (pts - m).T
-    A = np.column_stack([x * x, x * y, y * y, x, y])
-    # Least squares by OpenCV's QR: ~4x less overhead than np.linalg.lstsq here.
-    solved, coef = cv2.solve(A, np.ones((len(x), 1)), flags=cv2.DECOMP_QR)
-    if not solved:
-        return None
-    a, b, c, d, e = coef.ravel()
-    det = 4 * a * c - b * b
-    if not det > 0:  # also NaN, from a degenerate point set
-        return None
-    xc = (b * e - 2 * c * d) / det
-    yc = (b * d - 2 * a * e) / det
-    return m + (xc, yc)
+    return np.array([cx, cy]), (da + db) / 4
