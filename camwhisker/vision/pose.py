@@ -394,12 +394,23 @@ def _observations(measured_uv, offsets_uv, weights):
     An unused point gets weight 0 and target 0, so its rows of the weighted
     problem are exact zeros: the normal equations are those of the used points,
     without selecting them anew at every step."""
-    target = np.asarray(measured_uv, float) - offsets_uv
-    use = np.isfinite(target).all(axis=1)
     w = np.ones(TIP + 1) if weights is None else np.asarray(weights, float)
-    use &= w > 0
-    target[~use] = 0.0
-    return target, use, np.sqrt(np.where(use, w, 0.0))[:, None]
+    return _observations_kernel(np.asarray(measured_uv, float), np.asarray(offsets_uv, float), w)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _observations_kernel(measured, offsets, weights):
+    n = measured.shape[0]
+    target = np.zeros((n, 2))
+    use = np.zeros(n, np.bool_)
+    sw = np.zeros((n, 1))
+    for k in range(n):
+        u, v = measured[k, 0] - offsets[k, 0], measured[k, 1] - offsets[k, 1]
+        if np.isfinite(u) and np.isfinite(v) and weights[k] > 0:
+            target[k, 0], target[k, 1] = u, v
+            use[k] = True
+            sw[k, 0] = np.sqrt(weights[k])
+    return target, use, sw
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

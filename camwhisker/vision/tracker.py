@@ -819,8 +819,8 @@ class _Template:
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
     """Whether the pose changed enough to reshape the tip's model rim."""
-    d = np.abs(np.asarray(q1) - q0)
-    return bool(d[[0, 3, 4]].max() > RIM_REFIT_MM or d[1:3].max() > RIM_REFIT_RAD)
+    dz, a, b, sx, sy = (abs(x - y) for x, y in zip(q1.tolist(), q0.tolist(), strict=True))
+    return max(dz, sx, sy) > RIM_REFIT_MM or max(a, b) > RIM_REFIT_RAD
 
 
 def track(
