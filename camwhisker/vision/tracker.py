@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 
 from camwhisker.sensor import Sensor
 from camwhisker.vision.colour import (
@@ -710,13 +711,7 @@ class FrontEnd:
         """Corners whose patch of 2 half + 1 px around ``uv`` lies inside the frame,
         and the patches' top-left pixels (0 where not)."""
         h, w = frame.shape[:2]
-        n = 2 * half + 1
-        ok = np.isfinite(uv).all(axis=1)
-        tl = np.zeros((TIP, 2), np.intp)
-        tl[ok] = np.round(uv[ok]).astype(np.intp) - half
-        inside = ok & (tl[:, 0] >= 0) & (tl[:, 1] >= 0) & (tl[:, 0] + n <= w) & (tl[:, 1] + n <= h)
-        tl[~inside] = 0
-        return inside, tl
+        return _patches_inside(np.asarray(uv, float), half, h, w)
 
     def _share_patches(self, frame, gains, uv, half):
         """Red-share (cross) or blue-share (square) patches around each corner.
@@ -843,6 +838,23 @@ class _Template:
         if self._u8 is None:
             self._u8 = to_uint8(contrast_map(self.bgr, self.gains))
         return self._u8
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _patches_inside(uv, half, h, w):
+    """See FrontEnd._patches_inside: one compiled pass over the corners."""
+    n = 2 * half + 1
+    inside = np.zeros(uv.shape[0], np.bool_)
+    tl = np.zeros((uv.shape[0], 2), np.intp)
+    for k in range(uv.shape[0]):
+        u, v = uv[k, 0], uv[k, 1]
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
+        u0, v0 = int(np.rint(u)) - half, int(np.rint(v)) - half
+        if u0 >= 0 and v0 >= 0 and u0 + n <= w and v0 + n <= h:
+            inside[k] = True
+            tl[k, 0], tl[k, 1] = u0, v0
+    return inside, tl
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
