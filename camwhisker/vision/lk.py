@@ -82,19 +82,22 @@ def warp_templates(
     templates : ndarray, shape (K, 2 half + 1, 2 half + 1), float32
         ``templates[k][y, x]`` is the rest map at rest_uv[k] + A^-1 ((x, y) - half).
     """
-    inv = np.linalg.inv(np.asarray(affine, float))  # (K, 2, 2)
     centre = np.asarray(rest_uv, float) - np.asarray(rest_origin, float)
-    return _warp(np.ascontiguousarray(rest_map, np.float32), inv, centre, half)
+    return _warp(np.ascontiguousarray(rest_map, np.float32),
+                 np.ascontiguousarray(affine, float), centre, half)  # fmt: skip
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _warp(m, inv, centre, half):
+def _warp(m, affine, centre, half):
     # Exact bilinear interpolation in float64, the same weights getRectSubPix uses,
     # so that an unmoved frame reproduces its template exactly (cv2.warpAffine
     # rounds the weights to 1/32 px).
     n = 2 * half + 1
     h, w = m.shape
     out = np.empty((len(centre), n, n), np.float32)
+    inv = np.empty_like(affine)
+    for k in range(len(centre)):
+        inv[k] = np.linalg.inv(affine[k])  # LAPACK, without numpy's per-call cost
     for k in range(len(centre)):
         for i in range(n):
             for j in range(n):
