@@ -711,7 +711,7 @@ class FrontEnd:
         """Corners whose patch of 2 half + 1 px around ``uv`` lies inside the frame,
         and the patches' top-left pixels (0 where not)."""
         h, w = frame.shape[:2]
-        return _patches_inside(np.asarray(uv, float), half, h, w)
+        return _patch_corners(np.asarray(uv, float), half, h, w)
 
     def _share_patches(self, frame, gains, uv, half):
         """Red-share (cross) or blue-share (square) patches around each corner.
@@ -841,8 +841,8 @@ class _Template:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _patches_inside(uv, half, h, w):
-    """See FrontEnd._patches_inside: one compiled pass over the corners."""
+def _patch_corners(uv, half, h, w):
+    """FrontEnd._patches_inside in one compiled pass over the corners."""
     n = 2 * half + 1
     inside = np.zeros(uv.shape[0], np.bool_)
     tl = np.zeros((uv.shape[0], 2), np.intp)
