@@ -74,6 +74,11 @@ GN_MAX_ITER = 12
 REFIT_STEP_MAX = 0.03
 
 
+def _pose_jacobian(jac: np.ndarray) -> np.ndarray:
+    """Rows of cv2.projectPoints' Jacobian as d / d (dz, a, b, sx, sy), shape (..., 5)."""
+    return jac[..., _JAC_COLUMNS] * _JAC_SIGNS
+
+
 def q_to_pose(q: np.ndarray) -> Pose:
     """Pose from q = (dz_mm, a_rad, b_rad[, sx_mm, sy_mm])."""
     sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
@@ -190,7 +195,7 @@ class PlateModel:
         """The tip's row of :meth:`project` alone, from one smaller projection: the
         face centroid (2,) and its Jacobian (2, 5)."""
         pts, jac = self._project(self._tip_points, q)
-        return polygon_centroid(pts[1:]), jac[:2, _JAC_COLUMNS] * _JAC_SIGNS
+        return polygon_centroid(pts[1:]), _pose_jacobian(jac[:2])
 
     def project(self, q: np.ndarray, jacobian: bool = True):
         """Model pixels of the 13 tracked points (tip = face centroid), shape (13, 2).
@@ -212,7 +217,7 @@ class PlateModel:
         if not jacobian:
             return uv, None, rim
         j = jac[: 2 * (TIP + 1)].reshape(TIP + 1, 2, -1)
-        return uv, j[..., _JAC_COLUMNS] * _JAC_SIGNS, rim
+        return uv, _pose_jacobian(j), rim
 
 
 @dataclass(frozen=True)
