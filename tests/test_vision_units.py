@@ -270,6 +270,35 @@ def test_refit_after_the_tip_moves_matches_a_full_fit(tip_move_px):
     assert np.abs(again.q[1:3] - fit.q[1:3]).max() > 20 * np.abs(again.q - full.q)[1:3].max()
 
 
+def test_refit_adds_the_tip_to_a_corners_only_fit():
+    """After a jump the tip is measured once the corners are fitted, and added by one
+    step from that fit's Jacobian (``add``): against Gauss-Newton with the tip from
+    the start, within 1e-5 rad and 2e-4 mm (as a moved tip above). Without ``add``
+    the tip, absent from the corners' fit, stays out."""
+    m = PlateModel(Sensor())
+    q = _q(0.6, 22.0, 40.0, 0.03, 0.02)
+    uv, _, _ = m.project(q)
+    rng = np.random.default_rng(2)
+    meas = uv + 0.1 * rng.standard_normal(uv.shape)
+    w = np.where(np.arange(TIP + 1) == TIP, 4.0, 1.0)
+    offsets = np.zeros_like(uv)
+    corners = meas.copy()
+    corners[TIP] = np.nan
+    fit = fit_pose(m, corners, offsets, np.zeros(5), w)
+    assert fit.converged and not fit.used[TIP]
+    again = refit_pose(m, fit, meas, offsets, w, add=TIP)
+    full = fit_pose(m, meas, offsets, fit.q, w, reject_outliers=False)
+    assert again.converged and again.used[TIP]
+    np.testing.assert_allclose(again.q[1:3], full.q[1:3], atol=1e-5)
+    np.testing.assert_allclose(again.q[[0, 3, 4]], full.q[[0, 3, 4]], atol=2e-4)
+    assert abs(again.rms_px - full.rms_px) < 1e-3
+    # The tip moved the tilt by much more than the step leaves unsolved.
+    assert np.abs(again.q[1:3] - fit.q[1:3]).max() > 20 * np.abs(again.q - full.q)[1:3].max()
+    kept_out = refit_pose(m, fit, meas, offsets, w)
+    assert not kept_out.used[TIP]
+    np.testing.assert_allclose(kept_out.q, fit.q, rtol=0, atol=1e-9)
+
+
 def test_fit_with_too_few_points_is_not_converged():
     m = PlateModel(Sensor())
     meas = np.full((TIP + 1, 2), np.nan)

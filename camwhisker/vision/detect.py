@@ -248,7 +248,7 @@ def detect_features(
 
     radius = math.sqrt(polygon_area(rim) / math.pi)
     h, w = frame.shape[:2]
-    edges, _ = tip_edge_points(frame, gains, uv_model[TIP], radius, search_px=0.25 * max(h, w))
+    edges, _, _ = tip_edge_points(frame, gains, uv_model[TIP], radius, search_px=0.25 * max(h, w))
     tip = None if edges is None else ellipse_centre(edges)
     if tip is not None and tip.ok:
         # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).

@@ -371,18 +371,23 @@ def refit_pose(
     offsets_uv: np.ndarray,
     weights: np.ndarray,
     fit_shift: bool = True,
+    add: int | None = None,
 ) -> PoseFit:
     """``fit`` again after a measurement moved by a little (the tip measured anew).
 
     One Gauss-Newton step from ``fit.q`` with the fit's own model pixels and
-    Jacobian, so no projection; the points ``fit`` left out stay out. A step
-    above REFIT_STEP_MAX is iterated by Gauss-Newton from ``fit.q`` instead;
-    a smaller one leaves a little unsolved (see REFIT_STEP_MAX).
+    Jacobian, so no projection; the points ``fit`` left out stay out, except
+    point ``add`` (one measured only now, such as the tip after the corners'
+    fit). A step above REFIT_STEP_MAX is iterated by Gauss-Newton from
+    ``fit.q`` instead; a smaller one leaves a little unsolved (see REFIT_STEP_MAX).
     """
     if not fit.converged or fit.jac is None:
         raise ValueError("refit_pose needs a converged fit with its Jacobian")
     n_par = 5 if fit_shift else 3
-    weights = np.asarray(weights, float) * fit.used
+    used = fit.used.copy()
+    if add is not None:
+        used[add] = True
+    weights = np.asarray(weights, float) * used
     target, use, sw = _observations(measured_uv, offsets_uv, weights)
     if 2 * int(use.sum()) < n_par + 1:
         return PoseFit(fit.q.copy(), np.zeros((5, 5)), math.nan, int(use.sum()), False, use)

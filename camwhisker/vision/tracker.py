@@ -10,7 +10,8 @@ the model. :meth:`FrontEnd.update` then does, per frame:
    a coarse search of its whole reach if not there (straight away when no
    pixel near either prediction is dark enough to be the face: a jump); its
    centroid from its edge and the model's rim; a first tilt guess from the
-   tip alone;
+   tip alone (after a jump, from the dark blob's centroid: the rim waits for
+   the corners' fit, step 5);
 3. drift correction of the square's and the cross's corners against their rest
    patches, warped by the model's rest-to-current affine map, from where that
    guess puts them (:func:`~camwhisker.vision.lk.refine_first_template`), on
@@ -19,7 +20,9 @@ the model. :meth:`FrontEnd.update` then does, per frame:
    missing corners predicted again from a fit to the others and corrected
    again (and other depths tried, and the features detected afresh, when
    too few lock at all);
-5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`);
+5. the pose fit through the exact camera model (:func:`~camwhisker.vision.pose.fit_pose`;
+   after a jump, of the corners alone, then with the tip measured with the
+   rim placed at that fit, added by one step);
    the tip measured again with the model's rim at the fitted pose while the
    fit moves away from where the rim was placed, each time refitted by one
    step from the fit's own Jacobian (:func:`~camwhisker.vision.pose.refit_pose`);
@@ -82,7 +85,6 @@ from camwhisker.vision.pose import (
 )
 from camwhisker.vision.tip import (
     TipMeasurement,
-    ellipse_centre,
     face_near,
     rim_centre,
     tip_edge_points,
@@ -304,7 +306,7 @@ class FrontEnd:
         # Measure the tip exactly as update() will, until its window stops moving.
         radius = math.sqrt(polygon_area(rest_rim) / math.pi)
         for _ in range(REST_TIP_PASSES):
-            edges, why = tip_edge_points(frame, gains, det.uv[TIP], radius, TIP_SEARCH_PX)
+            edges, _, why = tip_edge_points(frame, gains, det.uv[TIP], radius, TIP_SEARCH_PX)
             tip = None if edges is None else self._tip_at(edges, np.zeros(5))
             if tip is None or not tip.ok:
                 raise FeaturesNotFound(["magnifier tip"], why or tip.reason)
@@ -369,8 +371,8 @@ class FrontEnd:
         self._cloth_now = cloth_level(frame, *self._cloth, gains)
         q_pred, q_moving = self._predict()
 
-        # Tip, then a first tilt guess from the tip alone. The window spans where
-        # the tip would be if it stood still and if it kept moving.
+        # The tip's edge, then a first tilt guess from the tip alone. The window spans
+        # where the tip would be if it stood still and if it kept moving.
         uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
         radius = math.sqrt(polygon_area(rim) / math.pi)
         tip_still = uv_pred[TIP] + self.offsets[TIP]
@@ -379,37 +381,43 @@ class FrontEnd:
             tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
         tip_guess = (tip_still + tip_moving) / 2
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
-        edges, why = None, ""
+        edges, blob_uv, why = None, None, ""
         if face_near(frame, gains, np.array([tip_still, tip_moving]), radius,
                      self._cloth_now):  # fmt: skip
-            edges, why = tip_edge_points(frame, gains, tip_guess, radius, TIP_SEARCH_PX + span)
+            edges, blob_uv, why = tip_edge_points(frame, gains, tip_guess, radius,
+                                                  TIP_SEARCH_PX + span)  # fmt: skip
         # Not in the window (or nothing dark where either prediction puts it: a
         # jump): the tip is farther from both predictions than the window reaches,
         # so the rim is not tried at a prediction below.
         lost = edges is None
         if lost:  # search all the tip can reach, around its rest position
-            edges, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius, self._reach_px)
+            edges, blob_uv, why = tip_edge_points(frame, gains, self.rest_uv[TIP], radius,
+                                                  self._reach_px)  # fmt: skip
         q_guess = q_pred.copy()
         tip = None
         tip_q = None  # the pose the tip's model rim and the rod's outline were placed at
+        tip_uv = np.full(2, np.nan)  # where the corners' steps below take the tip to be
         if edges is not None:
             # Place the model's rim at the prediction the tip came closest to (the
-            # refits below place it again at the fitted pose); when the tip was
-            # searched for afar, or the rim finds no tip there, first at a tilt
-            # solved from an ellipse's centre.
+            # refits below place it again at the fitted pose), and guess the tilt
+            # from the tip's centroid.
             middle = edges.mean(axis=0)
             near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
             q0 = q_moving if near_moving else q_pred
-            tip, tip_q = (None, None) if lost else (self._tip_at(edges, q0), q0)
-            if not (tip is not None and tip.ok):
-                rough = ellipse_centre(edges)
-                why = why or rough.reason
-                q0 = self._tilt_from_tip(q0, rough.centre_uv) if rough.ok else None
-                tip, tip_q = (None, None) if q0 is None else (self._tip_at(edges, q0), q0)
+            if not lost:
+                tip, tip_q = self._tip_at(edges, q0), q0
             if tip is not None and tip.ok:
-                q_guess = self._tilt_from_tip(q0, tip.centre_uv)
-        if tip is None:
-            tip = TipMeasurement(np.full(2, np.nan), math.nan, False, why)
+                tip_uv = tip.centre_uv
+            else:
+                # A jump (the tip searched for afar, or the rim finds no tip at the
+                # prediction). The tilt guess comes from the dark blob's centroid
+                # (within ~1 px of the tip's, enough to start the corners), and the
+                # tip is measured after the corners, with the rim placed at their
+                # fit: a jump moves dz too, which the corners tell and the tip does not.
+                tip, tip_q, tip_uv = None, None, blob_uv
+            q_guess = self._tilt_from_tip(q0, tip_uv)
+        deferred = edges is not None and tip is None
+        have_tip = edges is not None
 
         # Corners: drift-corrected LK against the rest patches warped to q_guess.
         uv_guess = self.model.project(q_guess, jacobian=False)[0][:TIP] + self.offsets[:TIP]
@@ -424,14 +432,14 @@ class FrontEnd:
         uv_ref, qual = self._refine(frame, gains, tmpl, start_uv, ~occluded)
         retry = ~occluded & ~(qual >= QUALITY_MIN)
         locked = ~occluded & ~retry
-        if locked.sum() < MIN_CORNERS and tip.ok:
+        if locked.sum() < MIN_CORNERS and have_tip:
             # Lost after a jump in dz: try the corners where the tip would put them
             # at other depths, and keep the depth where most of them lock.
             best = locked.sum()
             for dz_mm in DZ_HYPOTHESES_MM:
                 q_h = q_guess.copy()
                 q_h[0] = dz_mm
-                q_h = self._tilt_from_tip(q_h, tip.centre_uv)
+                q_h = self._tilt_from_tip(q_h, tip_uv)
                 uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
                 occ_h = self._occluded(q_h, uv_h)
                 uv_r, q_r = self._refine(frame, gains, self._warp_templates(q_h), uv_h, ~occ_h)
@@ -441,9 +449,9 @@ class FrontEnd:
                     uv_ref, qual, tmpl = uv_r, q_r, self._warp_templates(q_h)
             retry = ~occluded & ~(qual >= QUALITY_MIN)
             locked = ~occluded & ~retry
-        if locked.sum() < MIN_REPREDICT and tip.ok:
+        if locked.sum() < MIN_REPREDICT and have_tip:
             # Still nothing (the shift jumped too): detect the features afresh.
-            fit0 = self._detected_pose(frame, gains, tip.centre_uv)
+            fit0 = self._detected_pose(frame, gains, tip_uv)
             if fit0 is not None:
                 q_h = fit0.q
                 uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
@@ -455,12 +463,12 @@ class FrontEnd:
                     uv_ref, qual = uv_r, q_r
                     retry = ~occluded & ~(qual >= QUALITY_MIN)
                     locked = ~occluded & ~retry
-        if retry.any() and MIN_REPREDICT <= locked.sum() < FALLBACK_BELOW and tip.ok:
+        if retry.any() and MIN_REPREDICT <= locked.sum() < FALLBACK_BELOW and have_tip:
             # Some corners were too far from the tip-only prediction (dz or the shift
             # moved): predict them again from a fit to the corners that locked.
             pre = np.full((TIP + 1, 2), np.nan)
             pre[:TIP][locked] = uv_ref[locked]
-            pre[TIP] = tip.centre_uv
+            pre[TIP] = tip_uv
             fit0 = self._fit(pre, q_guess)
             if fit0.converged:
                 again = self.model.project(fit0.q, jacobian=False)[0][:TIP] + self.offsets[:TIP]
@@ -481,13 +489,25 @@ class FrontEnd:
         good = np.isfinite(qual) & (qual >= QUALITY_MIN)
         measured = np.full((TIP + 1, 2), np.nan)
         measured[:TIP] = np.where(good[:, None], uv_ref, np.nan)
+        if tip is None:
+            tip = TipMeasurement(np.full(2, np.nan), math.nan, False, why)
         measured[TIP] = tip.centre_uv if tip.ok else np.nan
-        quality = np.append(qual, 1.0 if tip.ok else np.nan)
         fit = self._fit(measured, q_guess)
+        if deferred:
+            # The tip after a jump: its rim placed at the corners' fit where they fix
+            # the pose (else at the guess), and added to the fit.
+            corners_fit = fit.converged and fit.n_points >= MIN_CORNERS
+            tip_q = fit.q if corners_fit else q_guess
+            tip = self._tip_at(edges, tip_q)
+            if tip.ok:
+                measured[TIP] = tip.centre_uv
+                fit = (refit_pose(self.model, fit, measured, self.offsets, self._weights,
+                                  self.options.fit_shift, add=TIP)
+                       if corners_fit else self._fit(measured, q_guess))  # fmt: skip
+        quality = np.append(qual, 1.0 if tip.ok else np.nan)
         for _ in range(RIM_REFITS):
-            # The tip was measured with its rim placed at tip_q (not q_guess, which is
-            # solved from that measurement): measure it again at the fit, until the
-            # fit stays within RIM_REFIT of where the rim was placed.
+            # The tip was measured with its rim placed at tip_q: measure it again at
+            # the fit, until the fit stays within RIM_REFIT of where the rim was placed.
             if not (fit.converged and tip_q is not None and _moved(fit.q, tip_q)):
                 break
             tip, tip_q = self._tip_at(edges, fit.q), fit.q
