@@ -116,6 +116,10 @@ MAX_RMS_PX = 0.6
 #: between frames at 30 fps on a hold, more on a sweep, which the velocity covers), and the margin
 #: of the corners' region for the updated-template LK (px).
 TIP_SEARCH_PX = 20.0
+#: The tip jumped when its dark blob lies farther than this from both predictions
+#: (px): on the live benchmark's clip it lay within 4.6 px of the nearer one on every
+#: frame but the jumps, and 25 px or more on those.
+TIP_JUMP_PX = 10.0
 REGION_MARGIN_PX = 40
 #: The corners' spread grows by up to ~8% (dz = 1 mm brings them 4% closer; a tilt
 #: spreads the near side): the region is this much larger than at rest.
@@ -401,19 +405,19 @@ class FrontEnd:
             # Place the model's rim at the prediction the tip came closest to (the
             # refits below place it again at the fitted pose), and guess the tilt
             # from the tip's centroid.
-            middle = edges.mean(axis=0)
-            near_moving = np.hypot(*(middle - tip_moving)) < np.hypot(*(middle - tip_still))
-            q0 = q_moving if near_moving else q_pred
-            if not lost:
+            off_still, off_moving = np.hypot(*(blob_uv - [tip_still, tip_moving]).T).tolist()
+            q0 = q_moving if off_moving < off_still else q_pred
+            if not lost and min(off_still, off_moving) <= TIP_JUMP_PX:
                 tip, tip_q = self._tip_at(edges, q0), q0
             if tip is not None and tip.ok:
                 tip_uv = tip.centre_uv
             else:
-                # A jump (the tip searched for afar, or the rim finds no tip at the
-                # prediction). The tilt guess comes from the dark blob's centroid
-                # (within ~1 px of the tip's, enough to start the corners), and the
-                # tip is measured after the corners, with the rim placed at their
-                # fit: a jump moves dz too, which the corners tell and the tip does not.
+                # A jump (the tip searched for afar, or far from both predictions, or
+                # the rim finds no tip at the prediction). The tilt guess comes from
+                # the dark blob's centroid (within ~1 px of the tip's, enough to start
+                # the corners), and the tip is measured after the corners, with the
+                # rim placed at their fit: a jump moves dz too, which the corners
+                # tell and the tip does not.
                 tip, tip_q, tip_uv = None, None, blob_uv
             q_guess = self._tilt_from_tip(q0, tip_uv)
         deferred = edges is not None and tip is None
