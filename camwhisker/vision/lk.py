@@ -95,18 +95,19 @@ def _warp(m, affine, centre, half):
     n = 2 * half + 1
     h, w = m.shape
     out = np.empty((len(centre), n, n), np.float32)
-    inv = np.empty_like(affine)
     for k in range(len(centre)):
-        inv[k] = np.linalg.inv(affine[k])  # LAPACK, without numpy's per-call cost
-    for k in range(len(centre)):
+        a00, a01, a10, a11 = affine[k, 0, 0], affine[k, 0, 1], affine[k, 1, 0], affine[k, 1, 1]
+        det = a00 * a11 - a01 * a10
+        i00, i01, i10, i11 = a11 / det, -a01 / det, -a10 / det, a00 / det  # A^-1
         for i in range(n):
+            gy = i - half
             for j in range(n):
-                gx, gy = j - half, i - half
-                x = inv[k, 0, 0] * gx + inv[k, 0, 1] * gy + centre[k, 0]
-                y = inv[k, 1, 0] * gx + inv[k, 1, 1] * gy + centre[k, 1]
+                gx = j - half
+                x = i00 * gx + i01 * gy + centre[k, 0]
+                y = i10 * gx + i11 * gy + centre[k, 1]
                 x = min(max(x, 0.0), w - 1.000001)
                 y = min(max(y, 0.0), h - 1.000001)
-                x0, y0 = int(np.floor(x)), int(np.floor(y))
+                x0, y0 = int(x), int(y)  # x, y >= 0: the floor
                 fx, fy = x - x0, y - y0
                 top = m[y0, x0] * (1 - fx) + m[y0, x0 + 1] * fx
                 bottom = m[y0 + 1, x0] * (1 - fx) + m[y0 + 1, x0 + 1] * fx

@@ -134,6 +134,7 @@ class PlateModel:
             )
         )  # fmt: skip
         self._tip_points = self.object_points[TIP:]  # the face's centre, then its rim
+        self._corner_points = np.ascontiguousarray(self.object_points[:TIP])
         # Edge directions at each tracked corner, in the plate frame: (12, 2, 3).
         sq = square_corners(plate)
         sq_dirs = np.stack([np.roll(sq, 1, axis=0) - sq, np.roll(sq, -1, axis=0) - sq], axis=1)
@@ -190,6 +191,11 @@ class PlateModel:
         tvec = np.array([sx, sy, self.z_i_mm - q[0]])
         uv, jac = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
         return uv.reshape(-1, 2), jac
+
+    def corners(self, q: np.ndarray) -> np.ndarray:
+        """The 12 tracked corners' rows of :meth:`project` alone, shape (12, 2), from
+        one projection of those points."""
+        return self._project(self._corner_points, q)[0]
 
     def tip(self, q: np.ndarray):
         """The tip's row of :meth:`project` alone, from one smaller projection: the

@@ -382,7 +382,7 @@ class FrontEnd:
         tip_still = uv_pred[TIP] + self.offsets[TIP]
         tip_moving = tip_still
         if not np.array_equal(q_moving, q_pred):
-            tip_moving = self.model.project(q_moving, jacobian=False)[0][TIP] + self.offsets[TIP]
+            tip_moving = self.model.tip(q_moving)[0] + self.offsets[TIP]
         tip_guess = (tip_still + tip_moving) / 2
         span = float(np.hypot(*(tip_moving - tip_still))) / 2
         edges, blob_uv, why = None, None, ""
@@ -424,7 +424,7 @@ class FrontEnd:
         have_tip = edges is not None
 
         # Corners: drift-corrected LK against the rest patches warped to q_guess.
-        uv_guess = self.model.project(q_guess, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+        uv_guess = self._corners_at(q_guess)
         if not np.isfinite(uv_guess).all():
             return self._fail("pose prediction failed")
         occluded = self._occluded(q_guess, uv_guess)
@@ -444,7 +444,7 @@ class FrontEnd:
                 q_h = q_guess.copy()
                 q_h[0] = dz_mm
                 q_h = self._tilt_from_tip(q_h, tip_uv)
-                uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+                uv_h = self._corners_at(q_h)
                 occ_h = self._occluded(q_h, uv_h)
                 uv_r, q_r = self._refine(frame, gains, self._warp_templates(q_h), uv_h, ~occ_h)
                 n_locked = int((~occ_h & (np.nan_to_num(q_r, nan=-1) >= QUALITY_MIN)).sum())
@@ -458,7 +458,7 @@ class FrontEnd:
             fit0 = self._detected_pose(frame, gains, tip_uv)
             if fit0 is not None:
                 q_h = fit0.q
-                uv_h = self.model.project(q_h, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+                uv_h = self._corners_at(q_h)
                 occ_h = self._occluded(q_h, uv_h)
                 tmpl_h = self._warp_templates(q_h)
                 uv_r, q_r = self._refine(frame, gains, tmpl_h, uv_h, ~occ_h)
@@ -475,7 +475,7 @@ class FrontEnd:
             pre[TIP] = tip_uv
             fit0 = self._fit(pre, q_guess)
             if fit0.converged:
-                again = self.model.project(fit0.q, jacobian=False)[0][:TIP] + self.offsets[:TIP]
+                again = self._corners_at(fit0.q)
                 uv_r, q_r = self._refine(frame, gains, self._templates(fit0.q), again, retry)
                 better = retry & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(qual, nan=-1))
                 uv_ref[better], qual[better] = uv_r[better], q_r[better]
@@ -636,6 +636,10 @@ class FrontEnd:
         u0, v0 = origin.astype(int)
         rw, rh = self._region_size
         return contrast_map(frame[v0 : v0 + rh, u0 : u0 + rw], gains), origin
+
+    def _corners_at(self, q) -> np.ndarray:
+        """Where the 12 corners should be seen at pose q (model plus rest offsets)."""
+        return self.model.corners(q) + self.offsets[:TIP]
 
     def _tip_at(self, edges, q) -> TipMeasurement:
         """The tip's centroid from its edge points, with the model's rim at pose q."""
