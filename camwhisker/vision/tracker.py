@@ -379,18 +379,22 @@ class FrontEnd:
         q_pred, q_moving = self._predict()
 
         # The tip's edge, then a first tilt guess from the tip alone. The window spans
-        # where the tip would be if it stood still and if it kept moving.
+        # the predictions (standing still, and moving on at the last velocity) with
+        # dark pixels near them: after a jump the velocity is the jump's, and the
+        # moving prediction lies far off (a window spanning both was ~6x larger).
         uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
         radius = math.sqrt(polygon_area(rim) / math.pi)
         tip_still = uv_pred[TIP] + self.offsets[TIP]
         tip_moving = tip_still
         if not np.array_equal(q_moving, q_pred):
             tip_moving = self.model.tip(q_moving)[0] + self.offsets[TIP]
-        tip_guess = (tip_still + tip_moving) / 2
-        span = float(np.hypot(*(tip_moving - tip_still))) / 2
+        predicted = [tip_still] if tip_moving is tip_still else [tip_still, tip_moving]
+        near = [uv for uv in predicted
+                if face_near(frame, gains, uv[None], radius, self._cloth_now)]  # fmt: skip
         edges, blob_uv, why = None, None, ""
-        if face_near(frame, gains, np.array([tip_still, tip_moving]), radius,
-                     self._cloth_now):  # fmt: skip
+        if near:
+            tip_guess = (near[0] + near[-1]) / 2
+            span = float(np.hypot(*(near[-1] - near[0]))) / 2
             edges, blob_uv, why = tip_edge_points(frame, gains, tip_guess, radius,
                                                   TIP_SEARCH_PX + span)  # fmt: skip
         # Not in the window (or nothing dark where either prediction puts it: a
