@@ -241,7 +241,9 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
         found = _coarse_blob(frame, gains, guess_uv, radius_px, search_px)
         if found is None:
             return None, None, "no dark blob of the tip's size where the tip can be"
-        guess_uv, search_px = found, 2.0 * COARSE_STEP_PX + 4.0
+        # The coarse centroid lies within a grid step of the face's (a face cut by
+        # the window is looked for again below).
+        guess_uv, search_px = found, COARSE_STEP_PX + 4.0
     h, w = frame.shape[:2]
     for attempt in range(2):
         half = radius_px * 1.4 + search_px
