@@ -381,7 +381,8 @@ class FrontEnd:
         # The tip's edge, then a first tilt guess from the tip alone. The window spans
         # the predictions (standing still, and moving on at the last velocity) with
         # dark pixels near them: after a jump the velocity is the jump's, and the
-        # moving prediction lies far off (a window spanning both was ~6x larger).
+        # moving prediction lies far off (a window spanning both had 5-10x the
+        # pixels on the live clip, and went to the coarse search).
         uv_pred, _, rim = self.model.project(q_pred, jacobian=False)
         radius = math.sqrt(polygon_area(rim) / math.pi)
         tip_still = uv_pred[TIP] + self.offsets[TIP]
@@ -428,7 +429,7 @@ class FrontEnd:
                 tip, tip_q, tip_uv = None, None, blob_uv
             q_guess = self._tilt_from_tip(q0, tip_uv)
         deferred = edges is not None and tip is None
-        have_tip = edges is not None
+        tip_found = edges is not None
 
         # Corners: drift-corrected LK against the rest patches warped to q_guess.
         uv_guess = self._corners_at(q_guess)
@@ -443,7 +444,7 @@ class FrontEnd:
         uv_ref, qual = self._refine(frame, gains, tmpl, start_uv, ~occluded)
         retry = ~occluded & ~(qual >= QUALITY_MIN)
         locked = ~occluded & ~retry
-        if locked.sum() < MIN_CORNERS and have_tip:
+        if locked.sum() < MIN_CORNERS and tip_found:
             # Lost after a jump in dz: try the corners where the tip would put them
             # at other depths, and keep the depth where most of them lock.
             best = locked.sum()
@@ -460,7 +461,7 @@ class FrontEnd:
                     uv_ref, qual, tmpl = uv_r, q_r, self._warp_templates(q_h)
             retry = ~occluded & ~(qual >= QUALITY_MIN)
             locked = ~occluded & ~retry
-        if locked.sum() < MIN_REPREDICT and have_tip:
+        if locked.sum() < MIN_REPREDICT and tip_found:
             # Still nothing (the shift jumped too): detect the features afresh.
             fit0 = self._detected_pose(frame, gains, tip_uv)
             if fit0 is not None:
@@ -474,7 +475,7 @@ class FrontEnd:
                     uv_ref, qual = uv_r, q_r
                     retry = ~occluded & ~(qual >= QUALITY_MIN)
                     locked = ~occluded & ~retry
-        if retry.any() and MIN_REPREDICT <= locked.sum() < FALLBACK_BELOW and have_tip:
+        if retry.any() and MIN_REPREDICT <= locked.sum() < FALLBACK_BELOW and tip_found:
             # Some corners were too far from the tip-only prediction (dz or the shift
             # moved): predict them again from a fit to the corners that locked.
             pre = np.full((TIP + 1, 2), np.nan)
