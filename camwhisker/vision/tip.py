@@ -227,8 +227,9 @@ def find_tip(
 
 
 def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
-    """Sub-pixel edge points of the end face, shape (N, 2), the centroid (2,) of
-    the dark blob they were searched around, and "" ; or (None, None, reason).
+    """Sub-pixel edge points of the end face, shape (N, 2), and the centroid (2,)
+    of the dark blob they were searched around: (points, centroid, ""), or
+    (None, None, reason) where the face is not found.
 
     See :func:`find_tip` for the parameters. A search wider than
     COARSE_ABOVE_PX first finds the face on a grid of every COARSE_STEP_PX-th
