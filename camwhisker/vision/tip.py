@@ -234,7 +234,7 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
     See :func:`find_tip` for the parameters. A search wider than
     COARSE_ABOVE_PX first finds the face on a grid of every COARSE_STEP_PX-th
     pixel, then searches the full-resolution pixels around it. The blob's
-    centroid is within ~1 px of the face's (0.26 px median, 0.86 px at most on
+    centroid is within ~1 px of the face's (0.27 px median, 0.86 px at most on
     the live benchmark's clip): the threshold's crossing moves a little toward
     the darker neighbour under the blur.
     """
