@@ -80,11 +80,6 @@ FPS_MISMATCH = 0.1
 KEYS = {"r": "rezero", "d": "redetect", "q": "quit"}
 
 
-def _blank(index: int, reason: str) -> FrameResult:
-    nan3 = (math.nan,) * 3
-    return FrameResult(index, math.nan, math.nan, math.nan, False, nan3, nan3, reason=reason)
-
-
 class LiveProcessor:
     """The front end with live events: one call per row.
 
@@ -105,7 +100,7 @@ class LiveProcessor:
         try:
             r = fe.start(image, index)
         except (FeaturesNotFound, ValueError) as exc:
-            return _blank(index, f"{what}: {exc}")
+            return FrameResult.untrusted(index, f"{what}: {exc}")
         # A throwaway update of a copy, on the rest frame: the first real frame then
         # finds every compiled kernel of the update loaded (it took ~27 ms, not ~2).
         copy.deepcopy(fe).update(image, index)
@@ -115,7 +110,7 @@ class LiveProcessor:
     def process(self, index: int, image: np.ndarray | None, event: str = "") -> FrameResult:
         """The row for frame ``index`` (``image`` None: a gap)."""
         if image is None:
-            return _blank(index, GAP_REASON)
+            return FrameResult.untrusted(index, GAP_REASON)
         if self.fe is None:
             return self._start(image, index, "rest frame")
         if event == "rezero":
@@ -125,7 +120,7 @@ class LiveProcessor:
                 self.fe.redetect(image)
             return self.fe.update(image, index)
         except ValueError as exc:  # a frame of another size after a reconnect
-            return _blank(index, str(exc))
+            return FrameResult.untrusted(index, str(exc))
 
 
 def live_track(items: Iterable[tuple[np.ndarray | None, str]], sensor: Sensor,

@@ -255,6 +255,12 @@ class FrameResult:
     points_uv: np.ndarray = field(default_factory=lambda: np.full((TIP + 1, 2), np.nan))
     quality: np.ndarray = field(default_factory=lambda: np.full(TIP + 1, np.nan))
 
+    @classmethod
+    def untrusted(cls, frame: int, reason: str) -> FrameResult:
+        """A row with no estimate: every value NaN, ``ok`` False, ``reason`` saying why."""
+        nan3 = (math.nan,) * 3
+        return cls(frame, math.nan, math.nan, math.nan, False, nan3, nan3, reason=reason)
+
 
 class FrontEnd:
     """Stateful front end for one sensor. See the module notes.
@@ -858,8 +864,7 @@ class FrontEnd:
 
     def _fail(self, reason: str) -> FrameResult:
         self._lost = True
-        return FrameResult(self._index, math.nan, math.nan, math.nan, False,
-                           (math.nan,) * 3, (math.nan,) * 3, reason=reason)  # fmt: skip
+        return FrameResult.untrusted(self._index, reason)
 
 
 class _Template:
@@ -919,8 +924,7 @@ def track(
     fe = FrontEnd(sensor, options)
     for i, frame in enumerate(frames):
         if i < rest_index:
-            yield FrameResult(i, math.nan, math.nan, math.nan, False, (math.nan,) * 3,
-                              (math.nan,) * 3, reason="before the rest frame")  # fmt: skip
+            yield FrameResult.untrusted(i, "before the rest frame")
         elif i == rest_index:
             yield fe.start(frame, i)
         else:
