@@ -376,6 +376,40 @@ def _stick_or_slip(scene, mech, xb, anchor, slip_c, prev):
     return None, True
 
 
+_COLUMNS = ("phi", "dz", "r", "s", "cx", "cy", "f")
+
+
+def _columns(n: int) -> dict:
+    """The sweep's per-step columns, NaN until solved."""
+    return {k: np.full(n, np.nan) for k in _COLUMNS}
+
+
+def _row(sol) -> dict:
+    """One step's columns from an elastica solution."""
+    cx, cy = sol.contact_xy_mm
+    return {"phi": sol.phi_deg, "dz": sol.dz_mm, "f": sol.force_n, "cx": cx, "cy": cy,
+            "r": sol.r_mm, "s": sol.s_contact_mm}  # fmt: skip
+
+
+def _put(out: dict, i: int, row: dict) -> None:
+    for k, v in row.items():
+        out[k][i] = v
+
+
+def _slipping(out: dict, in_contact: np.ndarray, first_point) -> np.ndarray:
+    """Steps whose contact point lies more than SLIP_TOL_MM from the first one."""
+    moved = np.hypot(out["cx"] - first_point[0], out["cy"] - first_point[1])
+    return np.where(in_contact, moved > SLIP_TOL_MM, False)
+
+
+def _as_sweep(xs, out, in_contact, slipping, elastica, sliding=None) -> Sweep:
+    return Sweep(
+        base_x_mm=xs, in_contact=in_contact, phi_deg=out["phi"], dz_mm=out["dz"],
+        r_mm=out["r"], s_contact_mm=out["s"], contact_x_mm=out["cx"], contact_y_mm=out["cy"],
+        force_n=out["f"], slipping=slipping, elastica=elastica, sliding=sliding,
+    )  # fmt: skip
+
+
 def _sweep_friction(scene, mech: WhiskerMechanics, xs: np.ndarray) -> Sweep:
     """Quasi-static stick / slip sweep of a friction scene (see :class:`_FrictionContact`).
 
@@ -386,7 +420,7 @@ def _sweep_friction(scene, mech: WhiskerMechanics, xs: np.ndarray) -> Sweep:
     the load stops pushing.
     """
     n = xs.size
-    out = {k: np.full(n, np.nan) for k in ("phi", "dz", "r", "s", "cx", "cy", "f")}
+    out = _columns(n)
     in_contact = np.zeros(n, bool)
     sliding = np.zeros(n, bool)
     x_first = scene.first_contact_x(mech)
@@ -411,16 +445,69 @@ def _sweep_friction(scene, mech: WhiskerMechanics, xs: np.ndarray) -> Sweep:
         anchor = sol.contact_xy_mm
         in_contact[i] = True
         sliding[i] = slid
-        out["phi"][i], out["dz"][i], out["f"][i] = sol.phi_deg, sol.dz_mm, sol.force_n
-        out["cx"][i], out["cy"][i] = sol.contact_xy_mm
-        out["r"][i], out["s"][i] = sol.r_mm, sol.s_contact_mm
-    moved = np.hypot(out["cx"] - first[0], out["cy"] - first[1])
-    slipping = np.where(in_contact, moved > SLIP_TOL_MM, False)
-    return Sweep(
-        base_x_mm=xs, in_contact=in_contact, phi_deg=out["phi"], dz_mm=out["dz"],
-        r_mm=out["r"], s_contact_mm=out["s"], contact_x_mm=out["cx"], contact_y_mm=out["cy"],
-        force_n=out["f"], slipping=slipping, elastica=in_contact.copy(), sliding=sliding,
-    )
+        _put(out, i, _row(sol))
+    slipping = _slipping(out, in_contact, first)
+    return _as_sweep(xs, out, in_contact, slipping, in_contact.copy(), sliding)
+
+
+def _beam_row(scene: PegScene, mech: WhiskerMechanics, xb: float, dx: float, model: str):
+    """The closed-form beam's columns at base xb, or None where the elastica is needed."""
+    phi, dz, force = (float(v) for v in
+                      beam_peg_response(mech, scene.r_mm, dx, scene.k_obj_n_per_mm))  # fmt: skip
+    if not (model == "beam" or math.degrees(phi) < PHI_LINEAR_MAX_DEG):
+        return None
+    give = 0.0 if math.isinf(scene.k_obj_n_per_mm) else force / scene.k_obj_n_per_mm
+    cx, cy = scene.x_mm + give, scene.r_mm
+    return {"phi": math.degrees(phi), "dz": dz, "f": force, "cx": cx, "cy": cy,
+            "r": math.hypot(cx - xb, cy), "s": scene.r_mm}  # fmt: skip
+
+
+def _elastica_step(scene, mech: WhiskerMechanics, xb: float, constraint, prev):
+    """The elastica at base xb, continued from ``prev`` (else from the scene's guess);
+    None where the contact leaves the whisker or stops pushing."""
+    guess = prev.unknowns if prev is not None else scene.guess(mech, xb)
+    try:
+        sol = solve_elastica(mech, xb, constraint, guess)
+    except ElasticaError:
+        sol = solve_elastica(mech, xb, constraint, scene.guess(mech, xb))
+    if sol.s_contact_mm > mech.length_mm or sol.force_n <= 0.0:
+        return None
+    return sol
+
+
+def _sweep_smooth(scene, mech: WhiskerMechanics, xs: np.ndarray, model: str) -> Sweep:
+    """Sweep of a peg or a circle: the beam where ``model`` allows it, else the elastica."""
+    n = xs.size
+    out = _columns(n)
+    in_contact = np.zeros(n, bool)
+    used_elastica = np.zeros(n, bool)
+    x_first = scene.first_contact_x(mech)
+    is_peg = isinstance(scene, PegScene)
+    constraint = scene.constraint(mech)
+    prev = None
+    first_point = None
+    for i, xb in enumerate(xs):
+        dx = xb - x_first
+        if dx <= 0.0:
+            out["phi"][i] = out["dz"][i] = 0.0
+            prev = None
+            continue
+        row = _beam_row(scene, mech, xb, dx, model) if is_peg and model != "elastica" else None
+        if row is None:
+            prev = _elastica_step(scene, mech, xb, constraint, prev)
+            if prev is None:
+                out["phi"][i] = out["dz"][i] = np.nan
+                continue
+            used_elastica[i] = True
+            row = _row(prev)
+        _put(out, i, row)
+        in_contact[i] = True
+        if first_point is None:
+            first_point = (row["cx"], row["cy"])
+    slipping = np.zeros(n, bool)
+    if first_point is not None and not is_peg:
+        slipping = _slipping(out, in_contact, first_point)
+    return _as_sweep(xs, out, in_contact, slipping, used_elastica)
 
 
 def sweep(scene, mech: WhiskerMechanics, base_x_mm, model: str = "auto") -> Sweep:
@@ -445,72 +532,8 @@ def sweep(scene, mech: WhiskerMechanics, base_x_mm, model: str = "auto") -> Swee
     if model not in ("auto", "beam", "elastica"):
         raise ValueError(f"model must be 'auto', 'beam' or 'elastica', got {model!r}")
     xs = np.asarray(base_x_mm, dtype=float)
-    if isinstance(scene, _FrictionContact):
-        if model == "beam":
-            raise ValueError("the beam model only covers peg contact; use the elastica")
-        return _sweep_friction(scene, mech, xs)
-    n = xs.size
-    out = {k: np.full(n, np.nan) for k in ("phi", "dz", "r", "s", "cx", "cy", "f")}
-    in_contact = np.zeros(n, bool)
-    slipping = np.zeros(n, bool)
-    used_elastica = np.zeros(n, bool)
-    x_first = scene.first_contact_x(mech)
-    is_peg = isinstance(scene, PegScene)
-    if model == "beam" and not is_peg:
+    if model == "beam" and not isinstance(scene, PegScene):
         raise ValueError("the beam model only covers peg contact; use the elastica")
-    constraint = scene.constraint(mech)
-    prev = None
-    first_point = None
-    for i, xb in enumerate(xs):
-        dx = xb - x_first
-        if dx <= 0.0:
-            out["phi"][i] = out["dz"][i] = 0.0
-            prev = None
-            continue
-        if is_peg and model != "elastica":
-            phi, dz, force = (float(v) for v in
-                              beam_peg_response(mech, scene.r_mm, dx, scene.k_obj_n_per_mm))
-            if model == "beam" or math.degrees(phi) < PHI_LINEAR_MAX_DEG:
-                give = 0.0 if math.isinf(scene.k_obj_n_per_mm) else force / scene.k_obj_n_per_mm
-                cx, cy = scene.x_mm + give, scene.r_mm
-                out["phi"][i], out["dz"][i], out["f"][i] = math.degrees(phi), dz, force
-                out["cx"][i], out["cy"][i] = cx, cy
-                out["r"][i] = math.hypot(cx - xb, cy)
-                out["s"][i] = scene.r_mm
-                in_contact[i] = True
-                if first_point is None:
-                    first_point = (cx, cy)
-                continue
-        guess = prev.unknowns if prev is not None else scene.guess(mech, xb)
-        try:
-            sol = solve_elastica(mech, xb, constraint, guess)
-        except ElasticaError:
-            sol = solve_elastica(mech, xb, constraint, scene.guess(mech, xb))
-        if sol.s_contact_mm > mech.length_mm or sol.force_n <= 0.0:
-            out["phi"][i] = out["dz"][i] = np.nan
-            prev = None
-            continue
-        prev = sol
-        used_elastica[i] = True
-        in_contact[i] = True
-        out["phi"][i], out["dz"][i], out["f"][i] = sol.phi_deg, sol.dz_mm, sol.force_n
-        out["cx"][i], out["cy"][i] = sol.contact_xy_mm
-        out["r"][i], out["s"][i] = sol.r_mm, sol.s_contact_mm
-        if first_point is None:
-            first_point = sol.contact_xy_mm
-    if first_point is not None and not is_peg:
-        moved = np.hypot(out["cx"] - first_point[0], out["cy"] - first_point[1])
-        slipping = np.where(in_contact, moved > SLIP_TOL_MM, False)
-    return Sweep(
-        base_x_mm=xs,
-        in_contact=in_contact,
-        phi_deg=out["phi"],
-        dz_mm=out["dz"],
-        r_mm=out["r"],
-        s_contact_mm=out["s"],
-        contact_x_mm=out["cx"],
-        contact_y_mm=out["cy"],
-        force_n=out["f"],
-        slipping=slipping,
-        elastica=used_elastica,
-    )
+    if isinstance(scene, _FrictionContact):
+        return _sweep_friction(scene, mech, xs)
+    return _sweep_smooth(scene, mech, xs, model)
