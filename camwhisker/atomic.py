@@ -15,6 +15,7 @@ from pathlib import Path
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
 
+# The process's umask: os.umask reads it only by setting it, so set it back at once.
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 

@@ -1,7 +1,7 @@
 """The sensor file (TOML): typed, validated, with defaults from the paper's Table I.
 
 The file has three tables, ``[camera]``, ``[plate]`` and ``[whisker]``; units are
-in the key names (see SENSOR.md section 5). Missing keys take the defaults
+in the key names (see docs/sensor.md section 5). Missing keys take the defaults
 below. An unknown table or key, a value of the wrong type, a non-finite or
 non-positive length, or an impossible geometry raises :class:`SensorFileError`
 naming the file and the key.
@@ -33,6 +33,7 @@ __all__ = [
     "dump_sensor",
 ]
 
+# Table I's angles of view, read as half angles (module docstring).
 _FX_DEFAULT = 640.0 / math.tan(math.radians(26.95))
 _FY_DEFAULT = 360.0 / math.tan(math.radians(16.26))
 

@@ -1,6 +1,6 @@
 """Linear-stage logs: parse and validate, find pauses, estimate the clock offset, pause medians.
 
-A stage log (SENSOR.md section 7) is a CSV with header ``t_s,x_mm`` and an
+A stage log (docs/sensor.md section 7) is a CSV with header ``t_s,x_mm`` and an
 optional ``r_mm``, on the stage's own clock. The camera's signal table
 (section 6) has its own clock; ``offset_s`` below always means
 
@@ -51,6 +51,7 @@ OFFSET_COARSE_STEP_S = 0.1
 OFFSET_FINE_STEP_S = 0.004
 # Coarse local maxima refined on the fine grid (the best refined one wins).
 OFFSET_CANDIDATES = 3
+# Default search range of the offset (+-, s); a caller that knows better passes search_s.
 DEFAULT_OFFSET_RANGE_S = 30.0
 # Scores within this of the best count as the best plateau: about the score's
 # noise from one frame's worth of noise moving in or out of a pause.
@@ -286,8 +287,7 @@ def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
     scores = np.array([score(o) for o in coarse])
     # Refine around the best few coarse local maxima: with the coarse grid up to
     # half a step off the truth, the true peak can score below a wrong offset
-    # that shifts the pauses by a few whole steps (seen on a run whose contact
-    # ends mid-run, where phi(x) is a plain ramp).
+    # that shifts the pauses by whole steps (where phi(x) is a plain ramp).
     interior = np.r_[True, scores[1:] >= scores[:-1]] & np.r_[scores[:-1] >= scores[1:], True]
     peaks = np.flatnonzero(interior)
     peaks = peaks[np.argsort(scores[peaks])[::-1][:OFFSET_CANDIDATES]]

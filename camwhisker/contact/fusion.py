@@ -21,9 +21,8 @@ the fused estimate is
 GM itself where the evidence says it is fine, and GM with its bias removed by
 the MF evidence where it is not. (Where p >= :data:`KEEP_GM_POSTERIOR` the
 posterior-mean correction is under a tenth of m, and m is then mostly MF's own
-per-contact error: applying it moved a good GM toward MF's bias, measured on
-a stuck, rigid contact, 1.4 % worse RMSE than GM on one seed.) Where MF is
-undefined, GM is returned; where GM is undefined, MF.
+per-contact error, so applying it would move a good GM toward MF's bias.)
+Where MF is undefined, GM is returned; where GM is undefined, MF.
 """
 
 from __future__ import annotations
@@ -33,25 +32,15 @@ from scipy.signal import lfilter
 
 __all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR", "fuse"]
 
-# Prior share of good GM estimates. Rigid, non-slipping contact is the common
-# case the GM is made for; a 3 % prior of failure lets a consistent bias of a
-# few sigma overturn it within a contact.
+# Prior share of good GM estimates: rigid, non-slipping contact is the common case,
+# and a 3 % prior of failure lets a consistent bias of a few sigma overturn it.
 PRIOR_GM_GOOD = 0.97
-# Memory of the bias estimate on each side (samples = stage pauses): averages
-# MF's noise over ~10 pauses while following a GM bias that changes by up to a
-# millimetre per 1 mm step (the bottle: 0 -> -11 mm over 25 pauses) with little lag.
+# Memory of the bias estimate on each side (samples = stage pauses): averages MF's
+# noise over ~10 pauses yet follows a GM bias that changes by up to 1 mm a step.
 MEMORY_SAMPLES = 5.0
 # Floor on the standard error of the bias estimate: MF's systematic error over one
-# contact, which averaging over pauses does not remove. Measured on rigid pegs at the
-# 7 radii halfway (geometric mean) between the calibration's, where MF interpolates
-# between calibrated curves (calibration seeds 0 and 101, both noise levels): RMS of
-# the per-contact mean MF error 1.2-1.7 mm, the largest 2.9 mm.
+# contact (it interpolates between calibrated radii), which averaging does not remove.
 MF_BIAS_FLOOR_MM = 2.0
-# With these two (the same prior and KEEP_GM_POSTERIOR), on calibration / evaluation
-# seeds 0/1, 101/102 and 201/202 at both noise levels, the fused RMSE is at most the
-# better of GM and MF in all 24 (seed, noise, scene) cases, and exactly GM's on rigid
-# contact; memory 10 and a 3 mm floor failed 11 of them (GM kept on the bottle and on
-# the 90 mm compliant peg, whose GM errs by ~10 mm).
 # Posterior P(GM good) at or above which GM is returned unchanged: the correction
 # (1 - p) m would be under 0.1 m, i.e. under 0.2 mm for an m at the 2 mm floor
 # (GM's own spread, sigma_GM, is 0.3-1 mm), so it cannot be told from MF's bias.

@@ -29,8 +29,7 @@ units), while neighbouring radii are 0.003-0.05 apart in dz: among raw pause
 rows the k = 7 nearest are the rows of many radii at the nearest sampled phi,
 at nearly equal distances, and eq. (10) returns their mean. Along dense curves
 the nearest rows are those of the nearest radii. Noise-free, the curves fit a
-run's pause medians to 0.7 um in dz and 0.015 mm in r (tuning seed 0), below
-the pause medians' noise (several um).
+run's pause medians well within the medians' own noise.
 """
 
 from __future__ import annotations

@@ -121,17 +121,20 @@ def pause_estimates(calib: Calibration, run: RunAnalysis) -> dict:
             "dz_mm": p.dz_mm, **out}
 
 
+#: The contact table's columns (docs/sensor.md section 7).
 CONTACT_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_gm_mm", "r_mf_mm", "z_score",
                    "x_hat_mm", "r_hat_mm")
+#: Diagnostics written after the contract's columns.
 EXTRA_COLUMNS = ("y_hat_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm",
                  "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm", "pause", "ok")
+# Estimates that a frame takes from the stage pause it lies in.
 _PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "z_combined",
               "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm")
 
 
 def contact_rows(signals: dict, log: StageLog, calib: Calibration,
                  offset_s: float | None = None) -> tuple[dict, RunAnalysis]:
-    """One row per signal row (SENSOR.md section 7) plus extra columns.
+    """One row per signal row (docs/sensor.md section 7) plus extra columns.
 
     ``x_mm`` is the stage position at the frame time and ``dx_mm`` the travel
     since the contact onset; ``phi_deg`` and ``dz_mm`` are the frame's own

@@ -9,7 +9,7 @@ base moving in +x); the plate's rotation magnitude is ``phi_deg = |phi|``.
 The whisker is a truncated cone: radius R(s) = R0 (1 - s / L_a) with the apex
 length L_a = l_w / (1 - tip_ratio), so EI(s) = EI0 (1 - s / L_a)^4. The base is
 a concentrated rotational compliance (phi = M(0) / k_phi) and an axial spring
-(dz = F_axial / k_z, positive toward the camera), both linear as in SENSOR.md.
+(dz = F_axial / k_z, positive toward the camera), both linear as in docs/sensor.md.
 
 Two models, each used where it is accurate:
 

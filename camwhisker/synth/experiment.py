@@ -7,7 +7,7 @@ poses as webcam video and writes, per run ``NAME``::
 
     NAME.mp4                 the video (H.264), with NAME.truth.csv (pose per frame),
                              NAME.sensor.toml and NAME.json as for any render
-    NAME.stage.csv           the stage log, header t_s,x_mm[,r_mm] (SENSOR.md section 7)
+    NAME.stage.csv           the stage log, header t_s,x_mm[,r_mm] (docs/sensor.md section 7)
     NAME.contact_truth.csv   contact truth per frame: r, contact point, slipping
 
 and ``experiment.toml``, the manifest: each run's role (calibration,
@@ -56,7 +56,9 @@ ROLES = {
     "box": "slide-box",
     "bottle": "slide-circle",
 }
+#: Frame rate of the filmed runs: 3-5 frames per stage pause (module docstring).
 EXPERIMENT_FPS = 3.0
+#: H.264 constant rate factor: a frame near 6 KB, so the bundle stays small.
 EXPERIMENT_CRF = 26
 
 

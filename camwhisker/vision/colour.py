@@ -35,9 +35,8 @@ __all__ = [
     "cloth_level",
 ]
 
-#: Spacing (px) of the cloth sample grid: 3600 points on a 1280 x 720 frame. The
-#: front end keeps those beyond the rod's reach: 21, in the frame's corners, whose
-#: gains vary by ~0.6% (B and R) from frame to frame on the live benchmark's clip.
+#: Spacing (px) of the cloth sample grid: 3600 points on a 1280 x 720 frame, of
+#: which those beyond the rod's reach (the frame's corners) are kept.
 CLOTH_GRID_PX = 16
 
 #: Samples darker than this fraction of the median cloth level, or with a channel
@@ -98,8 +97,8 @@ def white_balance_gains(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _gray_world(frame, rows, cols, min_fraction, saturated):
-    """:func:`white_balance_gains` in one compiled pass (numpy's calls cost ~0.1 ms
-    a frame on the front end's few samples); float32 sums in numpy's order."""
+    """:func:`white_balance_gains` in one compiled pass (numpy's per-call cost
+    dominates on so few samples); float32 sums in numpy's order."""
     n = rows.shape[0]
     px = np.empty((n, 3), np.float32)
     level = np.empty(n, np.float32)
@@ -151,8 +150,7 @@ def contrast_map(bgr: np.ndarray, gains: np.ndarray | None = None) -> np.ndarray
     gb, gg, gr = (1.0, 1.0, 1.0) if gains is None else (float(x) for x in gains)
     b, g, r = cv2.split(np.asarray(bgr))
     f32 = cv2.CV_32F
-    # (B - P) - (R - P) = B - R; the OpenCV calls are ~6x faster than numpy on
-    # strided channel views (~0.25 ms for 320 x 320 px on one core).
+    # (B - P) - (R - P) = B - R; OpenCV, not numpy: faster on strided channel views.
     b_minus_r = cv2.addWeighted(b, gb, r, -gr, 0.0, dtype=f32)
     p = cv2.addWeighted(b, gb / 3.0, g, gg / 3.0, 0.0, dtype=f32)
     p = cv2.scaleAdd(r.astype(np.float32), gr / 3.0, p)

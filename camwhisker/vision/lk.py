@@ -37,14 +37,12 @@ __all__ = [
 ]
 
 #: Half size of the LK window (px): 25 x 25 covers a corner's two edges out to
-#: > 3 blur sigma (2.6 px in the hard scene) with room to spare, and stays clear
-#: of the neighbouring features (the square's edge is 12 px beyond an arm's end,
-#: but it lies in the other polarity of the contrast map).
+#: 3 blur sigma of the hard scene and stays clear of the neighbouring features.
 PATCH_HALF_PX = 12
 #: Inverse-compositional iterations stop, per point, when the step is below this
-#: (px): far under a corner's ~0.05 px noise (the iteration converges by ~5x per
-#: step, so ~4e-4 px remain). Compiled, an iteration costs ~2 us a point.
+#: (px): far under a corner's ~0.05 px noise.
 LK_STEP_TOL_PX = 0.002
+#: Cap on the iterations per point; a converging point needs a handful.
 LK_MAX_ITER = 20
 #: Scale of the contrast map into 8 bits for OpenCV's LK: G in [-2, 2] -> [8, 248].
 UINT8_SCALE = 60.0

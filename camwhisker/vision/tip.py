@@ -40,10 +40,9 @@ __all__ = [
     "face_near",
 ]
 
-#: Threshold between the window's dark (face) and bright levels. Relative to the
-#: cloth, the face is at ~0.1, the rod's darkest flank at ~0.4 and the grey springs
-#: at ~0.65, and vignetting takes up to 30% off locally: 0.15 of the way from dark
-#: to bright (~0.25 of the cloth) keeps the face apart from both at 5 DN noise.
+#: Threshold between the window's dark (face, ~0.1 of the cloth) and bright levels:
+#: 0.15 of the way keeps the face apart from the rod's darkest flank (~0.4) and the
+#: grey springs (~0.65) under vignetting and 5 DN noise.
 TIP_THRESHOLD_FRACTION = 0.15
 #: The dark level is the percentile of V that falls this deep inside the expected
 #: face area (a quarter of it), however large the window; the bright level is the
@@ -53,10 +52,8 @@ BRIGHT_PERCENTILE = 90.0
 #: Subsampling step for the level percentiles (speed; levels are smooth), at full
 #: resolution and on the coarse grid alike.
 LEVEL_STEP_PX = 3
-#: Searches wider than this (px) start on a grid of every COARSE_STEP_PX-th pixel
-#: (the face, ~72 px across at rest and ~60 at 35 deg of tilt, is still 7-9 grid
-#: pixels across): 64 times fewer pixels to look at. A step of 4 found the same
-#: faces at ~4x the cost (~0.6 against ~0.15 ms for the whole reach).
+#: Searches wider than this (px) start on a grid of every COARSE_STEP_PX-th pixel:
+#: 64 times fewer pixels, and the face (~60-72 px across) is still 7-9 grid pixels.
 COARSE_ABOVE_PX = 80.0
 COARSE_STEP_PX = 8
 #: A face cut by its search window's edge is looked for again in a window centred
@@ -75,14 +72,9 @@ AREA_RANGE = (0.35, 2.5)
 #: A ray's edge is kept when its rise is at least this fraction of the median rise.
 MIN_RISE_FRACTION = 0.3
 #: A ray is left out where the steepest rises of luma and of V lie farther apart than
-#: this (px). V (max channel) rises at the face's own edge on every side; luma, whose
-#: steepest point is unbiased by MJPG's half-resolution colour, can jump to a stronger
-#: luma edge just beyond a dark colour: against blue (luma ~0.35 of the cloth) the
-#: blue-to-cloth edge a few px out, where the face crosses the blue square's edge.
-#: Measured over the vision bench's nominal and hard scenes (150 frames each): the two
-#: lie within 0.5 px on 90 % of the rays in nominal, within 1.5 px on 90 % under the
-#: hard scene's 2.6 px blur; 1.5 px leaves out 2 % and 6 % of the rays. (1 px, 2 % and
-#: 11 %, lost a hard-scene frame to too few rays clear of the rod.)
+#: this (px): V rises at the face's own edge, while luma can jump to a stronger edge
+#: just beyond a dark colour (blue to cloth, where the face crosses the blue square).
+#: 1.5 px is the two's usual spread under the hard scene's blur.
 EDGE_AGREE_PX = 1.5
 #: Rays beside the rod's body are not used: where the body's outline reaches more
 #: than BODY_PROTRUSION_PX beyond the face's rim, and BODY_BLUR_PX (along the rim)
@@ -164,7 +156,7 @@ def face_near(frame, gains, centres_uv, radius_px: float, cloth_dn: float) -> bo
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _any_dark(frame, gains, centres, radius, level):
-    """:func:`face_near`'s samples in one compiled pass (numpy's calls cost ~0.1 ms)."""
+    """:func:`face_near`'s samples in one compiled pass (numpy's per-call cost dominates)."""
     h, w = frame.shape[0], frame.shape[1]
     step = np.array([-0.5, 0.0, 0.5]) * radius
     for k in range(centres.shape[0]):
@@ -234,9 +226,8 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
     See :func:`find_tip` for the parameters. A search wider than
     COARSE_ABOVE_PX first finds the face on a grid of every COARSE_STEP_PX-th
     pixel, then searches the full-resolution pixels around it. The blob's
-    centroid is within ~1 px of the face's (0.27 px median, 0.86 px at most on
-    the live benchmark's clip): the threshold's crossing moves a little toward
-    the darker neighbour under the blur.
+    centroid lies within ~1 px of the face's: under the blur the threshold's
+    crossing moves a little toward the darker neighbour.
     """
     if search_px > COARSE_ABOVE_PX:
         found = _coarse_blob(frame, gains, guess_uv, radius_px, search_px)
