@@ -25,9 +25,9 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_path
+from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
 from camwhisker.campaign import BatchTask, run_many, sidecar_path
-from camwhisker.contact.bench import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.contact.io import read_columns, read_signal_table, write_csv
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.zscore import flag_rates, roc_auc

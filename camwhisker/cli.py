@@ -333,7 +333,7 @@ def _run_live(args) -> int:
     from camwhisker.vision import FrontEndOptions
 
     if args.bench:
-        from camwhisker.live.bench import run_bench
+        from camwhisker.bench.live import run_bench
 
         print(run_bench(args.frames or 150).text())
         return 0
@@ -458,7 +458,7 @@ def _run_bench(args) -> int:
     from camwhisker.bench.configs import select
     from camwhisker.bench.run import default_cache
     from camwhisker.bench.run import main as bench_main
-    from camwhisker.vision.bench import SCENES
+    from camwhisker.bench.vision import SCENES
 
     try:
         configs = select(args.configs)

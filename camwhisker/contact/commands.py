@@ -125,7 +125,7 @@ def _run_contact(args) -> int:
 
 
 def _run_bench(args) -> int:
-    from camwhisker.contact.bench import format_report, run_bench
+    from camwhisker.bench.contact import format_report, run_bench
 
     result = run_bench(args.seed, figures_dir=args.figures, n_timing=args.samples)
     print(format_report(result))
