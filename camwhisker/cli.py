@@ -422,7 +422,7 @@ def _add_chain(sub) -> None:
 
 
 def _run_chain(args) -> int:
-    from camwhisker.chain import ChainError, format_summary, run_chain
+    from camwhisker.bench.chain import ChainError, format_summary, run_chain
 
     try:
         summary = run_chain(args.experiment, args.out, args.jobs, progress=not args.quiet)

@@ -10,4 +10,5 @@ The library never imports this package; the command line and the tests do.
 - :mod:`~camwhisker.bench.live`       the live loop's per-frame latency
 - :mod:`~camwhisker.bench.contact`    ``camwhisker contact-bench``: the contact back end
 - :mod:`~camwhisker.bench.throughput` batch throughput with 1 and 2 worker processes
+- :mod:`~camwhisker.bench.chain`      ``camwhisker chain``: a filmed experiment against its truth
 """
