@@ -17,9 +17,12 @@ class CommandError(RuntimeError):
 INPUT_ERRORS = (CommandError, ValueError, OSError)
 
 
-def sensor_arg(p: argparse.ArgumentParser, help: str = "sensor file (TOML); default: Table I values"
-               ) -> None:  # fmt: skip
-    p.add_argument("--sensor", metavar="FILE", help=help)
+SENSOR_HELP = "sensor file (TOML); default: Table I values"
+
+
+def sensor_arg(p: argparse.ArgumentParser, help_text: str = SENSOR_HELP) -> None:
+    """The ``--sensor FILE`` option, read with :func:`camwhisker.sensor.load_sensor`."""
+    p.add_argument("--sensor", metavar="FILE", help=help_text)
 
 
 def command_line(args: argparse.Namespace) -> str:
