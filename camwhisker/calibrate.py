@@ -37,7 +37,8 @@ from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
 
 __all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
-           "mf_phi_floor", "write_calibration", "read_calibration", "mf_table_path"]
+           "format_calibration", "mf_phi_floor", "write_calibration", "read_calibration",
+           "mf_table_path"]
 
 # MF gives no estimate below the phi from which its scatter from noise alone (the
 # calibration's pauses against the curves of their own runs) stays within this in every
@@ -123,6 +124,32 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
                         mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance)
     return calib, analyses, data
+
+
+def format_calibration(runs: list[CalibrationRun], analyses: list[RunAnalysis],
+                       calib: Calibration) -> tuple[list[str], str | None]:
+    """What a person reads after a calibration: offsets, C of eq. (8), the MF table.
+
+    Returns the lines, and a warning when MF is left with no phi to estimate from.
+    """
+    lines = []
+    for run, a in zip(runs, analyses, strict=True):
+        how = "estimated" if a.offset_estimated else "given"
+        lines.append(f"{run.log.source}: offset {a.offset_s:+.3f} s ({how}), "
+                     f"{int((a.dx_mm == a.dx_mm).sum())} contact pauses")
+    eq8 = calib.gm.alternatives["eq8"]
+    lo, hi = eq8.ci["c"]
+    lines.append(f"eq. (8): C = {eq8.params['c']:.2f} (95 % CI {lo:.2f}-{hi:.2f}), "
+                 f"RMSE {eq8.rmse_mm:.2f} mm; GM model used: {calib.gm.kind} "
+                 f"(RMSE {calib.gm.rmse_mm:.2f} mm)")
+    floor = calib.mf_table.phi_min_deg
+    if math.isinf(floor):
+        return lines, (f"MF's scatter from noise exceeds {MF_MAX_SPREAD_MM:g} mm at every phi: "
+                       "MF, z_score and the fusion will be empty (calibrate with more runs, or "
+                       "with less noise)")
+    lines.append(f"MF: {len(calib.mf_table)} table points from {len(runs)} run(s), estimates "
+                 f"from phi >= {floor:g} deg")
+    return lines, None
 
 
 def _mf_leave_one_run_out(data: dict) -> np.ndarray:

@@ -112,3 +112,26 @@ def test_cli_bench_rejects_unknown(tmp_path, capsys):
 
     assert main(["bench", "--out", str(tmp_path / "b.md"), "--configs", "nope"]) == 2
     assert "unknown configuration" in capsys.readouterr().err
+
+
+def test_library_imports_no_benchmark_command_line_or_renderer():
+    # bench/ and the CLI sit on top of the library; the renderer (synth/) is for them and
+    # the tests, never for the per-frame path.
+    import ast
+    from pathlib import Path
+
+    import camwhisker
+
+    root = Path(camwhisker.__file__).parent
+    above = ("camwhisker.bench", "camwhisker.cli", "camwhisker.synth")
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if rel.parts[0] in ("bench", "cli", "synth"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom)
+                     else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            found += [f"{rel}: {n}" for n in names if n.startswith(above)]
+    assert len(list(root.rglob("*.py"))) > 50  # the package was found
+    assert found == []

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from camwhisker.contact.bench import calibrate_simulated, evaluate_kind, summary
+from camwhisker.bench.contact import calibrate_simulated, evaluate_kind, summary
 from camwhisker.contact.gm import (
     PHI_MIN_DEG,
     eq8_phi_deg,

@@ -5,7 +5,7 @@ import functools
 import numpy as np
 import pytest
 
-from camwhisker.contact.bench import (
+from camwhisker.bench.contact import (
     calibrate_simulated,
     evaluate_kind,
     evaluate_run,

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from camwhisker.batch import write_signals
+from camwhisker.bench.live import _jpegs, bench_frames
+from camwhisker.bench.live import main as bench_main
 from camwhisker.cli import main
-from camwhisker.live.bench import _jpegs, bench_frames
-from camwhisker.live.bench import main as bench_main
 from camwhisker.live.cameras import (
     C310_PROFILE,
     NO_CAMERA_MESSAGE,

@@ -546,8 +546,8 @@ def test_ellipse_centre_exact_on_an_ellipse_and_none_on_a_line():
 
 
 def test_bench_errors_and_table():
+    from camwhisker.bench.vision import BenchRow, _errors, table
     from camwhisker.synth.scenarios import PoseTrack
-    from camwhisker.vision.bench import BenchRow, _errors, table
 
     z = np.zeros(4)
     truth = PoseTrack(np.arange(4.0), np.array([0, 0.5, 0.5, 1.0]), np.array([0, 1, 20, 30.0]),

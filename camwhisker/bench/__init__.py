@@ -1,8 +1,14 @@
-"""``camwhisker bench``: speed against error, the front end beside the paper-literal
-pipeline and general-purpose trackers.
+"""Benchmarks: speed and error of each stage against the simulator's truth.
 
-- :mod:`~camwhisker.bench.configs`  the pipeline configurations
-- :mod:`~camwhisker.bench.peers`    general-purpose point trackers on the same points
-- :mod:`~camwhisker.bench.pareto`   the Pareto front of speed against error
-- :mod:`~camwhisker.bench.run`      measuring, the table, the plot
+The library never imports this package; the command line and the tests do.
+
+- :mod:`~camwhisker.bench.configs`    the pipeline configurations
+- :mod:`~camwhisker.bench.peers`      general-purpose point trackers on the same points
+- :mod:`~camwhisker.bench.pareto`     the Pareto front of speed against error
+- :mod:`~camwhisker.bench.run`        ``camwhisker bench``: measuring, the table, the plot
+- :mod:`~camwhisker.bench.vision`     the front end's speed and accuracy on rendered scenes
+- :mod:`~camwhisker.bench.live`       the live loop's per-frame latency
+- :mod:`~camwhisker.bench.contact`    ``camwhisker contact-bench``: the contact back end
+- :mod:`~camwhisker.bench.throughput` batch throughput with 1 and 2 worker processes
+- :mod:`~camwhisker.bench.chain`      ``camwhisker chain``: a filmed experiment against its truth
 """

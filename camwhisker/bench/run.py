@@ -38,9 +38,9 @@ import numpy as np
 from camwhisker.bench.configs import DEFAULT, PAPER, Config
 from camwhisker.bench.pareto import pareto_front
 from camwhisker.bench.peers import PEERS
+from camwhisker.bench.vision import SCENES, render_scene, scene_errors
 from camwhisker.sources import VideoSource
 from camwhisker.synth.bound import nominal_bound_pose, pose_bound
-from camwhisker.vision.bench import SCENES, render_scene, scene_errors
 from camwhisker.vision.colour import contrast_map, white_balance_gains
 from camwhisker.vision.detect import detect_features
 from camwhisker.vision.pose import TIP, fit_pose
@@ -360,9 +360,29 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
     summ = summarise(results, configs)
     axis = error_scene(results)
     scenes = list(dict.fromkeys(r.scene for r in results))
-    others = [s for s in scenes if s != axis]
-    notes = {c.name: c.note for c in configs}
-    lines = [
+    by = {s.config: s for s in summ}
+    lines = _how_made(results, command, info, elapsed_s, n_frames, repeats, scenes, axis)
+    lines += _pareto_table(summ, axis, [s for s in scenes if s != axis])
+    if DEFAULT in by:
+        lines += ["", _verdict(by, axis)]
+    lines += [
+        "",
+        "Cramér-Rao bound (sd) at dz 0.5 mm, phi 15 deg, theta 30 deg, per scene: "
+        + "; ".join(
+            f"{s}: phi {by[configs[0].name].by_scene[s].phi_bound_deg:.4f} deg, "
+            f"dz {by[configs[0].name].by_scene[s].dz_bound_mm:.4f} mm"
+            for s in scenes
+        ),
+    ]
+    lines += _scene_table(results)
+    lines += ["", "Configurations:", ""]
+    lines += [f"- {c.name}: {c.note or c.options}" for c in configs]
+    return "\n".join(lines) + "\n"
+
+
+def _how_made(results, command, info, elapsed_s, n_frames, repeats, scenes, axis) -> list[str]:
+    """The table's preamble: command, machine, frames and how the front is decided."""
+    return [
         f"Command: `{command}`",
         "",
         f"Machine: {info['cpu']}, {info['cores']} cores, load average at start "
@@ -386,13 +406,17 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
         "allocations the later ones reuse).",
         "",
     ]
+
+
+def _pareto_table(summ: list[Summary], axis: str, others: list[str]) -> list[str]:
+    """One row per configuration: speed, errors on ``axis`` and on the ``others`` scenes."""
     head = (
         f"| configuration | Pareto front | frames/s CPU | frames/s CPU, decode incl. "
         f"| frames/s wall | peak extra RSS (MiB) | {axis} phi RMSE (deg) | phi / CRB "
         f"| dz RMSE (mm) | dz / CRB | theta MAE (deg) | ok |"
         + "".join(f" {s} phi RMSE (deg) | {s} phi / CRB | {s} ok |" for s in others)
     )
-    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for s in summ:
         a = s.by_scene[axis]
         mark = "**yes**" if s.on_front else ("no" if _eligible(s) else "no (ok < 90%)")
@@ -410,29 +434,27 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
                 f" | {100 * r.ok:.0f}% |"
             )
         lines.append(row)
-    by = {s.config: s for s in summ}
-    if DEFAULT in by:
-        d = by[DEFAULT]
-        verdict = f"The default {'is' if d.on_front else 'is NOT'} on the Pareto front."
-        if PAPER in by:
-            p = by[PAPER]
-            ratio = d.fps_cpu / p.fps_cpu
-            better = d.by_scene[axis].phi_rmse_deg < p.by_scene[axis].phi_rmse_deg
-            verdict += (
-                f" It runs {ratio:.1f}x the CPU frames/s of the paper-literal pipeline, "
-                f"with {'lower' if better else 'NOT lower'} {axis} phi RMSE."
-            )
-        lines += ["", verdict]
-    lines += [
-        "",
-        "Cramér-Rao bound (sd) at dz 0.5 mm, phi 15 deg, theta 30 deg, per scene: "
-        + "; ".join(
-            f"{s}: phi {by[configs[0].name].by_scene[s].phi_bound_deg:.4f} deg, "
-            f"dz {by[configs[0].name].by_scene[s].dz_bound_mm:.4f} mm"
-            for s in scenes
-        ),
-    ]
-    lines += [
+    return lines
+
+
+def _verdict(by: dict, axis: str) -> str:
+    """Whether the default is on the front, and how it compares with the paper's pipeline."""
+    d = by[DEFAULT]
+    verdict = f"The default {'is' if d.on_front else 'is NOT'} on the Pareto front."
+    if PAPER in by:
+        p = by[PAPER]
+        ratio = d.fps_cpu / p.fps_cpu
+        better = d.by_scene[axis].phi_rmse_deg < p.by_scene[axis].phi_rmse_deg
+        verdict += (
+            f" It runs {ratio:.1f}x the CPU frames/s of the paper-literal pipeline, "
+            f"with {'lower' if better else 'NOT lower'} {axis} phi RMSE."
+        )
+    return verdict
+
+
+def _scene_table(results: list[SceneResult]) -> list[str]:
+    """One row per scene and configuration."""
+    lines = [
         "",
         "Per scene:",
         "",
@@ -447,9 +469,7 @@ def markdown(results: list[SceneResult], configs: list[Config], command: str, in
             f"| {_f(r.phi_rmse_deg, '.4f')} | {_f(r.dz_rmse_mm, '.4f')} "
             f"| {_f(r.theta_mae_deg, '.3f')} |"
         )
-    lines += ["", "Configurations:", ""]
-    lines += [f"- {c.name}: {notes[c.name] or c.options}" for c in configs]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:

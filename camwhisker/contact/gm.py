@@ -1,6 +1,7 @@
 """Gradient-Moment (GM) estimate of the radial contact distance, eq. (8), and a beam alternative.
 
-Eq. (8) of the paper, with phi in degrees and dx in mm::
+Eq. (8) of the paper, with phi in degrees and dx in mm (:mod:`camwhisker.eq8`,
+which the simulator shares; its functions are re-exported here)::
 
     r_GM = C (dx / phi) l_w / (l_w + C dx / phi)
 
@@ -30,6 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from camwhisker.eq8 import PHI_MIN_DEG, defined, eq8_phi_deg, r_gm_eq8
+
 # scipy.optimize and scipy.stats are imported where they are used: together they
 # take ~1 s to import, and every command line builds its parser from modules
 # that import this one.
@@ -45,10 +48,6 @@ __all__ = [
     "fit_c",
 ]
 
-# Below 1 deg the paper's 0.22 deg phi noise alone is > 20 % of phi per frame;
-# pause medians bring it to ~5 %. No GM (or MF) estimate is made below it.
-PHI_MIN_DEG = 1.0
-
 # Bisection iterations for the beam model: 2^-48 of l_w is far below a micron.
 _BISECT_ITERATIONS = 48
 
@@ -58,48 +57,6 @@ CONFIDENCE = 0.95
 # its contact onset and clock offset, so samples are not independent. 400 puts
 # the Monte-Carlo error of a 2.5 % quantile well below the interval's width.
 BOOTSTRAP_RESAMPLES = 400
-
-
-def _valid(dx, phi_deg, phi_min_deg):
-    return np.isfinite(dx) & np.isfinite(phi_deg) & (phi_deg >= phi_min_deg) & (dx > 0.0)
-
-
-def r_gm_eq8(dx_mm, phi_deg, c, l_w_mm, phi_min_deg=PHI_MIN_DEG):
-    """Radial contact distance from eq. (8).
-
-    Parameters
-    ----------
-    dx_mm : array_like
-        Base travel since first contact (mm).
-    phi_deg : array_like
-        Base rotation magnitude (deg).
-    c : float
-        The GM constant C (mm^-1 deg per mm of travel, 132 in the paper).
-    l_w_mm : float
-        Whisker length.
-
-    Returns
-    -------
-    ndarray
-        r_GM in (0, l_w) where defined, NaN elsewhere.
-    """
-    dx = np.asarray(dx_mm, dtype=float)
-    phi = np.asarray(phi_deg, dtype=float)
-    dx, phi = np.broadcast_arrays(dx, phi)
-    ok = _valid(dx, phi, phi_min_deg)
-    q = np.divide(dx, phi, out=np.full(dx.shape, np.nan), where=ok)
-    cq = c * q
-    return np.divide(cq * l_w_mm, l_w_mm + cq, out=np.full(dx.shape, np.nan), where=ok)  # Eq. (8)
-
-
-def eq8_phi_deg(r_mm, dx_mm, c, l_w_mm):
-    """Eq. (8) read backwards: the phi (deg) that gives r_GM = r after travel dx.
-
-    From eq. (8), C dx / phi = r l_w / (l_w - r), so phi = C dx (l_w - r) / (r l_w).
-    This is the same equation as :func:`r_gm_eq8` (used to generate eq.-8 data).
-    """
-    r = np.asarray(r_mm, dtype=float)
-    return c * np.asarray(dx_mm, dtype=float) * (l_w_mm - r) / (r * l_w_mm)
 
 
 def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI_MIN_DEG):
@@ -112,7 +69,7 @@ def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI
     dx = np.asarray(dx_mm, dtype=float)
     phi_deg = np.asarray(phi_deg, dtype=float)
     dx, phi_deg = np.broadcast_arrays(dx, phi_deg)
-    ok = _valid(dx, phi_deg, phi_min_deg)
+    ok = defined(dx, phi_deg, phi_min_deg)
     phi = np.radians(np.where(ok, phi_deg, PHI_MIN_DEG))
     dxv = np.where(ok, dx, 0.0)
     r_max = l_w_mm if kappa_per_mm * l_w_mm < 1.0 else (1.0 - 1e-9) / kappa_per_mm
@@ -183,7 +140,7 @@ def _clean(dx_mm, phi_deg, r_mm, phi_min_deg):
     dx = np.asarray(dx_mm, float).ravel()
     phi = np.asarray(phi_deg, float).ravel()
     r = np.asarray(r_mm, float).ravel()
-    keep = _valid(dx, phi, phi_min_deg) & np.isfinite(r) & (r > 0)
+    keep = defined(dx, phi, phi_min_deg) & np.isfinite(r) & (r > 0)
     if keep.sum() < 3:
         raise ValueError(
             f"GM fit needs at least 3 samples with phi >= {phi_min_deg} deg, dx > 0 and a "
@@ -218,7 +175,7 @@ def fit_c(dx_mm, phi_deg, r_mm, l_w_mm, phi_min_deg=PHI_MIN_DEG, groups=None,
     comes from the Jacobian, which assumes independent samples.
     """
     g = None if groups is None else np.asarray(groups).ravel()
-    keep = _valid(np.asarray(dx_mm, float).ravel(), np.asarray(phi_deg, float).ravel(),
+    keep = defined(np.asarray(dx_mm, float).ravel(), np.asarray(phi_deg, float).ravel(),
                   phi_min_deg) & np.isfinite(np.asarray(r_mm, float).ravel())
     dx, phi, r = _clean(dx_mm, phi_deg, r_mm, phi_min_deg)
     res = _fit_c_core(dx, phi, r, l_w_mm, phi_min_deg)

@@ -9,7 +9,6 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.live.record`    recording a session (MJPG AVI + timestamps) for batch
 - :mod:`~camwhisker.live.outputs`   signal table (CSV), JSON lines, UDP
 - :mod:`~camwhisker.live.loop`      processor, generator, session, reprocessing
-- :mod:`~camwhisker.live.bench`     per-frame latency benchmark
 """
 
 from camwhisker.live.loop import LiveConfig, LiveProcessor, LiveSession, reprocess_session, run_live

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from camwhisker.contact.gm import eq8_phi_deg
+from camwhisker.eq8 import eq8_phi_deg
 from camwhisker.mechanics.scenes import BoxScene, CircleScene, PegScene, Sweep, sweep
 from camwhisker.mechanics.whisker import WhiskerMechanics, beam_dz_from_phi
 

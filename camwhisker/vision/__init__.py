@@ -10,7 +10,6 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.vision.pose`    the pose fit through the exact camera model
 - :mod:`~camwhisker.vision.paper`   the paper's eqs. (2)-(7) as printed
 - :mod:`~camwhisker.vision.tracker` the stateful front end, its generator
-- :mod:`~camwhisker.vision.bench`   speed and accuracy benchmark
 
 The per-pixel loops (the corners' LK and template warp, the colour-share
 patches, the tip's brightness, ray edges and rim fit, blob statistics) are

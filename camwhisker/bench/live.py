@@ -14,7 +14,7 @@ time over the passes: a frame's own cost, steadier than one pass on a machine
 whose speed drifts (a pass's slow stretch is another pass's fast one). The
 headline p50 / p99 stay those of the first pass.
 
-    python -m camwhisker.live.bench [--frames 150] [--passes N] [--video FILE --sensor FILE]
+    python -m camwhisker.bench.live [--frames 150] [--passes N] [--video FILE --sensor FILE]
     camwhisker live --bench
 """
 
@@ -191,7 +191,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.live.bench", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.live", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     add_arguments(p)
     p.add_argument("--sensor", help="sensor file for --video")

@@ -1,4 +1,4 @@
-"""The whole mission on a filmed stage experiment: video, signals, calibration, contact, shape.
+"""The whole mission on a filmed stage experiment, checked against the simulator's truth.
 
 :func:`run_chain` takes a folder made by
 :func:`camwhisker.synth.experiment.render_experiment` (videos, stage logs on
@@ -25,9 +25,9 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_path
+from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
 from camwhisker.campaign import BatchTask, run_many, sidecar_path
-from camwhisker.contact.bench import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.contact.io import read_columns, read_signal_table, write_csv
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.zscore import flag_rates, roc_auc
@@ -75,8 +75,39 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     sensor_file = sidecar_paths(runs[0].video)["sensor"]
     sensor = load_sensor(sensor_file if sensor_file.is_file() else None)
     timings = {}
+    tables, timings["batch"] = _front_end(runs, sensor, out, jobs, progress)
+    signals = {key: read_signal_table(path) for key, path in tables.items()}
+    logs = {r.video.stem: read_stage_log(r.stage) for r in runs}
 
-    # 1. Front end on every video.
+    t0 = time.perf_counter()
+    calib, cal_data = _calibrate(experiment, runs, sensor, tables, signals, logs)
+    write_calibration(out / "calib.toml", calib)
+    timings["calibrate"] = {"seconds": time.perf_counter() - t0}
+
+    t0 = time.perf_counter()
+    ev, front_end = _contact(out, runs, calib, signals, logs)
+    timings["contact"] = {"seconds": time.perf_counter() - t0}
+    result = _evaluate(calib, ev, front_end)
+    result["timings"] = timings
+    result["provenance"] = {
+        "camwhisker_version": __version__,
+        "experiment": str(experiment),
+        "out": str(out),
+        "sensor": sensor.source,
+        "calibration": str(out / "calib.toml"),
+    }
+
+    # Plots, next to the CSVs that produced them.
+    t0 = time.perf_counter()
+    _plots(out, calib, cal_data, ev, runs)
+    timings["plots"] = {"seconds": time.perf_counter() - t0}
+    with atomic_path(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(result, indent=2, default=float) + "\n")
+    return result
+
+
+def _front_end(runs, sensor, out: Path, jobs: int, progress: bool) -> tuple[dict, dict]:
+    """Step 1: the front end on every video; the signal tables by run and the step's timing."""
     t0 = time.perf_counter()
     tables = {r.video.stem: out / "signals" / f"{r.video.stem}.csv" for r in runs}
     batch = run_many(
@@ -95,17 +126,16 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
         timing = json.loads(sidecar_path(path).read_text())
         frames += timing["frames_decoded"]
         work_s += timing["timings"]["seconds"]
-    timings["batch"] = {
+    return tables, {
         "seconds": time.perf_counter() - t0,
         "frames": int(frames),
         "reused": batch.count("skipped"),
         "frames_per_s_per_core": frames / work_s if work_s else math.nan,
     }
-    signals = {key: read_signal_table(path) for key, path in tables.items()}
-    logs = {r.video.stem: read_stage_log(r.stage) for r in runs}
 
-    # 2. Calibrate on the calibration runs.
-    t0 = time.perf_counter()
+
+def _calibrate(experiment: Path, runs, sensor, tables: dict, signals: dict, logs: dict):
+    """Step 2: calibrate on the calibration runs; the calibration and its data."""
     cal = [r for r in runs if r.role == "calibration"]
     if not cal:
         raise ChainError(f"{experiment}: no calibration runs")
@@ -118,11 +148,14 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
         sensor.source,
         f"camwhisker chain {experiment}",
     )
-    write_calibration(out / "calib.toml", calib)
-    timings["calibrate"] = {"seconds": time.perf_counter() - t0}
+    return calib, cal_data
 
-    # 3. Contact tables, and 4. the evaluation against the truth.
-    t0 = time.perf_counter()
+
+def _contact(out: Path, runs, calib, signals: dict, logs: dict) -> tuple[dict, list]:
+    """Steps 3 and 4: contact tables for every run, evaluated against the truth.
+
+    Returns the pooled evaluation by role and the front end's errors by run.
+    """
     evaluations: dict[str, list] = {}
     front_end = []
     for i, r in enumerate(runs):
@@ -137,25 +170,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
         front_end.append(
             _front_end_errors(signals[key], PoseTrack.read_csv(sidecar_paths(r.video)["truth"]))
         )
-    timings["contact"] = {"seconds": time.perf_counter() - t0}
-    ev = {role: pool(parts) for role, parts in evaluations.items()}
-    result = _evaluate(calib, ev, front_end)
-    result["timings"] = timings
-    result["provenance"] = {
-        "camwhisker_version": __version__,
-        "experiment": str(experiment),
-        "out": str(out),
-        "sensor": sensor.source,
-        "calibration": str(out / "calib.toml"),
-    }
-
-    # Plots, next to the CSVs that produced them.
-    t0 = time.perf_counter()
-    _plots(out, calib, cal_data, ev, runs)
-    timings["plots"] = {"seconds": time.perf_counter() - t0}
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=float) + "\n")
-    return result
+    return {role: pool(parts) for role, parts in evaluations.items()}, front_end
 
 
 def _evaluate(calib, ev: dict, front_end: list) -> dict:

@@ -1,0 +1,117 @@
+"""``camwhisker batch``: video(s) -> signal table(s), one or many at once."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from camwhisker.cli.common import CommandError, sensor_arg
+from camwhisker.sensor import load_sensor
+
+__all__ = ["add_batch", "tracker_args"]
+
+
+def add_batch(sub) -> None:
+    p = sub.add_parser(
+        "batch",
+        help="video(s) -> signal table(s) (dz, phi, theta per frame)",
+        description="One video with --out: its signal table. Many videos, folders or globs: "
+        "one table each, beside the input or under --dest, skipping outputs already complete.",
+    )
+    p.add_argument(
+        "video",
+        nargs="+",
+        help="video files OpenCV can read, folders, globs; or one folder of images with --out",
+    )
+    p.add_argument("--out", metavar="OUT.csv", help="signal table of a single input")
+    p.add_argument("--dest", metavar="DIR", help="many inputs: write the tables under DIR")
+    p.add_argument(
+        "--format", choices=("csv", "parquet"), default="csv", help="many inputs: table format"
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="many inputs: N local processes, one OpenCV thread each",
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="many inputs: run on this Dask distributed scheduler"
+    )
+    p.add_argument("--overwrite", action="store_true", help="redo outputs already complete")
+    p.add_argument(
+        "--mode",
+        choices=("model", "paper"),
+        default="model",
+        help="exact camera model (default) or the paper's eqs. 2-7",
+    )
+    p.add_argument("--no-shift", action="store_true", help="do not fit the lateral shift")
+    p.add_argument("--lock-gains", action="store_true", help="keep the rest frame's white balance")
+    tracker_args(p)
+    p.add_argument("--rest-frame", type=int, default=0, metavar="N", help="rest reference frame")
+    p.add_argument("--fps", type=float, help="frame rate of an image folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    sensor_arg(p)
+    p.set_defaults(func=_run_batch)
+
+
+def tracker_args(p) -> None:
+    """The front end's tuning knobs (FrontEndOptions; `camwhisker bench` compares them)."""
+    from camwhisker.vision import FrontEndOptions
+
+    d = FrontEndOptions()
+    p.add_argument("--updated-template", choices=("off", "fallback", "always"),
+                   default=d.updated_template,
+                   help=f"the paper's updated-template LK: never, after a jump, or first "
+                        f"(default {d.updated_template})")  # fmt: skip
+    p.add_argument("--lk-half-px", type=int, default=d.lk_half_px, metavar="N",
+                   help=f"half size of a corner's template (default {d.lk_half_px})")
+    p.add_argument("--roi-margin-px", type=int, default=d.roi_margin_px, metavar="N",
+                   help=f"region of interest beyond the LK window (default {d.roi_margin_px})")
+    p.add_argument("--pyramid-levels", type=int, default=d.pyramid_levels, metavar="N",
+                   help=f"levels of the updated-template LK (default {d.pyramid_levels})")
+    p.add_argument("--subpixel", choices=("lk", "parabola"), default=d.subpixel,
+                   help=f"corner placement: Lucas-Kanade or NCC peak (default {d.subpixel})")
+
+
+def _run_batch(args) -> int:
+    from camwhisker.vision import FrontEndOptions
+
+    if args.rest_frame < 0:
+        raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
+    options = FrontEndOptions(
+        mode=args.mode,
+        fit_shift=not args.no_shift,
+        lock_gains=args.lock_gains,
+        updated_template=args.updated_template,
+        lk_half_px=args.lk_half_px,
+        roi_margin_px=args.roi_margin_px,
+        pyramid_levels=args.pyramid_levels,
+        subpixel=args.subpixel,
+    )
+    sensor = load_sensor(args.sensor)
+    if args.out is None:
+        return _run_batch_many(args, sensor, options)
+    if len(args.video) != 1 or args.dest:
+        raise CommandError("--out takes a single input; for many use --dest (or neither)")
+    from camwhisker.batch import run_batch
+
+    report = run_batch(
+        args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet
+    )
+    print(f"{report.frames} frames, {report.frames_ok} ok -> {report.out_csv}, {report.sidecar}")
+    for problem in report.problems:
+        print(f"camwhisker batch: problem: {problem}", file=sys.stderr)
+    return 3 if report.problems else 0
+
+
+def _run_batch_many(args, sensor, options) -> int:
+    from camwhisker.campaign import BatchTask, expand_inputs, output_path, run_many
+
+    videos = expand_inputs(args.video)
+    dest = Path(args.dest) if args.dest else None
+    tasks = [(v, output_path(v, dest, "." + args.format)) for v in videos]
+    task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps)
+    summary = run_many(tasks, task, args.jobs, args.scheduler, args.overwrite, not args.quiet)
+    print(summary.report())
+    return 3 if summary.failed else 0

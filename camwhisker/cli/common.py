@@ -1,0 +1,37 @@
+"""What every command shares: its error, the errors it reports as bad input, shared options."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+
+__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "command_line"]
+
+
+class CommandError(RuntimeError):
+    """A user-facing failure: printed without a traceback, exit status 2."""
+
+
+# The library reports bad input (a file, key, row or frame it cannot use) as a
+# ValueError subclass naming it, and a missing or unreadable file as an OSError.
+INPUT_ERRORS = (CommandError, ValueError, OSError)
+
+
+SENSOR_HELP = "sensor file (TOML); default: Table I values"
+
+
+def sensor_arg(p: argparse.ArgumentParser, help_text: str = SENSOR_HELP) -> None:
+    """The ``--sensor FILE`` option, read with :func:`camwhisker.sensor.load_sensor`."""
+    p.add_argument("--sensor", metavar="FILE", help=help_text)
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The command as parsed (also right when main() is called with an argv list)."""
+    parts = ["camwhisker", args.command]
+    for key, value in vars(args).items():
+        if key in ("command", "func") or value is None:
+            continue
+        flag = "--" + key.replace("_", "-")
+        for v in value if isinstance(value, list) else [value]:
+            parts += [flag, str(v)]
+    return " ".join(shlex.quote(p) for p in parts)

@@ -1,0 +1,127 @@
+"""The contact back end: simulate-stage, calibrate, contact (SENSOR.md section 7)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from camwhisker.cli.common import CommandError, command_line, sensor_arg
+from camwhisker.sensor import load_sensor
+
+__all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
+
+_SENSOR_HELP = "sensor file (whisker length)"
+
+
+def add_simulate_stage(sub) -> None:
+    from camwhisker.mechanics.experiment import (
+        FRONT_END_NOISE_DZ_MM,
+        FRONT_END_NOISE_PHI_DEG,
+        KINDS,
+        PAPER_NOISE_DZ_MM,
+        PAPER_NOISE_PHI_DEG,
+    )
+
+    p = sub.add_parser("simulate-stage", help="simulate a stage experiment (mechanics) to files")
+    p.add_argument("--kind", required=True, choices=KINDS)
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--noise-phi-deg", type=float, default=PAPER_NOISE_PHI_DEG,
+                   help=f"per-frame phi noise (default: the paper's; our front end's target: "
+                        f"{FRONT_END_NOISE_PHI_DEG})")
+    p.add_argument("--noise-dz-mm", type=float, default=PAPER_NOISE_DZ_MM,
+                   help=f"per-frame dz noise (default: the paper's; our front end's target: "
+                        f"{FRONT_END_NOISE_DZ_MM})")
+    sensor_arg(p, _SENSOR_HELP)
+    p.set_defaults(func=_run_simulate)
+
+
+def _run_simulate(args) -> int:
+    from camwhisker.mechanics import NoiseModel, WhiskerMechanics, simulate_runs
+    from camwhisker.mechanics.files import write_runs
+
+    l_w = load_sensor(args.sensor).whisker.length_mm
+    noise = NoiseModel(phi_deg=args.noise_phi_deg, dz_mm=args.noise_dz_mm)
+    runs = simulate_runs(args.kind, args.seed, mech=WhiskerMechanics(length_mm=l_w), noise=noise)
+    manifest = write_runs(runs, args.out, args.seed, command_line(args))
+    for run in runs:
+        print(f"{run.name}: {run.info['n_steps']} steps, offset {run.offset_s:+.3f} s, "
+              f"{run.signals['t_s'].size} frames")
+    print(f"wrote {len(runs)} run(s) to {args.out} ({manifest.name})")
+    return 0
+
+
+def add_calibrate(sub) -> None:
+    p = sub.add_parser("calibrate", help="fit GM (eq. 8), sigma_GM and the MF table")
+    p.add_argument("--signals", action="append", required=True, metavar="S.csv")
+    p.add_argument("--stage", action="append", required=True, metavar="L.csv")
+    p.add_argument("--offset-s", action="append", type=float,
+                   help="known clock offset per run (t_camera = t_stage + offset); "
+                        "default: estimated")
+    sensor_arg(p, _SENSOR_HELP)
+    p.add_argument("--out", required=True, metavar="CALIB")
+    p.add_argument("--plots", metavar="DIR", help="also write gm_model.png (Fig. 7A) here")
+    p.set_defaults(func=_run_calibrate)
+
+
+def _run_calibrate(args) -> int:
+    from camwhisker.calibrate import (
+        CalibrationRun,
+        calibrate,
+        format_calibration,
+        write_calibration,
+    )
+    from camwhisker.contact.io import read_signal_table
+    from camwhisker.stage import read_stage_log
+
+    if len(args.signals) != len(args.stage):
+        raise CommandError(f"give one --stage per --signals ({len(args.signals)} signals, "
+                           f"{len(args.stage)} stage logs)")
+    offsets = args.offset_s or [None] * len(args.signals)
+    if len(offsets) != len(args.signals):
+        raise CommandError("give --offset-s for every run or for none")
+    sensor = load_sensor(args.sensor)
+    runs = [CalibrationRun(read_signal_table(s), read_stage_log(g), str(s), o)
+            for s, g, o in zip(args.signals, args.stage, offsets, strict=True)]
+    calib, analyses, data = calibrate(runs, sensor.whisker.length_mm, sensor.source,
+                                      command_line(args))
+    write_calibration(args.out, calib)
+    lines, warning = format_calibration(runs, analyses, calib)
+    print("\n".join(lines))
+    if warning is not None:
+        print(f"warning: {warning}", file=sys.stderr)
+    if args.plots:
+        from camwhisker.contact.plots import plot_gm_model
+
+        path = Path(args.plots) / "gm_model.png"
+        plot_gm_model(calib, data, path, f"Fig. 7A from {command_line(args)}")
+        print(f"wrote {path}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def add_contact(sub) -> None:
+    p = sub.add_parser("contact", help="contact distance and shape per signal row")
+    p.add_argument("--signals", required=True, metavar="S.csv")
+    p.add_argument("--stage", required=True, metavar="L.csv")
+    p.add_argument("--calib", required=True, metavar="CALIB")
+    p.add_argument("--offset-s", type=float, help="known clock offset; default: estimated")
+    p.add_argument("--out", required=True, metavar="C.csv")
+    p.set_defaults(func=_run_contact)
+
+
+def _run_contact(args) -> int:
+    from camwhisker.calibrate import read_calibration
+    from camwhisker.contact.io import read_signal_table, write_csv
+    from camwhisker.contact.pipeline import contact_rows
+    from camwhisker.stage import read_stage_log
+
+    calib = read_calibration(args.calib)
+    signals = read_signal_table(args.signals)
+    cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s)
+    write_csv(args.out, cols)
+    defined = int((cols["r_hat_mm"] == cols["r_hat_mm"]).sum())
+    print(f"offset {run.offset_s:+.3f} s ({'estimated' if run.offset_estimated else 'given'}), "
+          f"first contact at x = {run.x_contact_mm:.2f} mm; {defined} of "
+          f"{cols['t_s'].size} rows with an estimate; wrote {args.out}")
+    return 0

@@ -1,0 +1,138 @@
+"""Live processing: list-cameras, live (a camera or a file at camera rate), replay."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from camwhisker.cli.common import CommandError, sensor_arg
+from camwhisker.sensor import load_sensor
+
+__all__ = ["add_list_cameras", "add_live", "add_replay"]
+
+
+def add_list_cameras(sub) -> None:
+    p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
+    p.add_argument("--all", action="store_true", help="also the nodes that cannot capture")
+    p.add_argument(
+        "--sysfs",
+        default="/sys/class/video4linux",
+        metavar="DIR",
+        help="video4linux class folder (another tree for tests)",
+    )
+    p.add_argument("--dev", default="/dev", metavar="DIR", help="device folder (with v4l/by-id)")
+    p.set_defaults(func=_run_list_cameras)
+
+
+def _run_list_cameras(args) -> int:
+    from camwhisker.live.cameras import format_camera_list, list_cameras
+
+    cameras = list_cameras(Path(args.sysfs), Path(args.dev), include_metadata=args.all)
+    print(format_camera_list(cameras))
+    return 0 if cameras else 1
+
+
+def add_live(sub) -> None:
+    p = sub.add_parser("live", help="camera (or file at camera rate) -> signals within ms")
+    p.add_argument(
+        "source", nargs="?", help="camera index, /dev/videoN or by-id name; or a video / folder"
+    )
+    p.add_argument("--out", metavar="OUT.csv", help="signal table, flushed per row (+ OUT.json)")
+    p.add_argument(
+        "--keep",
+        choices=("latest", "every"),
+        default="latest",
+        help="latest: only the newest frame, stale ones dropped (control); every: keep all",
+    )
+    p.add_argument("--record", metavar="SESSION.avi", help="record the frames (MJPG + timestamps)")
+    p.add_argument("--udp", type=int, metavar="PORT", help="one JSON datagram per frame")
+    p.add_argument("--udp-host", default="127.0.0.1", help="UDP destination (default: this host)")
+    p.add_argument("--jsonl", action="store_true", help="one JSON line per frame on stdout")
+    p.add_argument(
+        "--playback-fps", type=float, metavar="FPS", help="play a file at this rate, like a camera"
+    )
+    p.add_argument("--loop", action="store_true", help="loop a played-back file")
+    p.add_argument("--frames", type=int, metavar="N", help="stop after N rows (bench: clip length)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--no-keys", action="store_true", help="no r/d/q keys even on a terminal")
+    p.add_argument("--raw-mjpg", action="store_true", help="take the camera's JPEG bytes as sent")
+    p.add_argument(
+        "--no-lock",
+        action="store_true",
+        help="leave auto white balance and exposure as the camera has them",
+    )
+    p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
+    p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
+    p.add_argument(
+        "--mode-front",
+        choices=("model", "paper"),
+        default="model",
+        help="front end: exact camera model or the paper's eqs. 2-7",
+    )
+    sensor_arg(p)
+    p.set_defaults(func=_run_live)
+
+
+def _run_live(args) -> int:
+    import logging
+    from dataclasses import replace
+
+    from camwhisker.live.cameras import C310_PROFILE
+    from camwhisker.live.capture import open_capture
+    from camwhisker.live.loop import LiveConfig, LiveSession
+    from camwhisker.vision import FrontEndOptions
+
+    if args.bench:
+        from camwhisker.bench.live import run_bench
+
+        print(run_bench(args.frames or 150).text())
+        return 0
+    if not args.source or not args.out:
+        raise CommandError("live needs a SOURCE and --out (or --bench)")
+    logging.basicConfig(level=logging.INFO, format="camwhisker live: %(message)s")
+    profile = C310_PROFILE
+    if args.no_lock:
+        profile = replace(profile, auto_wb=None, auto_exposure=None)
+    if args.exposure is not None:
+        profile = replace(profile, exposure=args.exposure)
+    sensor = load_sensor(args.sensor)
+    capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
+    if args.loop and hasattr(capture, "loop"):
+        capture.loop = True
+    config = LiveConfig(
+        mode=args.keep,
+        options=FrontEndOptions(mode=args.mode_front),
+        record=Path(args.record) if args.record else None,
+        record_rate_fps=args.playback_fps or profile.fps,
+        udp_port=args.udp,
+        udp_host=args.udp_host,
+        jsonl=args.jsonl,
+        controls=False if args.no_keys else None,
+        max_frames=args.frames,
+        duration_s=args.duration,
+    )
+    report = LiveSession(capture, sensor, args.out, config).run()
+    print(LiveSession.summary(report), file=sys.stderr)
+    for problem in report.problems:
+        print(f"camwhisker live: problem: {problem}", file=sys.stderr)
+    return 3 if report.grabber.get("lost") else 0
+
+
+def add_replay(sub) -> None:
+    p = sub.add_parser("replay", help="a recorded live session -> its signal table again")
+    p.add_argument("session", help="SESSION.avi recorded by 'camwhisker live --record'")
+    p.add_argument("--out", required=True, metavar="OUT.csv")
+    p.add_argument("--mode-front", choices=("model", "paper"), default="model")
+    sensor_arg(p)
+    p.set_defaults(func=_run_replay)
+
+
+def _run_replay(args) -> int:
+    from camwhisker.live.loop import reprocess_session
+    from camwhisker.vision import FrontEndOptions
+
+    out = reprocess_session(
+        args.session, load_sensor(args.sensor), args.out, FrontEndOptions(mode=args.mode_front)
+    )
+    print(out)
+    return 0

@@ -1,0 +1,117 @@
+"""Synthetic data: render, bound, make-samples, describe, make-experiment."""
+
+from __future__ import annotations
+
+from camwhisker.cli.common import sensor_arg
+from camwhisker.sensor import load_sensor
+from camwhisker.synth.scenarios import SCENARIOS
+
+__all__ = ["add_render", "add_bound", "add_samples", "add_describe", "add_experiment"]
+
+
+def add_render(sub) -> None:
+    p = sub.add_parser("render", help="render a synthetic scenario to video with its truth")
+    p.add_argument("scenario", choices=sorted(SCENARIOS), help="what to render")
+    p.add_argument("--out", required=True, metavar="VIDEO", help="output .avi (MJPG) or .mp4")
+    p.add_argument("--frames", type=int, default=60)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--fps", type=float, default=30.0)
+    sensor_arg(p)
+    p.set_defaults(func=_run_render)
+
+
+def _run_render(args) -> int:
+    from camwhisker.synth.scenarios import make_scenario
+    from camwhisker.synth.video import render_scenario
+
+    scenario = make_scenario(args.scenario, args.frames, args.seed, args.fps)
+    paths = render_scenario(scenario, load_sensor(args.sensor), args.out, args.seed, True)
+    for kind, path in paths.items():
+        print(f"{kind:>6}: {path}")
+    return 0
+
+
+def add_bound(sub) -> None:
+    p = sub.add_parser("bound", help="Cramér-Rao bound on dz, phi, theta for a scene")
+    p.add_argument(
+        "--scenario",
+        default="nominal",
+        choices=sorted(SCENARIOS),
+        help="whose camera and artefacts to use",
+    )
+    p.add_argument("--dz-mm", type=float, default=0.5)
+    p.add_argument("--phi-deg", type=float, default=15.0)
+    p.add_argument("--theta-deg", type=float, default=30.0)
+    p.add_argument("--with-shift", action="store_true", help="estimate sx, sy as nuisances too")
+    sensor_arg(p)
+    p.set_defaults(func=_run_bound)
+
+
+def _run_bound(args) -> int:
+    from camwhisker.plate import Pose
+    from camwhisker.synth.bound import pose_bound
+    from camwhisker.synth.scenarios import make_scenario
+
+    scenario = make_scenario(args.scenario, 30, 0)  # only its camera is used
+    sensor = load_sensor(args.sensor)
+    if scenario.sensor_changes:
+        sensor = sensor.replace(**scenario.sensor_changes)
+    pose = Pose.from_degrees(args.dz_mm, args.phi_deg, args.theta_deg)
+    params = ["dz_mm", "phi_deg", "theta_deg"] + (["sx_mm", "sy_mm"] if args.with_shift else [])
+    bound = pose_bound(sensor, pose, scenario.artefacts, params)
+    a = scenario.artefacts
+    print(
+        f"Cramér-Rao bound (1 sd), scene {scenario.name!r}: noise {a.noise_dn} DN at mid grey, "
+        f"blur {a.blur_sigma_px} px; pose dz {args.dz_mm} mm, phi {args.phi_deg} deg, "
+        f"theta {args.theta_deg} deg"
+    )
+    for name, sd in bound.items():
+        print(f"  {name:<10} {sd:.3g}")
+    return 0
+
+
+def add_samples(sub) -> None:
+    p = sub.add_parser("make-samples", help="regenerate the bundled sample videos")
+    p.add_argument("--dest", default="sample_frames", metavar="DIR")
+    p.set_defaults(func=_run_samples)
+
+
+def _run_samples(args) -> int:
+    from camwhisker.synth.samples import make_samples
+
+    for path in make_samples(args.dest):
+        print(path)
+    return 0
+
+
+def add_describe(sub) -> None:
+    p = sub.add_parser("describe", help="decode a video and summarise it and its truth")
+    p.add_argument("video")
+    p.set_defaults(func=_run_describe)
+
+
+def _run_describe(args) -> int:
+    from camwhisker.synth.samples import describe_video
+
+    info = describe_video(args.video)
+    for key, value in info.items():
+        print(f"{key:>16}: {value}")
+    return 0
+
+
+def add_experiment(sub) -> None:
+    p = sub.add_parser(
+        "make-experiment",
+        help="simulate a stage experiment and film it (videos, stage logs, truth)",
+    )
+    p.add_argument("--dest", default="sample_frames/experiment", metavar="DIR")
+    p.add_argument("--seed", type=int, default=8)
+    p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
+    p.set_defaults(func=_run_experiment)
+
+
+def _run_experiment(args) -> int:
+    from camwhisker.synth.experiment import render_experiment
+
+    print(render_experiment(args.dest, args.seed, jobs=args.jobs))
+    return 0
