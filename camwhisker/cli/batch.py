@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, sensor_arg
+from camwhisker.cli.common import CommandError, mode_arg, sensor_arg
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_batch", "tracker_args"]
@@ -39,12 +39,7 @@ def add_batch(sub) -> None:
         "--scheduler", metavar="ADDRESS", help="many inputs: run on this Dask distributed scheduler"
     )
     p.add_argument("--overwrite", action="store_true", help="redo outputs already complete")
-    p.add_argument(
-        "--mode",
-        choices=("model", "paper"),
-        default="model",
-        help="exact camera model (default) or the paper's eqs. 2-7",
-    )
+    mode_arg(p)
     p.add_argument("--no-shift", action="store_true", help="do not fit the lateral shift")
     p.add_argument("--lock-gains", action="store_true", help="keep the rest frame's white balance")
     tracker_args(p)

@@ -25,6 +25,16 @@ def sensor_arg(p: argparse.ArgumentParser, help_text: str = SENSOR_HELP) -> None
     p.add_argument("--sensor", metavar="FILE", help=help_text)
 
 
+def mode_arg(p: argparse.ArgumentParser) -> None:
+    """``--mode model|paper``: which pose the front end reports, the same in every command."""
+    p.add_argument(
+        "--mode",
+        choices=("model", "paper"),
+        default="model",
+        help="exact camera model (default) or the paper's eqs. 2-7",
+    )
+
+
 def command_line(args: argparse.Namespace) -> str:
     """The command as parsed (also right when main() is called with an argv list)."""
     parts = ["camwhisker", args.command]

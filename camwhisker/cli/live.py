@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, sensor_arg
+from camwhisker.cli.common import CommandError, mode_arg, sensor_arg
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_list_cameras", "add_live", "add_replay"]
@@ -63,12 +63,7 @@ def add_live(sub) -> None:
     )
     p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
-    p.add_argument(
-        "--mode-front",
-        choices=("model", "paper"),
-        default="model",
-        help="front end: exact camera model or the paper's eqs. 2-7",
-    )
+    mode_arg(p)
     sensor_arg(p)
     p.set_defaults(func=_run_live)
 
@@ -101,7 +96,7 @@ def _run_live(args) -> int:
         capture.loop = True
     config = LiveConfig(
         mode=args.keep,
-        options=FrontEndOptions(mode=args.mode_front),
+        options=FrontEndOptions(mode=args.mode),
         record=Path(args.record) if args.record else None,
         record_rate_fps=args.playback_fps or profile.fps,
         udp_port=args.udp,
@@ -122,7 +117,7 @@ def add_replay(sub) -> None:
     p = sub.add_parser("replay", help="a recorded live session -> its signal table again")
     p.add_argument("session", help="SESSION.avi recorded by 'camwhisker live --record'")
     p.add_argument("--out", required=True, metavar="OUT.csv")
-    p.add_argument("--mode-front", choices=("model", "paper"), default="model")
+    mode_arg(p)
     sensor_arg(p)
     p.set_defaults(func=_run_replay)
 
@@ -132,7 +127,7 @@ def _run_replay(args) -> int:
     from camwhisker.vision import FrontEndOptions
 
     out = reprocess_session(
-        args.session, load_sensor(args.sensor), args.out, FrontEndOptions(mode=args.mode_front)
+        args.session, load_sensor(args.sensor), args.out, FrontEndOptions(mode=args.mode)
     )
     print(out)
     return 0
