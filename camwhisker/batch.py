@@ -10,32 +10,20 @@ phi is too small to define it.
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import json
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from tqdm import tqdm
 
-from camwhisker import __version__
 from camwhisker.atomic import atomic_path
-from camwhisker.sensor import Sensor, sensor_to_dict
+from camwhisker.sensor import Sensor
+from camwhisker.signals import sidecar, sidecar_path, write_sidecar, write_signals
 from camwhisker.sources import open_source
-from camwhisker.vision import tracker as _tracker
-from camwhisker.vision.tracker import FrameResult, FrontEndOptions, track
+from camwhisker.vision.tracker import FrontEndOptions, track
 
-__all__ = [
-    "SIGNAL_COLUMNS", "BatchReport", "run_batch", "signal_row", "write_signals", "sidecar_path",
-]
+__all__ = ["BatchReport", "run_batch"]
 
-#: Required columns first (SENSOR.md section 6), then diagnostics.
-SIGNAL_COLUMNS = (
-    "frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok",
-    "sx_mm", "sy_mm", "phi_sigma_deg", "n_corners", "rms_px", "note",
-)  # fmt: skip
 #: Videos longer than this get a progress bar (when progress is on).
 PROGRESS_MIN_FRAMES = 100
 
@@ -49,50 +37,6 @@ class BatchReport:
     frames: int = 0
     frames_ok: int = 0
     problems: list[str] = field(default_factory=list)
-
-
-def sidecar_path(out_csv: Path) -> Path:
-    out_csv = Path(out_csv)
-    return out_csv.with_suffix(".json")
-
-
-def _cell(x: float, fmt: str) -> str:
-    return "" if x is None or not math.isfinite(x) else format(x, fmt)
-
-
-def signal_row(t_s: float, r: FrameResult) -> list:
-    """One row of the signal table (:data:`SIGNAL_COLUMNS`), as batch and live write it.
-
-    Untrusted estimates (ok = 0) are empty cells, never numbers.
-    """
-    ok = bool(r.ok)
-    return [
-        r.frame, _cell(t_s, ".6f"),
-        _cell(r.dz_mm, ".5f") if ok else "",
-        _cell(r.phi_deg, ".5f") if ok else "",
-        _cell(r.theta_deg, ".3f") if ok else "",
-        int(ok),
-        _cell(r.sx_mm, ".5f") if ok else "",
-        _cell(r.sy_mm, ".5f") if ok else "",
-        _cell(r.phi_sigma_deg, ".5f"),
-        r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
-    ]  # fmt: skip
-
-
-def write_signals(path: Path, rows: Iterable[tuple[float, FrameResult]]) -> tuple[int, int]:
-    """Write (t_s, result) rows as the signal table; returns (rows, rows ok).
-
-    ``path`` is written directly; wrap it in an atomic path for safety.
-    """
-    n = n_ok = 0
-    with open(path, "w", newline="") as fh:
-        out = csv.writer(fh)
-        out.writerow(SIGNAL_COLUMNS)
-        for t_s, r in rows:
-            out.writerow(signal_row(t_s, r))
-            n += 1
-            n_ok += bool(r.ok)
-    return n, n_ok
 
 
 def run_batch(
@@ -175,27 +119,9 @@ def run_batch(
         report.problems.append(source.problem)
     if report.frames <= rest_index:
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
-    meta = {
-        "camwhisker_version": __version__,
-        "made_by": "camwhisker.batch.run_batch",
-        "input": str(Path(video)),
-        "time_source": f"session timestamps ({stamps.name})" if session else source.time_source,
-        "fps": source.fps,
-        "rest_frame": rest_index,
-        "frames": report.frames,
-        "frames_ok": report.frames_ok,
-        "problems": report.problems,
-        "options": dataclasses.asdict(options),
-        "constants": {
-            "PHI_MIN_FOR_THETA_DEG": _tracker.PHI_MIN_FOR_THETA_DEG,
-            "QUALITY_MIN": _tracker.QUALITY_MIN,
-            "MIN_CORNERS": _tracker.MIN_CORNERS,
-            "MAX_RMS_PX": _tracker.MAX_RMS_PX,
-        },
-        "sensor_file": sensor.source,
-        "sensor": sensor_to_dict(sensor),
-        "columns": list(SIGNAL_COLUMNS),
-    }
-    with atomic_path(report.sidecar) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2) + "\n")
+    time_source = f"session timestamps ({stamps.name})" if session else source.time_source
+    meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), time_source,
+                   (report.frames, report.frames_ok), report.problems, options, sensor,
+                   rest_index, fps=source.fps)  # fmt: skip
+    write_sidecar(out_csv, meta)
     return report

@@ -20,7 +20,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import gc
-import json
 import logging
 import math
 import os
@@ -36,17 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__
 from camwhisker.atomic import atomic_path
-from camwhisker.batch import SIGNAL_COLUMNS, sidecar_path
 from camwhisker.live.capture import describe
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
-from camwhisker.live.outputs import (
-    DEFAULT_UDP_HOST,
-    CsvSignalWriter,
-    UdpSender,
-    result_message,
-)
+from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
 from camwhisker.live.record import (
     JPEG_QUALITY,
     MjpgRoundTrip,
@@ -55,7 +47,8 @@ from camwhisker.live.record import (
     read_timestamps,
     timestamps_path,
 )
-from camwhisker.sensor import Sensor, sensor_to_dict
+from camwhisker.sensor import Sensor
+from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar
 from camwhisker.sources import VideoSource
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
@@ -169,13 +162,9 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
     """Process a recorded session again: the same rows as the live table (:func:`session_rows`)."""
     rows = session_rows(video, sensor, options)
     out_csv = Path(out_csv)
-    with atomic_path(out_csv) as tmp:
-        writer = CsvSignalWriter(tmp)
-        try:
-            for t_s, r in rows:
-                writer.write(t_s, r)
-        finally:
-            writer.close()
+    with atomic_path(out_csv) as tmp, SignalWriter(tmp) as writer:
+        for t_s, r in rows:
+            writer.write(t_s, r)
     return out_csv
 
 
@@ -318,7 +307,7 @@ class LiveSession:
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         proc = LiveProcessor(self.sensor, cfg.options)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
-        writer = CsvSignalWriter(self.out_csv)
+        writer = SignalWriter(self.out_csv, flush=True)
         recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
         udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
         controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
@@ -432,34 +421,25 @@ class LiveSession:
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
-        meta = {
-            "camwhisker_version": __version__,
-            "made_by": "camwhisker.live.loop.LiveSession",
-            "input": describe(self.capture) if hasattr(self.capture, "describe") else self._input,
-            "mode": cfg.mode,
-            "rest_frame": 0,
-            "frames": rep.rows,
-            "frames_ok": rep.rows_ok,
-            "rows_without_frame": rep.gaps,
-            "stopped_by": rep.stopped_by,
-            "grabber": rep.grabber,
-            "dropped": stats.dropped,
-            "latency": {"processing": rep.processing, "end_to_end": rep.end_to_end},
-            "events": rep.events,
-            "recording": None if recorder is None else {
+        source = describe(self.capture) if hasattr(self.capture, "describe") else self._input
+        meta = sidecar(
+            "camwhisker.live.loop.LiveSession", source,
+            "capture (monotonic clock, from the first frame)",
+            (rep.rows, rep.rows_ok), rep.problems, cfg.options, self.sensor,
+            mode=cfg.mode,
+            rows_without_frame=rep.gaps,
+            stopped_by=rep.stopped_by,
+            grabber=rep.grabber,
+            dropped=stats.dropped,
+            latency={"processing": rep.processing, "end_to_end": rep.end_to_end},
+            events=rep.events,
+            recording=None if recorder is None else {
                 "video": str(recorder.video), "timestamps": str(recorder.timestamps),
                 "frames": recorder.frames, "jpeg_quality": cfg.jpeg_quality},
-            "udp": None if udp is None else {"address": list(udp.address), "sent": udp.sent,
-                                             "errors": udp.errors},
-            "problems": rep.problems,
-            "time_source": "capture (monotonic clock, from the first frame)",
-            "options": dataclasses.asdict(cfg.options),
-            "sensor_file": self.sensor.source,
-            "sensor": sensor_to_dict(self.sensor),
-            "columns": list(SIGNAL_COLUMNS),
-        }  # fmt: skip
-        with atomic_path(rep.sidecar) as tmp:
-            tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+            udp=None if udp is None else {"address": list(udp.address), "sent": udp.sent,
+                                          "errors": udp.errors},
+        )  # fmt: skip
+        write_sidecar(self.out_csv, meta)
 
     @staticmethod
     def summary(rep: LiveReport) -> str:
