@@ -1,16 +1,14 @@
 """Batch processing: a video in, the signal table (SENSOR.md section 6) out.
 
-:func:`run_batch` drives :func:`camwhisker.vision.tracker.track` over a
-:mod:`camwhisker.sources` source and writes ``OUT.csv`` and its sidecar
-``OUT.json`` (version, input, sensor, options, counts, problems). Both are
-written to temporary files and renamed into place, so a crash never leaves a
-table that looks whole. Untrusted values are empty cells; so is theta where
-phi is too small to define it.
+:func:`run_batch` drives the streaming core (:func:`camwhisker.stream.stream`)
+over a :mod:`camwhisker.sources` source and writes ``OUT.csv`` and its sidecar
+``OUT.json`` (:mod:`camwhisker.signals`). Both are written to temporary files
+and renamed into place, so a crash never leaves a table that looks whole.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,9 +16,10 @@ from tqdm import tqdm
 
 from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor
-from camwhisker.signals import sidecar, sidecar_path, write_sidecar, write_signals
-from camwhisker.sources import open_source
-from camwhisker.vision.tracker import FrontEndOptions, track
+from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar
+from camwhisker.sources import Frame, SessionSource, open_source
+from camwhisker.stream import stream
+from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
 __all__ = ["BatchReport", "run_batch"]
 
@@ -83,45 +82,36 @@ def run_batch(
     camwhisker.vision.FeaturesNotFound
         The rest frame lacks a feature; nothing is written.
     """
-    from camwhisker.live.record import timestamps_path
-
     options = options or FrontEndOptions()
     source = open_source(video, fps, decode_threads)
-    out_csv = Path(out_csv)
-    report = BatchReport(out_csv, sidecar_path(out_csv))
-    times: dict[int, float] = {}
-    stamps = timestamps_path(Path(video))
-    session = Path(video).is_file() and stamps.is_file()
-    if session:
-        # A recorded live session: its own clock, gaps and events, as replay reads them.
-        from camwhisker.live.loop import session_rows
-
-        if rest_index != 0:
-            raise ValueError(f"{video}: a recorded session keeps its own rest frame "
-                             f"(rest_index must be 0, got {rest_index})")
-        rows = session_rows(video, sensor, options)
-    else:
-
-        def frames():
-            for f in source:
-                times[f.index] = f.t_s
-                yield f.image
-
-        rows = ((times.get(r.frame, math.nan), r)
-                for r in track(frames(), sensor, options, rest_index))  # fmt: skip
-    total = len(source) or None
-    bar = tqdm(rows, total=total, unit="frame", desc="batch",
-               disable=not progress or (total or 0) < PROGRESS_MIN_FRAMES)  # fmt: skip
-    with atomic_path(out_csv) as tmp:
-        report.frames, report.frames_ok = write_signals(tmp, bar)
-    bar.close()
+    session = isinstance(source, SessionSource)
+    if session and rest_index != 0:
+        raise ValueError(f"{video}: a recorded session keeps its own rest frame "
+                         f"(rest_index must be 0, got {rest_index})")  # fmt: skip
+    report = BatchReport(Path(out_csv), sidecar_path(out_csv))
+    # A recorded session is processed as live processed it: failures are rows.
+    rows = stream(source, sensor, options, rest_index, strict=not session)
+    report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress)
     if source.problem:
         report.problems.append(source.problem)
     if report.frames <= rest_index:
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
-    time_source = f"session timestamps ({stamps.name})" if session else source.time_source
-    meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), time_source,
+    meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), source.time_source,
                    (report.frames, report.frames_ok), report.problems, options, sensor,
                    rest_index, fps=source.fps)  # fmt: skip
-    write_sidecar(out_csv, meta)
+    write_sidecar(report.out_csv, meta)
     return report
+
+
+def _write_table(
+    out_csv: Path, rows: Iterable[tuple[Frame, FrameResult]], total: int, progress: bool
+) -> tuple[int, int]:
+    """Write the (frame, result) rows as the table at ``out_csv`` (atomically), with a
+    progress bar on long inputs; returns (rows, rows ok)."""
+    bar = tqdm(rows, total=total or None, unit="frame", desc="batch",
+               disable=not progress or total < PROGRESS_MIN_FRAMES)  # fmt: skip
+    with atomic_path(out_csv) as tmp, SignalWriter(tmp) as writer:
+        for frame, r in bar:
+            writer.write(frame.t_s, r)
+    bar.close()
+    return writer.rows, writer.rows_ok

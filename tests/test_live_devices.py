@@ -37,10 +37,10 @@ from camwhisker.live.cameras import (
 from camwhisker.live.capture import CameraCapture
 from camwhisker.live.grabber import Grabber
 from camwhisker.live.loop import LiveConfig, run_live
-from camwhisker.live.record import MjpgRoundTrip, read_timestamps, timestamps_path
+from camwhisker.live.record import MjpgRoundTrip
 from camwhisker.sensor import load_sensor
 from camwhisker.signals import SignalWriter, write_signals
-from camwhisker.sources import VideoSource
+from camwhisker.sources import VideoSource, read_timestamps, timestamps_path
 from camwhisker.vision.tracker import FrameResult
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
