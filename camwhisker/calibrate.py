@@ -22,7 +22,6 @@ import numpy as np
 from camwhisker import __version__
 from camwhisker.atomic import atomic_write_text
 from camwhisker.contact.gm import PHI_MIN_DEG, GMFit, fit_gm, r_gm
-from camwhisker.contact.io import write_csv
 from camwhisker.contact.mf import (
     DZ_SCALE_MM,
     MF_CURVE_STEP_DEG,
@@ -35,6 +34,7 @@ from camwhisker.contact.mf import (
 from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
+from camwhisker.tables import write_csv
 
 __all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
            "format_calibration", "mf_phi_floor", "write_calibration", "read_calibration",

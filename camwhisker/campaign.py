@@ -28,8 +28,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from camwhisker import signals
 from camwhisker.atomic import atomic_path
-from camwhisker.batch import sidecar_path
+from camwhisker.signals import sidecar_path
 
 __all__ = [
     "VIDEO_SUFFIXES",
@@ -161,8 +162,7 @@ def write_sidecar(out: Path, meta: dict, complete: bool = True) -> None:
     out = Path(out)
     output = {"path": out.name, "bytes": out.stat().st_size, "sha256": _digest(out)}
     record = dict(meta, output=output, complete=complete)
-    with atomic_path(sidecar_path(out)) as tmp:
-        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
+    signals.write_sidecar(out, record)
 
 
 def is_complete(out: Path) -> bool:

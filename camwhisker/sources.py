@@ -1,18 +1,23 @@
 """Frame sources with timestamps, shared by the batch command and a live loop.
 
 :func:`open_source` gives a :class:`VideoSource` for any file OpenCV can
-decode, or an :class:`ImageFolderSource` for a folder of images. Iterating a
-source yields :class:`Frame` objects (index, t_s, BGR uint8 image) in order.
+decode, an :class:`ImageFolderSource` for a folder of images, or a
+:class:`SessionSource` for a recorded live session (``SESSION.avi`` with
+``SESSION.timestamps.csv`` beside it). Iterating a source yields
+:class:`Frame` objects (index, t_s, BGR uint8 image, event) in order.
 
 Timestamps come from the container: PyAV reads every packet's presentation
 time without decoding (OpenCV's ``CAP_PROP_POS_MSEC`` is unreliable for
 MJPG AVI and variable-rate files). Where the container has none, t_s is
 index / fps. A file that ends early (truncated, corrupt) stops the iteration
-at the last readable frame and sets :attr:`VideoSource.problem`.
+at the last readable frame and sets :attr:`VideoSource.problem`. A session's
+frames carry the live clock, gaps and events (re-zero, re-detect) of its
+timestamps file, so processing it again gives the live table.
 """
 
 from __future__ import annotations
 
+import csv
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -21,11 +26,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["Frame", "SourceError", "VideoSource", "ImageFolderSource", "open_source"]
+__all__ = [
+    "Frame", "SourceError", "VideoSource", "ImageFolderSource", "SessionSource", "is_session",
+    "open_source", "timestamps_path", "read_timestamps", "TIMESTAMP_COLUMNS",
+]  # fmt: skip
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 #: Frame rate assumed for an image folder, or a video that states none.
 DEFAULT_FPS = 30.0
+#: A recorded session's timestamps file: one row per row of the live table.
+TIMESTAMP_COLUMNS = ("frame", "video_frame", "seq", "t_s", "event")
 
 
 class SourceError(ValueError):
@@ -34,11 +44,17 @@ class SourceError(ValueError):
 
 @dataclass(frozen=True)
 class Frame:
-    """index: 0-based frame number; t_s: time (s); image: ndarray, shape (H, W, 3), uint8 BGR."""
+    """One frame of a source.
+
+    index: 0-based frame number; t_s: time (s); image: ndarray, shape (H, W, 3),
+    uint8 BGR, or None where no frame came (a gap in a live session); event:
+    "", "rezero", "redetect" or "gap" (see :mod:`camwhisker.stream`).
+    """
 
     index: int
     t_s: float
-    image: np.ndarray
+    image: np.ndarray | None
+    event: str = ""
 
 
 def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int | None]:
@@ -183,9 +199,85 @@ class ImageFolderSource:
             yield Frame(i, i / self.fps, image)
 
 
+def timestamps_path(video: str | Path) -> Path:
+    """``SESSION.timestamps.csv`` beside ``SESSION.avi``."""
+    video = Path(video)
+    return video.with_name(video.stem + ".timestamps.csv")
+
+
+def read_timestamps(path: str | Path) -> list[dict]:
+    """Rows of a timestamps file: frame, video_frame (int or None), seq, t_s, event."""
+    rows = []
+    with open(path, newline="") as fh:
+        for r in csv.DictReader(fh):
+            rows.append({
+                "frame": int(r["frame"]),
+                "video_frame": int(r["video_frame"]) if r["video_frame"] else None,
+                "seq": int(r["seq"]),
+                "t_s": float(r["t_s"]) if r["t_s"] else math.nan,
+                "event": r["event"],
+            })  # fmt: skip
+    return rows
+
+
+class SessionSource:
+    """A recorded live session: its video's frames on its own clock, with its gaps and events.
+
+    One :class:`Frame` per row of the timestamps file: the row's t_s and event,
+    and the next video frame (decoded as :class:`VideoSource` decodes it), or
+    no image where the row is a gap.
+
+    Raises
+    ------
+    FileNotFoundError
+        No video or no timestamps file.
+    SourceError
+        The video cannot be decoded.
+    """
+
+    def __init__(self, video: str | Path, decode_threads: int | None = None):
+        self.path = Path(video)
+        self.video = VideoSource(self.path, decode_threads)
+        self.timestamps = timestamps_path(self.path)
+        self.rows = read_timestamps(self.timestamps)
+        self.fps = self.video.fps
+        self.time_source = f"session timestamps ({self.timestamps.name})"
+        self.problem = ""
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __iter__(self) -> Iterator[Frame]:
+        """The session's rows as frames.
+
+        Raises
+        ------
+        SourceError
+            The timestamps name more frames than the video holds.
+        """
+        frames = iter(self.video)
+        for row in self.rows:
+            if row["video_frame"] is None:
+                yield Frame(row["frame"], row["t_s"], None, "gap")
+                continue
+            image = next(frames, None)
+            if image is None:
+                raise SourceError(f"{self.path}: fewer frames than its timestamps file lists")
+            yield Frame(row["frame"], row["t_s"], image.image, row["event"])
+
+
+def is_session(path: str | Path) -> bool:
+    """Whether ``path`` is a recorded live session (a video with its timestamps file)."""
+    path = Path(path)
+    return path.is_file() and timestamps_path(path).is_file()
+
+
 def open_source(path: str | Path, fps: float | None = None, decode_threads: int | None = None):
-    """A :class:`VideoSource` for a file, an :class:`ImageFolderSource` for a folder."""
+    """A :class:`SessionSource` for a recorded session, a :class:`VideoSource` for another
+    file, an :class:`ImageFolderSource` for a folder."""
     path = Path(path)
     if path.is_dir():
         return ImageFolderSource(path, fps)
+    if is_session(path):
+        return SessionSource(path, decode_threads)
     return VideoSource(path, decode_threads)

@@ -31,18 +31,11 @@ import pytest
 
 from camwhisker.batch import run_batch
 from camwhisker.live.capture import SourceCapture
-from camwhisker.live.loop import (
-    GAP_REASON,
-    LiveConfig,
-    LiveSession,
-    live_track,
-    reprocess_session,
-    run_live,
-)
+from camwhisker.live.loop import LiveConfig, LiveSession, reprocess_session, run_live
 from camwhisker.live.playback import PlaybackSource
-from camwhisker.live.record import read_timestamps, timestamps_path
 from camwhisker.sensor import load_sensor
-from camwhisker.sources import VideoSource
+from camwhisker.sources import VideoSource, read_timestamps, timestamps_path
+from camwhisker.stream import GAP_REASON, live_track
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"

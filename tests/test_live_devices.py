@@ -20,7 +20,6 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.batch import write_signals
 from camwhisker.bench.live import _jpegs, bench_frames
 from camwhisker.bench.live import main as bench_main
 from camwhisker.cli import main
@@ -38,10 +37,10 @@ from camwhisker.live.cameras import (
 from camwhisker.live.capture import CameraCapture
 from camwhisker.live.grabber import Grabber
 from camwhisker.live.loop import LiveConfig, run_live
-from camwhisker.live.outputs import CsvSignalWriter
-from camwhisker.live.record import MjpgRoundTrip, read_timestamps, timestamps_path
+from camwhisker.live.record import MjpgRoundTrip
 from camwhisker.sensor import load_sensor
-from camwhisker.sources import VideoSource
+from camwhisker.signals import SignalWriter, write_signals
+from camwhisker.sources import VideoSource, read_timestamps, timestamps_path
 from camwhisker.vision.tracker import FrameResult
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
@@ -204,7 +203,7 @@ def test_signal_row_is_batch_format(tmp_path):
     ]  # fmt: skip
     times = [0.0, 0.0333333333, 1e-7, math.nan]
     write_signals(tmp_path / "batch.csv", zip(times, results, strict=True))
-    w = CsvSignalWriter(tmp_path / "live.csv")
+    w = SignalWriter(tmp_path / "live.csv", flush=True)
     for t, r in zip(times, results, strict=True):
         w.write(t, r)
     w.close()

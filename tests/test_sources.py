@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camwhisker.sources import ImageFolderSource, SourceError, VideoSource, open_source
+from camwhisker.sources import (
+    TIMESTAMP_COLUMNS,
+    ImageFolderSource,
+    SessionSource,
+    SourceError,
+    VideoSource,
+    open_source,
+    timestamps_path,
+)
 from camwhisker.synth.video import write_video
 
 
@@ -60,3 +68,33 @@ def test_image_folder(tmp_path):
     empty.mkdir()
     with pytest.raises(SourceError, match="no images"):
         open_source(empty)
+
+
+def _session(tmp_path, rows):
+    video = tmp_path / "s.avi"
+    write_video(video, _frames(3), 30.0, jpeg_quality=90)
+    lines = [",".join(TIMESTAMP_COLUMNS)] + [",".join(map(str, r)) for r in rows]
+    timestamps_path(video).write_text("\n".join(lines) + "\n")
+    return video
+
+
+def test_session_source_keeps_the_live_clock_gaps_and_events(tmp_path):
+    video = _session(tmp_path, [(0, 0, 0, "0.000000", ""), (1, "", 1, "0.040000", "gap"),
+                                (2, 1, 2, "0.075000", "rezero"), (3, 2, 3, "0.110000", "")])
+    src = open_source(video)
+    assert isinstance(src, SessionSource) and len(src) == 4
+    assert src.time_source == "session timestamps (s.timestamps.csv)"
+    frames = list(src)
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    assert [f.t_s for f in frames] == [0.0, 0.04, 0.075, 0.11]
+    assert [f.event for f in frames] == ["", "gap", "rezero", ""]
+    assert frames[1].image is None
+    shown = [f.image for f in frames if f.image is not None]
+    decoded = [f.image for f in VideoSource(video)]
+    assert all(np.array_equal(a, b) for a, b in zip(shown, decoded, strict=True))
+
+
+def test_session_source_with_more_rows_than_frames_is_refused(tmp_path):
+    video = _session(tmp_path, [(k, k, k, f"{k / 30:.6f}", "") for k in range(4)])
+    with pytest.raises(SourceError, match="fewer frames than its timestamps"):
+        list(SessionSource(video))

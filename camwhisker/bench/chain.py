@@ -28,15 +28,16 @@ from camwhisker.atomic import atomic_path
 from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
 from camwhisker.campaign import BatchTask, run_many, sidecar_path
-from camwhisker.contact.io import read_columns, read_signal_table, write_csv
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.zscore import flag_rates, roc_auc
 from camwhisker.mechanics.experiment import scene_by_name
 from camwhisker.sensor import load_sensor
+from camwhisker.signals import read_signal_table
 from camwhisker.stage import read_stage_log
 from camwhisker.synth.experiment import read_experiment
 from camwhisker.synth.scenarios import PoseTrack
 from camwhisker.synth.video import sidecar_paths
+from camwhisker.tables import read_columns, write_csv
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "SHAPE_TOL_MM"]

@@ -71,7 +71,7 @@ def _run_calibrate(args) -> int:
         format_calibration,
         write_calibration,
     )
-    from camwhisker.contact.io import read_signal_table
+    from camwhisker.signals import read_signal_table
     from camwhisker.stage import read_stage_log
 
     if len(args.signals) != len(args.stage):
@@ -112,9 +112,10 @@ def add_contact(sub) -> None:
 
 def _run_contact(args) -> int:
     from camwhisker.calibrate import read_calibration
-    from camwhisker.contact.io import read_signal_table, write_csv
     from camwhisker.contact.pipeline import contact_rows
+    from camwhisker.signals import read_signal_table
     from camwhisker.stage import read_stage_log
+    from camwhisker.tables import write_csv
 
     calib = read_calibration(args.calib)
     signals = read_signal_table(args.signals)

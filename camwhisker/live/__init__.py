@@ -7,8 +7,8 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.live.playback`  a file released on a real-time clock (a camera stand-in)
 - :mod:`~camwhisker.live.grabber`   the grabber thread: "latest" / "every", reconnects, fps
 - :mod:`~camwhisker.live.record`    recording a session (MJPG AVI + timestamps) for batch
-- :mod:`~camwhisker.live.outputs`   signal table (CSV), JSON lines, UDP
-- :mod:`~camwhisker.live.loop`      processor, generator, session, reprocessing
+- :mod:`~camwhisker.live.outputs`   JSON lines, UDP (the table: :mod:`camwhisker.signals`)
+- :mod:`~camwhisker.live.loop`      the session, reprocessing (the core: :mod:`camwhisker.stream`)
 """
 
 from camwhisker.live.loop import LiveConfig, LiveProcessor, LiveSession, reprocess_session, run_live

@@ -1,26 +1,22 @@
-"""The live loop: grabbed frames -> the front end -> CSV, JSON lines, UDP, recording.
+"""The live loop: grabbed frames -> the streaming core -> CSV, JSON lines, UDP, recording.
 
-The trio of the style guide, over the front end's :class:`FrontEnd` (the
-same object batch's :func:`~camwhisker.vision.tracker.track` drives):
+:class:`LiveSession` feeds the grabbed frames, with the live events (re-zero,
+re-detect, a gap where no frame came), to :func:`camwhisker.stream.stream`
+and sends each row to the outputs. It runs the grabber thread, takes commands
+(``r`` re-zero, ``d`` re-detect, ``q`` quit) from the terminal or from
+:meth:`LiveSession.command`, stops cleanly on Ctrl-C and SIGTERM, and writes
+the sidecar (settings, grabber counts, latency).
 
-- :class:`LiveProcessor`: one frame at a time, with the live events
-  (re-zero, re-detect, a gap where no frame came);
-- :func:`live_track`: a generator over ``(image, event)`` pairs;
-- :func:`reprocess_session`: a recorded session through the generator, with
-  the recorded timestamps and events: the live table again, row for row.
-
-:class:`LiveSession` runs the grabber thread, the processing and the outputs,
-takes commands (``r`` re-zero, ``d`` re-detect, ``q`` quit) from the
-terminal or from :meth:`LiveSession.command`, stops cleanly on Ctrl-C and
-SIGTERM, and writes the sidecar (settings, grabber counts, latency).
+:func:`reprocess_session` drives the same generator over a recorded session
+(:class:`~camwhisker.sources.SessionSource`): the live table again, row for
+row. :class:`LiveProcessor` hands the generator one frame at a time, for a
+caller that times each frame.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import gc
-import json
 import logging
 import math
 import os
@@ -30,45 +26,28 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__
 from camwhisker.atomic import atomic_path
-from camwhisker.batch import SIGNAL_COLUMNS, sidecar_path
 from camwhisker.live.capture import describe
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
-from camwhisker.live.outputs import (
-    DEFAULT_UDP_HOST,
-    CsvSignalWriter,
-    UdpSender,
-    result_message,
-)
-from camwhisker.live.record import (
-    JPEG_QUALITY,
-    MjpgRoundTrip,
-    SessionRecorder,
-    decode_only,
-    read_timestamps,
-    timestamps_path,
-)
-from camwhisker.sensor import Sensor, sensor_to_dict
-from camwhisker.sources import VideoSource
-from camwhisker.vision.detect import FeaturesNotFound
-from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
+from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
+from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
+from camwhisker.sensor import Sensor
+from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar, write_signals
+from camwhisker.sources import Frame, SessionSource
+from camwhisker.stream import stream
+from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
-__all__ = ["LiveProcessor", "live_track", "reprocess_session", "LiveConfig", "LiveSession",
-           "LiveReport", "latency_summary", "run_live", "EVENTS"]  # fmt: skip
+__all__ = ["LiveProcessor", "reprocess_session", "LiveConfig", "LiveSession", "LiveReport",
+           "latency_summary", "run_live"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
-#: Events a row can carry (the timestamps file's ``event`` column).
-EVENTS = ("", "rezero", "redetect", "gap")
-#: Reason written in a row for which no frame came (the error is in the log and sidecar).
-GAP_REASON = "no frame: capture read failed"
 #: How often the loop looks at its stop flag while no frame comes (s): the
 #: longest a stop waits; the wait itself blocks, it does not spin.
 POLL_S = 0.1
@@ -81,101 +60,37 @@ KEYS = {"r": "rezero", "d": "redetect", "q": "quit"}
 
 
 class LiveProcessor:
-    """The front end with live events: one call per row.
-
-    The first frame is the rest reference (as in batch); a failed rest frame
-    gives an untrusted row and the next frame is tried. ``"rezero"`` starts a
-    new front end at the frame (the old one stays if the features are not
-    found); ``"redetect"`` finds the features again before the update;
-    ``"gap"`` (no image) gives an untrusted row and leaves the state alone.
-    """
+    """The live stream (:func:`~camwhisker.stream.stream`) fed one frame per call."""
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
-        self.sensor = sensor
-        self.options = options or FrontEndOptions()
-        self.fe: FrontEnd | None = None
+        self._frame: Frame | None = None
+        self._rows = stream(self._frames(), sensor, options, strict=False, warm_up=True)
 
-    def _start(self, image: np.ndarray, index: int, what: str) -> FrameResult:
-        fe = FrontEnd(self.sensor, self.options)
-        try:
-            r = fe.start(image, index)
-        except (FeaturesNotFound, ValueError) as exc:
-            return FrameResult.untrusted(index, f"{what}: {exc}")
-        # A throwaway update of a copy, on the rest frame: the first real frame then
-        # finds every compiled kernel of the update loaded (it took ~27 ms, not ~2).
-        copy.deepcopy(fe).update(image, index)
-        self.fe = fe
-        return r
+    def _frames(self) -> Iterator[Frame]:
+        while True:
+            yield self._frame
 
     def process(self, index: int, image: np.ndarray | None, event: str = "") -> FrameResult:
         """The row for frame ``index`` (``image`` None: a gap)."""
-        if image is None:
-            return FrameResult.untrusted(index, GAP_REASON)
-        if self.fe is None:
-            return self._start(image, index, "rest frame")
-        if event == "rezero":
-            return self._start(image, index, "re-zero failed")
-        try:
-            if event == "redetect":
-                self.fe.redetect(image)
-            return self.fe.update(image, index)
-        except ValueError as exc:  # a frame of another size after a reconnect
-            return FrameResult.untrusted(index, str(exc))
+        self._frame = Frame(index, math.nan, image, event)
+        return next(self._rows)[1]
 
 
-def live_track(items: Iterable[tuple[np.ndarray | None, str]], sensor: Sensor,
-               options: FrontEndOptions | None = None) -> Iterator[FrameResult]:  # fmt: skip
-    """Yield one result per ``(image, event)`` item; see :class:`LiveProcessor`."""
-    proc = LiveProcessor(sensor, options)
-    for i, (image, event) in enumerate(items):
-        yield proc.process(i, image, event)
-
-
-def session_rows(video: str | Path, sensor: Sensor, options: FrontEndOptions | None = None):
-    """(t_s, result) per row of a recorded session, as the live loop made them.
-
-    Frames are decoded as ``camwhisker batch`` decodes them
-    (:class:`~camwhisker.sources.VideoSource`); times, gaps and events
-    (re-zero, re-detect) come from ``SESSION.timestamps.csv``.
+def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
+                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
+    """Process a recorded session again: the same rows as the live table.
 
     Raises
     ------
     FileNotFoundError
         No video or no timestamps file.
-    ValueError
-        The timestamps name more frames than the video holds.
+    camwhisker.sources.SourceError
+        The video cannot be decoded, or holds fewer frames than the timestamps list.
     """
-    video = Path(video)
-    rows = read_timestamps(timestamps_path(video))
-    frames = iter(VideoSource(video))
-
-    def items():
-        for row in rows:
-            if row["video_frame"] is None:
-                yield None, "gap"
-                continue
-            try:
-                frame = next(frames)
-            except StopIteration:
-                raise ValueError(f"{video}: fewer frames than its timestamps file lists") from None
-            yield frame.image, row["event"]
-
-    for row, r in zip(rows, live_track(items(), sensor, options), strict=True):
-        yield row["t_s"], r
-
-
-def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
-                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
-    """Process a recorded session again: the same rows as the live table (:func:`session_rows`)."""
-    rows = session_rows(video, sensor, options)
+    rows = stream(SessionSource(video), sensor, options, strict=False)
     out_csv = Path(out_csv)
     with atomic_path(out_csv) as tmp:
-        writer = CsvSignalWriter(tmp)
-        try:
-            for t_s, r in rows:
-                writer.write(t_s, r)
-        finally:
-            writer.close()
+        write_signals(tmp, ((frame.t_s, r) for frame, r in rows))
     return out_csv
 
 
@@ -265,6 +180,10 @@ class LiveSession:
         self._stdout_closed = False
         #: Sequence numbers of the rows, in order (for the drop check).
         self.seqs: list[int] = []
+        self._input: dict = {}
+        #: The grabbed item of the frame being processed, and when it went in (perf_counter s).
+        self._grabbed: Grabbed | None = None
+        self._handed_at = 0.0
 
     # -------------------------------------------------------------- control
     def command(self, name: str) -> None:
@@ -313,12 +232,10 @@ class LiveSession:
     # ------------------------------------------------------------------ run
     def run(self) -> LiveReport:
         cfg = self.config
-        rep = self.report
         prepare = MjpgRoundTrip(cfg.jpeg_quality) if cfg.record else decode_only
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
-        proc = LiveProcessor(self.sensor, cfg.options)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
-        writer = CsvSignalWriter(self.out_csv)
+        writer = SignalWriter(self.out_csv, flush=True)
         recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
         udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
         controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
@@ -329,7 +246,6 @@ class LiveSession:
                 old_handlers[sig] = signal.signal(sig, self._on_signal)
         proc_ms: list[float] = []
         e2e_ms: list[float] = []
-        t0 = None
         t_start = time.monotonic()
         self._input = describe(self.capture)  # a released cv2.VideoCapture cannot say
         # Everything alive now (modules, compiled code, the front end) lives as long
@@ -341,20 +257,10 @@ class LiveSession:
             keys.start()
             print("camwhisker live: keys r = re-zero, d = re-detect, q = quit", file=sys.stderr)
         try:
-            while not self._stop.is_set():
-                if cfg.max_frames is not None and rep.rows >= cfg.max_frames:
-                    self.stop("max_frames")
-                    break
-                if cfg.duration_s is not None and time.monotonic() - t_start >= cfg.duration_s:
-                    self.stop("duration")
-                    break
-                item = grabber.get(POLL_S)
-                if item is None:
-                    if grabber.finished:
-                        self.stop("capture lost" if grabber.stats.lost else "end of input")
-                    continue
-                t0 = item.t_s if t0 is None else t0
-                self._row(item, item.t_s - t0, proc, writer, recorder, udp, proc_ms, e2e_ms)
+            frames = self._frames(grabber, t_start)
+            for frame, r in stream(frames, self.sensor, cfg.options, strict=False, warm_up=True):
+                proc_s = time.perf_counter() - self._handed_at
+                self._row(frame, r, proc_s, writer, recorder, udp, proc_ms, e2e_ms)
         finally:
             gc.unfreeze()
             grabber.stop()
@@ -370,33 +276,53 @@ class LiveSession:
             if udp is not None:
                 udp.close()
             self._finish(grabber, proc_ms, e2e_ms, recorder, udp)
-        return rep
+        return self.report
 
-    def _row(self, item: Grabbed, t_s: float, proc, writer, recorder, udp,
+    def _frames(self, grabber: Grabber, t_start: float) -> Iterator[Frame]:
+        """The grabbed frames, timed from the first, with their events, until the session
+        stops; each one's grabbed item and hand-over time are kept for its row."""
+        cfg = self.config
+        t0 = None
+        while not self._stop.is_set():
+            if cfg.max_frames is not None and self.report.rows >= cfg.max_frames:
+                self.stop("max_frames")
+                return
+            if cfg.duration_s is not None and time.monotonic() - t_start >= cfg.duration_s:
+                self.stop("duration")
+                return
+            item = grabber.get(POLL_S)
+            if item is None:
+                if grabber.finished:
+                    self.stop("capture lost" if grabber.stats.lost else "end of input")
+                continue
+            t0 = item.t_s if t0 is None else t0
+            event = "gap" if item.image is None else self._next_event()
+            self._grabbed = item
+            frame = Frame(self.report.rows, item.t_s - t0, item.image, event)
+            self._handed_at = time.perf_counter()
+            yield frame
+
+    def _row(self, frame: Frame, r: FrameResult, proc_s: float, writer, recorder, udp,
              proc_ms, e2e_ms) -> None:  # fmt: skip
         rep = self.report
-        index = rep.rows
-        event = "gap" if item.image is None else self._next_event()
-        tic = time.perf_counter()
-        r = proc.process(index, item.image, event)
-        toc = time.perf_counter()
+        item = self._grabbed
         done = time.monotonic()
         if item.image is not None:
-            proc_ms.append(1e3 * (toc - tic))
+            proc_ms.append(1e3 * proc_s)
             e2e_ms.append(1e3 * (done - item.t_s))
         else:
             rep.gaps += 1
-        if event in ("rezero", "redetect"):
-            rep.events.append({"frame": index, "event": event, "ok": bool(r.ok)})
+        if frame.event in ("rezero", "redetect"):
+            rep.events.append({"frame": frame.index, "event": frame.event, "ok": bool(r.ok)})
         if self.seqs:
             rep.seq_gaps += item.seq - self.seqs[-1] - 1
         self.seqs.append(item.seq)
-        writer.write(t_s, r)
+        writer.write(frame.t_s, r)
         if recorder is not None:
             shape = None if item.image is None else item.image.shape
-            recorder.write(index, item.seq, t_s, item.jpeg, shape, event)
+            recorder.write(frame.index, item.seq, frame.t_s, item.jpeg, shape, frame.event)
         if self.config.jsonl or udp is not None:
-            msg = result_message(item.seq, t_s, r, 1e3 * (done - item.t_s))
+            msg = result_message(item.seq, frame.t_s, r, 1e3 * (done - item.t_s))
             if self.config.jsonl and not self._stdout_closed:
                 try:
                     print(msg, file=self.stdout, flush=True)
@@ -432,34 +358,25 @@ class LiveSession:
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
-        meta = {
-            "camwhisker_version": __version__,
-            "made_by": "camwhisker.live.loop.LiveSession",
-            "input": describe(self.capture) if hasattr(self.capture, "describe") else self._input,
-            "mode": cfg.mode,
-            "rest_frame": 0,
-            "frames": rep.rows,
-            "frames_ok": rep.rows_ok,
-            "rows_without_frame": rep.gaps,
-            "stopped_by": rep.stopped_by,
-            "grabber": rep.grabber,
-            "dropped": stats.dropped,
-            "latency": {"processing": rep.processing, "end_to_end": rep.end_to_end},
-            "events": rep.events,
-            "recording": None if recorder is None else {
+        source = describe(self.capture) if hasattr(self.capture, "describe") else self._input
+        meta = sidecar(
+            "camwhisker.live.loop.LiveSession", source,
+            "capture (monotonic clock, from the first frame)",
+            (rep.rows, rep.rows_ok), rep.problems, cfg.options, self.sensor,
+            mode=cfg.mode,
+            rows_without_frame=rep.gaps,
+            stopped_by=rep.stopped_by,
+            grabber=rep.grabber,
+            dropped=stats.dropped,
+            latency={"processing": rep.processing, "end_to_end": rep.end_to_end},
+            events=rep.events,
+            recording=None if recorder is None else {
                 "video": str(recorder.video), "timestamps": str(recorder.timestamps),
                 "frames": recorder.frames, "jpeg_quality": cfg.jpeg_quality},
-            "udp": None if udp is None else {"address": list(udp.address), "sent": udp.sent,
-                                             "errors": udp.errors},
-            "problems": rep.problems,
-            "time_source": "capture (monotonic clock, from the first frame)",
-            "options": dataclasses.asdict(cfg.options),
-            "sensor_file": self.sensor.source,
-            "sensor": sensor_to_dict(self.sensor),
-            "columns": list(SIGNAL_COLUMNS),
-        }  # fmt: skip
-        with atomic_path(rep.sidecar) as tmp:
-            tmp.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+            udp=None if udp is None else {"address": list(udp.address), "sent": udp.sent,
+                                          "errors": udp.errors},
+        )  # fmt: skip
+        write_sidecar(self.out_csv, meta)
 
     @staticmethod
     def summary(rep: LiveReport) -> str:

@@ -1,49 +1,22 @@
-"""Where live results go: the signal table (CSV, flushed per row), JSON lines, UDP.
+"""Where live results go besides the signal table: JSON lines and UDP.
 
-The CSV has batch's columns and batch's one row formatter
-(:func:`camwhisker.batch.signal_row`), flushed row by row.
-
+The signal table is :class:`camwhisker.signals.SignalWriter`'s, flushed row by row.
 JSON lines and UDP datagrams carry one object per frame: frame, seq, t_s,
 dz_mm, phi_deg, theta_deg, ok, latency_ms, note. Untrusted values are null.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import socket
 
-from camwhisker.batch import SIGNAL_COLUMNS, signal_row
 from camwhisker.vision.tracker import FrameResult
 
-__all__ = ["CsvSignalWriter", "result_message", "UdpSender", "DEFAULT_UDP_HOST"]
+__all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]
 
 #: Results go to this machine only unless the user names another address.
 DEFAULT_UDP_HOST = "127.0.0.1"
-
-
-class CsvSignalWriter:
-    """The signal table, written and flushed row by row (readable while it grows)."""
-
-    def __init__(self, path):
-        self.path = path
-        self._fh = open(path, "w", newline="")  # noqa: SIM115 - closed in close()
-        self._csv = csv.writer(self._fh)
-        self._csv.writerow(SIGNAL_COLUMNS)
-        self._fh.flush()
-        self.rows = 0
-        self.rows_ok = 0
-
-    def write(self, t_s: float, r: FrameResult) -> None:
-        self._csv.writerow(signal_row(t_s, r))
-        self._fh.flush()
-        self.rows += 1
-        self.rows_ok += bool(r.ok)
-
-    def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.close()
 
 
 def _num(x: float, digits: int) -> float | None:

@@ -24,18 +24,13 @@ import av
 import cv2
 import numpy as np
 
-__all__ = ["MjpgRoundTrip", "SessionRecorder", "timestamps_path", "read_timestamps",
-           "TIMESTAMP_COLUMNS"]  # fmt: skip
+from camwhisker.sources import TIMESTAMP_COLUMNS, timestamps_path
+
+__all__ = ["MjpgRoundTrip", "SessionRecorder", "decode_only", "JPEG_QUALITY"]
 
 #: JPEG quality of frames encoded for a recording: 95 keeps the sensor noise
 #: (the C310's own MJPG is ~q 85-90), at ~2.5 ms per 720p frame on one core.
 JPEG_QUALITY = 95
-TIMESTAMP_COLUMNS = ("frame", "video_frame", "seq", "t_s", "event")
-
-
-def timestamps_path(video: Path) -> Path:
-    video = Path(video)
-    return video.with_name(video.stem + ".timestamps.csv")
 
 
 def _is_jpeg_bytes(image: np.ndarray) -> bool:
@@ -132,17 +127,3 @@ class SessionRecorder:
         self._ts.close()
         self._container.close()
 
-
-def read_timestamps(path: Path) -> list[dict]:
-    """Rows of a timestamps file: frame, video_frame (int or None), seq, t_s, event."""
-    rows = []
-    with open(path, newline="") as fh:
-        for r in csv.DictReader(fh):
-            rows.append({
-                "frame": int(r["frame"]),
-                "video_frame": int(r["video_frame"]) if r["video_frame"] else None,
-                "seq": int(r["seq"]),
-                "t_s": float(r["t_s"]) if r["t_s"] else math.nan,
-                "event": r["event"],
-            })  # fmt: skip
-    return rows

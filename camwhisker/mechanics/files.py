@@ -7,8 +7,8 @@ from pathlib import Path
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_write_text
-from camwhisker.contact.io import write_csv
 from camwhisker.mechanics.experiment import StageRun
+from camwhisker.tables import write_csv
 
 __all__ = ["write_runs"]
 

@@ -33,12 +33,12 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_path
-from camwhisker.contact.io import write_csv
 from camwhisker.mechanics import StageProtocol, simulate_runs
 from camwhisker.mechanics.files import TRUTH_COLUMNS
 from camwhisker.sensor import Sensor
 from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, PoseTrack, Scenario
 from camwhisker.synth.video import render_scenario
+from camwhisker.tables import write_csv
 
 __all__ = [
     "ROLES",

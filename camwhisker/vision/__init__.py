@@ -9,7 +9,7 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.vision.tip`     the magnifier tip by colour and edge
 - :mod:`~camwhisker.vision.pose`    the pose fit through the exact camera model
 - :mod:`~camwhisker.vision.paper`   the paper's eqs. (2)-(7) as printed
-- :mod:`~camwhisker.vision.tracker` the stateful front end, its generator
+- :mod:`~camwhisker.vision.tracker` the stateful front end (start, update)
 
 The per-pixel loops (the corners' LK and template warp, the colour-share
 patches, the tip's brightness, ray edges and rim fit, blob statistics) are
@@ -18,6 +18,6 @@ that states its contract; everything else is numpy and OpenCV.
 """
 
 from camwhisker.vision.detect import FeaturesNotFound
-from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions, track
+from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 
-__all__ = ["FeaturesNotFound", "FrameResult", "FrontEnd", "FrontEndOptions", "track"]
+__all__ = ["FeaturesNotFound", "FrameResult", "FrontEnd", "FrontEndOptions"]

@@ -46,7 +46,6 @@ the next frame re-detects the features from scratch.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import cv2
@@ -90,7 +89,7 @@ from camwhisker.vision.tip import (
     tip_edge_points,
 )
 
-__all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_THETA_DEG"]
+__all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "PHI_MIN_FOR_THETA_DEG"]
 
 #: theta is reported only where phi exceeds this. On the benchmark's rest frames
 #: the tilt vector's noise is ~0.006 deg per component (nominal) to ~0.016 deg
@@ -903,29 +902,3 @@ def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
     dz, a, b, sx, sy = (abs(x - y) for x, y in zip(q1.tolist(), q0.tolist(), strict=True))
     return max(dz, sx, sy) > RIM_REFIT_MM or max(a, b) > RIM_REFIT_RAD
 
-
-def track(
-    frames: Iterable[np.ndarray],
-    sensor: Sensor,
-    options: FrontEndOptions | None = None,
-    rest_index: int = 0,
-) -> Iterator[FrameResult]:
-    """Yield one :class:`FrameResult` per frame; frame ``rest_index`` is the rest reference.
-
-    Frames before the rest frame are yielded as untrusted rows.
-
-    Raises
-    ------
-    FeaturesNotFound
-        The rest frame lacks a feature.
-    """
-    if rest_index < 0:
-        raise ValueError(f"rest_index must be >= 0, got {rest_index}")
-    fe = FrontEnd(sensor, options)
-    for i, frame in enumerate(frames):
-        if i < rest_index:
-            yield FrameResult.untrusted(i, "before the rest frame")
-        elif i == rest_index:
-            yield fe.start(frame, i)
-        else:
-            yield fe.update(frame, i)

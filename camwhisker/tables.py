@@ -1,7 +1,9 @@
-"""Files of the contact back end: signal tables in, CSV tables out, atomic writes.
+"""CSV tables of named numeric columns: read into arrays, written atomically.
 
-Every output is written to a temporary file in the target folder and renamed
-into place, so a reader never sees half a file.
+The low-level format every stage's tables share (stage logs, contact tables,
+calibration tables, truth tables): a header row, then one row per sample;
+an empty cell is NaN. Outputs are written to a temporary file in the target
+folder and renamed into place, so a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -15,13 +17,11 @@ import numpy as np
 
 from camwhisker.atomic import atomic_write_text
 
-__all__ = ["SignalTableError", "read_columns", "read_signal_table", "write_csv", "format_cell"]
-
-SIGNAL_COLUMNS = ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")
+__all__ = ["TableError", "read_columns", "write_csv", "format_cell"]
 
 
-class SignalTableError(ValueError):
-    """A signal table that cannot be used; the message names the file, row and column."""
+class TableError(ValueError):
+    """A table that cannot be used; the message names the file, row and column."""
 
 
 def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> dict:
@@ -34,26 +34,26 @@ def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> di
 
     Raises
     ------
-    SignalTableError
+    TableError
         Missing file or column, a ragged row, or a non-numeric cell (named by row and column).
     """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise SignalTableError(f"{path}: cannot read ({exc.strerror})") from exc
+        raise TableError(f"{path}: cannot read ({exc.strerror})") from exc
     reader = csv.reader(io.StringIO(text))
     header = [h.strip() for h in next(reader, [])]
     for need in columns or ():
         if need not in header:
-            raise SignalTableError(f"{path}: row 1: missing column {need!r} (header: {header})")
+            raise TableError(f"{path}: row 1: missing column {need!r} (header: {header})")
     idx = {name: header.index(name) for name in (columns or header)}
     cols = {name: [] for name in idx}
     for i, row in enumerate(reader, start=2):
         if not row:
             continue
         if len(row) != len(header):
-            raise SignalTableError(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
+            raise TableError(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
         for name, j in idx.items():
             cell = row[j].strip()
             if cell == "" or cell.lower() == "nan":
@@ -62,34 +62,9 @@ def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> di
             try:
                 cols[name].append(float(cell))
             except ValueError:
-                raise SignalTableError(
+                raise TableError(
                     f"{path}: row {i}, column {name}: not a number: {cell!r}") from None
     return {k: np.array(v, float) for k, v in cols.items()}
-
-
-def read_signal_table(path: str | Path) -> dict:
-    """Read a signal table (SENSOR.md section 6) into float arrays (empty cell -> NaN).
-
-    ``ok`` becomes a bool array; rows with ok = 0 keep their (NaN) values.
-
-    Raises
-    ------
-    SignalTableError
-        Missing file or column, a non-numeric cell, or t_s missing or not increasing.
-    """
-    out = read_columns(path, SIGNAL_COLUMNS)
-    t = out["t_s"]
-    if t.size == 0:
-        raise SignalTableError(f"{path}: no rows")
-    bad = np.flatnonzero(~np.isfinite(t))
-    if bad.size:
-        raise SignalTableError(f"{path}: row {bad[0] + 2}, column t_s: empty")
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if back.size:
-        raise SignalTableError(f"{path}: row {back[0] + 3}, column t_s: not increasing")
-    out["ok"] = np.nan_to_num(out["ok"], nan=0.0) == 1.0
-    out["source"] = str(path)
-    return out
 
 
 def format_cell(value, digits: int = 6) -> str:

@@ -1,0 +1,223 @@
+"""The signal table (SENSOR.md section 6): its columns, rows, writer, reader and sidecar.
+
+One row per frame, in frame order: ``frame, t_s, dz_mm, phi_deg, theta_deg,
+ok`` (the columns every reader may rely on), then diagnostics. Untrusted
+values are empty cells, never numbers; so is theta where phi is too small to
+define it. Batch, live and replay write the table through
+:class:`SignalWriter`, the contact back end reads it with
+:func:`read_signal_table`.
+
+Beside ``OUT.csv``, the sidecar ``OUT.json`` records how the table was made
+(version, input, clock, rest frame, counts, problems, options, thresholds,
+sensor, columns), built by :func:`sidecar` for every writer.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.atomic import atomic_path
+from camwhisker.sensor import Sensor, sensor_to_dict
+from camwhisker.tables import TableError, read_columns
+
+if TYPE_CHECKING:
+    from camwhisker.vision.tracker import FrameResult, FrontEndOptions
+
+__all__ = [
+    "SIGNAL_COLUMNS", "REQUIRED_COLUMNS", "SignalTableError", "signal_row", "SignalWriter",
+    "write_signals", "read_signal_table", "sidecar_path", "sidecar", "write_sidecar",
+]  # fmt: skip
+
+#: Required columns first (SENSOR.md section 6), then diagnostics.
+SIGNAL_COLUMNS = (
+    "frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok",
+    "sx_mm", "sy_mm", "phi_sigma_deg", "n_corners", "rms_px", "note",
+)  # fmt: skip
+#: The columns SENSOR.md section 6 promises; readers need no others.
+REQUIRED_COLUMNS = SIGNAL_COLUMNS[:6]
+
+
+class SignalTableError(TableError):
+    """A signal table that cannot be used; the message names the file, row and column."""
+
+
+def _cell(x: float, fmt: str) -> str:
+    return "" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
+def signal_row(t_s: float, r: FrameResult) -> list:
+    """One row of the signal table (:data:`SIGNAL_COLUMNS`) for a front-end result.
+
+    Untrusted estimates (ok = 0) are empty cells, never numbers.
+    """
+    ok = bool(r.ok)
+    return [
+        r.frame, _cell(t_s, ".6f"),
+        _cell(r.dz_mm, ".5f") if ok else "",
+        _cell(r.phi_deg, ".5f") if ok else "",
+        _cell(r.theta_deg, ".3f") if ok else "",
+        int(ok),
+        _cell(r.sx_mm, ".5f") if ok else "",
+        _cell(r.sy_mm, ".5f") if ok else "",
+        _cell(r.phi_sigma_deg, ".5f"),
+        r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
+    ]  # fmt: skip
+
+
+class SignalWriter:
+    """The signal table, written row by row; it counts the rows and the trusted rows.
+
+    Parameters
+    ----------
+    path : path
+        Written directly; wrap it in :func:`~camwhisker.atomic.atomic_path` where a
+        reader must never see a partial table.
+    flush : bool
+        Flush after every row, so the table can be read while it grows (live).
+    """
+
+    def __init__(self, path: str | Path, flush: bool = False):
+        self.path = Path(path)
+        self.flush = flush
+        self._fh = open(self.path, "w", newline="")  # noqa: SIM115 - closed in close()
+        self._csv = csv.writer(self._fh)
+        self._csv.writerow(SIGNAL_COLUMNS)
+        if flush:
+            self._fh.flush()
+        self.rows = 0
+        self.rows_ok = 0
+
+    def write(self, t_s: float, r: FrameResult) -> None:
+        self._csv.writerow(signal_row(t_s, r))
+        if self.flush:
+            self._fh.flush()
+        self.rows += 1
+        self.rows_ok += bool(r.ok)
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.close()
+
+    def __enter__(self) -> SignalWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_signals(path: str | Path, rows: Iterable[tuple[float, FrameResult]]) -> tuple[int, int]:
+    """Write (t_s, result) rows as the signal table; returns (rows, rows ok).
+
+    ``path`` is written directly; wrap it in an atomic path for safety.
+    """
+    with SignalWriter(path) as writer:
+        for t_s, r in rows:
+            writer.write(t_s, r)
+    return writer.rows, writer.rows_ok
+
+
+def read_signal_table(path: str | Path) -> dict:
+    """Read a signal table's required columns into float arrays (empty cell -> NaN).
+
+    ``ok`` becomes a bool array; rows with ok = 0 keep their (NaN) values;
+    ``source`` is the path read.
+
+    Raises
+    ------
+    camwhisker.tables.TableError
+        Missing file or column, a non-numeric cell, or t_s missing or not increasing
+        (:class:`SignalTableError` for the last two).
+    """
+    out = read_columns(path, REQUIRED_COLUMNS)
+    t = out["t_s"]
+    if t.size == 0:
+        raise SignalTableError(f"{path}: no rows")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise SignalTableError(f"{path}: row {bad[0] + 2}, column t_s: empty")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        raise SignalTableError(f"{path}: row {back[0] + 3}, column t_s: not increasing")
+    out["ok"] = np.nan_to_num(out["ok"], nan=0.0) == 1.0
+    out["source"] = str(path)
+    return out
+
+
+def sidecar_path(out_csv: str | Path) -> Path:
+    """``OUT.json`` beside ``OUT.csv``."""
+    return Path(out_csv).with_suffix(".json")
+
+
+def sidecar(
+    made_by: str,
+    source: object,
+    time_source: str,
+    counts: tuple[int, int],
+    problems: list[str],
+    options: FrontEndOptions,
+    sensor: Sensor,
+    rest_frame: int = 0,
+    **stage: object,
+) -> dict:
+    """How a signal table was made: the sidecar's record, the same keys for every writer.
+
+    Parameters
+    ----------
+    made_by : str
+        The function or class that wrote the table.
+    source : str or dict
+        The input (a path, or a capture's description).
+    time_source : str
+        Where t_s comes from.
+    counts : (int, int)
+        Rows and trusted rows.
+    problems : list of str
+        What went wrong without stopping the run (empty when nothing did).
+    options : FrontEndOptions
+    sensor : Sensor
+    rest_frame : int
+    **stage
+        The writer's own fields (a frame rate, a live session's latencies), placed
+        after ``time_source``.
+    """
+    # Imported here: readers of signal tables (the contact back end) need no front end.
+    from camwhisker.vision import tracker
+
+    return {
+        "camwhisker_version": __version__,
+        "made_by": made_by,
+        "input": source,
+        "time_source": time_source,
+        **stage,
+        "rest_frame": rest_frame,
+        "frames": counts[0],
+        "frames_ok": counts[1],
+        "problems": problems,
+        "options": dataclasses.asdict(options),
+        "constants": {
+            "PHI_MIN_FOR_THETA_DEG": tracker.PHI_MIN_FOR_THETA_DEG,
+            "QUALITY_MIN": tracker.QUALITY_MIN,
+            "MIN_CORNERS": tracker.MIN_CORNERS,
+            "MAX_RMS_PX": tracker.MAX_RMS_PX,
+        },
+        "sensor_file": sensor.source,
+        "sensor": sensor_to_dict(sensor),
+        "columns": list(SIGNAL_COLUMNS),
+    }
+
+
+def write_sidecar(out: str | Path, record: dict) -> Path:
+    """Write ``record`` as ``out``'s JSON sidecar (atomically); returns its path."""
+    path = sidecar_path(out)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
+    return path
