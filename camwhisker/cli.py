@@ -190,18 +190,10 @@ def _tracker_args(p) -> None:
     from camwhisker.vision import FrontEndOptions
 
     d = FrontEndOptions()
-    p.add_argument("--updated-template", choices=("off", "fallback", "always"),
-                   default=d.updated_template,
-                   help=f"the paper's updated-template LK: never, after a jump, or first "
-                        f"(default {d.updated_template})")  # fmt: skip
     p.add_argument("--lk-half-px", type=int, default=d.lk_half_px, metavar="N",
                    help=f"half size of a corner's template (default {d.lk_half_px})")
     p.add_argument("--roi-margin-px", type=int, default=d.roi_margin_px, metavar="N",
                    help=f"region of interest beyond the LK window (default {d.roi_margin_px})")
-    p.add_argument("--pyramid-levels", type=int, default=d.pyramid_levels, metavar="N",
-                   help=f"levels of the updated-template LK (default {d.pyramid_levels})")
-    p.add_argument("--subpixel", choices=("lk", "parabola"), default=d.subpixel,
-                   help=f"corner placement: Lucas-Kanade or NCC peak (default {d.subpixel})")
 
 
 def _run_batch(args) -> int:
@@ -212,8 +204,7 @@ def _run_batch(args) -> int:
         raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
     try:
         options = FrontEndOptions(
-            args.mode, not args.no_shift, args.lock_gains, args.updated_template,
-            args.lk_half_px, args.roi_margin_px, args.pyramid_levels, args.subpixel,
+            args.mode, not args.no_shift, args.lock_gains, args.lk_half_px, args.roi_margin_px,
         )  # fmt: skip
     except ValueError as exc:
         raise CommandError(str(exc)) from exc

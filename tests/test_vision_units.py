@@ -33,7 +33,7 @@ from camwhisker.vision.colour import (
     unmixing_weights,
     white_balance_gains,
 )
-from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
+from camwhisker.vision.lk import refine_first_template, warp_templates
 from camwhisker.vision.pose import (
     TIP,
     PlateModel,
@@ -340,23 +340,6 @@ def test_lk_recovers_subpixel_shift_on_non_square_image():
     uv, quality = refine_first_template(moved, np.zeros(2), tmpl, pts + 1.0, np.array([True]))
     np.testing.assert_allclose(uv[0], [55.0, 39.375], atol=0.02)
     assert quality[0] > 0.99
-
-
-def test_parabola_subpixel_recovers_shift_on_one_region_per_point():
-    """The "parabola" alternative: NCC over each point's region and a parabolic peak. A
-    parabola through a sampled NCC peak is biased toward whole pixels for a sharp corner;
-    0.15 px bounds it here (the benchmark measures what that costs in phi)."""
-    rest = _corner_image(corner=(52.375, 41.625))
-    moved = _corner_image(corner=(55.0, 39.375))
-    pts = np.array([[52.375, 41.625]])
-    tmpl = warp_templates(rest, np.zeros(2), pts, np.eye(2)[None])
-    origin = np.array([[35.0, 22.0]])
-    region = moved[None, 22:62, 35:75]  # (1, h, w): one region per point
-    uv, quality = match_parabolic(region, origin, tmpl, pts, np.array([True]))
-    np.testing.assert_allclose(uv[0], [55.0, 39.375], atol=0.15)
-    assert quality[0] > 0.99
-    none, q = match_parabolic(region, origin, tmpl, pts, np.array([False]))
-    assert np.isnan(none).all() and np.isnan(q).all()
 
 
 def test_lk_float32_and_float64_inputs_agree():

@@ -28,17 +28,6 @@ the model. :meth:`FrontEnd.update` then does, per frame:
    step from the fit's own Jacobian (:func:`~camwhisker.vision.pose.refit_pose`);
    and the paper's eqs. (2)-(7) on the same points.
 
-The template-updating tracker of the paper (pyramidal LK from each corner's
-updated template with a forward-backward check,
-:func:`~camwhisker.vision.lk.track_updated`, and Matthews et al.'s update
-rule: a corner's updated template moves on only when its drift correction
-agreed with its LK track) is an option: ``FrontEndOptions(updated_template=
-"fallback")`` runs it for the corners step 4 could not recover,
-``"always"`` for every corner first, in Matthews et al.'s order. The
-benchmark (``camwhisker bench``) finds neither more accurate than leaving it
-out on its scenes, which do jump between holds, and both slower, so the
-default leaves it out.
-
 When a frame cannot be trusted (tip not found, too few corners, a poor fit)
 the next frame re-detects the features from scratch.
 """
@@ -66,11 +55,7 @@ from camwhisker.vision.colour import (
 from camwhisker.vision.detect import FeaturesNotFound, detect_features
 from camwhisker.vision.lk import (
     PATCH_HALF_PX,
-    PYR_LEVELS,
-    match_parabolic,
     refine_first_template,
-    to_uint8,
-    track_updated,
     warp_templates,
 )
 from camwhisker.vision.paper import PaperGeometry
@@ -97,16 +82,10 @@ __all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "track", "PHI_MIN_FOR_T
 #: (hard); theta's error is about that over phi (rad), so at 0.6 deg of tilt it is
 #: ~0.6 deg (nominal) to ~1.5 deg (hard), and it grows without bound below.
 PHI_MIN_FOR_THETA_DEG = 0.6
-#: Forward-backward error above which a step-3 track is dropped (px): a good track
-#: comes back within ~0.05 px; a jump onto another edge does not.
-FB_MAX_PX = 1.0
 #: Step-4 result must correlate with its warped rest patch at least this well: a
 #: corner found right scores >= 0.99 even at 5 DN noise and 2.6 px blur; a corner
 #: half covered or caught on another edge scores 0.93-0.97.
 QUALITY_MIN = 0.98
-#: The updated template follows a corner only when drift correction moved it less
-#: than this (Matthews et al.'s epsilon, px).
-UPDATE_EPS_PX = 0.5
 #: Corners needed for a trusted pose (of 12), and the largest trusted fit residual.
 #: With the tip, 4 corners give 10 equations for 5 unknowns; at tilts near 30 deg
 #: the rod and the cross hide up to 6 corners, so more would flag good rows.
@@ -190,44 +169,23 @@ class FrontEndOptions:
     mode : "model" (exact camera model, default) or "paper" (eqs. 2-7 as printed).
     fit_shift : fit the lateral shift (sx, sy) too.
     lock_gains : keep the rest frame's white-balance gains.
-    updated_template : when to track corners with pyramidal LK from their
-        updated templates (the last frames): "off" (default) never;
-        "fallback" only for corners the drift correction could not lock from
-        the model's prediction; "always" for every corner first (Matthews et
-        al.'s order). The benchmark finds neither more accurate than "off" on
-        its scenes, and both slower, so the default leaves it out.
     lk_half_px : half size of a corner's template (px): the LK compares a
         (2 lk_half_px - 1)^2 window (the rest is its gradient's border).
     roi_margin_px : the region of interest around each corner's predicted
         position extends this far beyond its window (px), for the LK to
-        converge in; also the reach of the "parabola" search.
-    pyramid_levels : levels of the pyramidal LK of the updated-template step.
-    subpixel : how a corner is placed against its warped rest template:
-        "lk" (inverse-compositional Lucas-Kanade, translation only, iterated
-        to 0.01 px) or "parabola" (normalised cross-correlation over the
-        region of interest, cv2.matchTemplate, and a parabola through the peak).
+        converge in.
     """
 
     mode: str = "model"
     fit_shift: bool = True
     lock_gains: bool = False
-    updated_template: str = "off"
     lk_half_px: int = PATCH_HALF_PX
     roi_margin_px: int = REFINE_MARGIN_PX
-    pyramid_levels: int = PYR_LEVELS
-    subpixel: str = "lk"
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
             raise ValueError(f"mode must be 'model' or 'paper', got {self.mode!r}")
-        if self.updated_template not in ("fallback", "always", "off"):
-            raise ValueError(
-                f"updated_template must be 'fallback', 'always' or 'off', "
-                f"got {self.updated_template!r}"
-            )
-        if self.subpixel not in ("lk", "parabola"):
-            raise ValueError(f"subpixel must be 'lk' or 'parabola', got {self.subpixel!r}")
-        for name, low in (("lk_half_px", 3), ("roi_margin_px", 1), ("pyramid_levels", 0)):
+        for name, low in (("lk_half_px", 3), ("roi_margin_px", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
@@ -332,11 +290,6 @@ class FrontEnd:
         self._measure_colours(frame, gains, g, origin)
         self._cloth_now = self.cloth_rest
         self.rest_red, self.rest_blue = self._shares(frame, gains, origin, g.shape)
-        # Updated templates: one image per corner (shared until they diverge).
-        u0, v0 = origin.astype(int)
-        rw, rh = self._region_size
-        self._tmpl_img = [_Template(frame[v0 : v0 + rh, u0 : u0 + rw].copy(), origin, gains)] * TIP
-        self._tmpl_uv = det.uv[:TIP].copy()
         self.q = np.zeros(5)
         self._q_hist = [np.zeros(5)]
         self._started = True
@@ -364,7 +317,6 @@ class FrontEnd:
             return False
         self.q = fit.q.copy()
         self._q_hist = [self.q.copy()]
-        self._tmpl_img = [None] * TIP
         self._lost = False
         return True
 
@@ -379,7 +331,6 @@ class FrontEnd:
             # Best effort: a fresh pose from the detected features; the steps below
             # search for the tip and the corners again either way.
             self.redetect(frame)
-        opts = self.options
         gains = self._gains(frame)
         self._cloth_now = cloth_level(frame, *self._cloth, gains)
         q_pred, q_moving = self._predict()
@@ -442,12 +393,7 @@ class FrontEnd:
         if not np.isfinite(uv_guess).all():
             return self._fail("pose prediction failed")
         occluded = self._occluded(q_guess, uv_guess)
-        start_uv = uv_guess.copy()
-        tracked = np.zeros(TIP, bool)
-        if opts.updated_template == "always":
-            start_uv, tracked = self._updated_step(frame, gains, uv_guess, ~occluded)
-        tmpl = self._templates(q_guess)
-        uv_ref, qual = self._refine(frame, gains, tmpl, start_uv, ~occluded)
+        uv_ref, qual = self._refine(frame, gains, self._templates(q_guess), uv_guess, ~occluded)
         retry = ~occluded & ~(qual >= QUALITY_MIN)
         locked = ~occluded & ~retry
         if locked.sum() < MIN_CORNERS and tip_found:
@@ -463,8 +409,8 @@ class FrontEnd:
                 uv_r, q_r = self._refine(frame, gains, self._warp_templates(q_h), uv_h, ~occ_h)
                 n_locked = int((~occ_h & (np.nan_to_num(q_r, nan=-1) >= QUALITY_MIN)).sum())
                 if n_locked > best:
-                    best, q_guess, occluded, start_uv = n_locked, q_h, occ_h, uv_h
-                    uv_ref, qual, tmpl = uv_r, q_r, self._warp_templates(q_h)
+                    best, q_guess, occluded = n_locked, q_h, occ_h
+                    uv_ref, qual = uv_r, q_r
             retry = ~occluded & ~(qual >= QUALITY_MIN)
             locked = ~occluded & ~retry
         if locked.sum() < MIN_REPREDICT and tip_found:
@@ -477,7 +423,7 @@ class FrontEnd:
                 tmpl_h = self._warp_templates(q_h)
                 uv_r, q_r = self._refine(frame, gains, tmpl_h, uv_h, ~occ_h)
                 if (~occ_h & (np.nan_to_num(q_r, nan=-1) >= QUALITY_MIN)).sum() > locked.sum():
-                    q_guess, occluded, start_uv, tmpl = q_h, occ_h, uv_h, tmpl_h
+                    q_guess, occluded = q_h, occ_h
                     uv_ref, qual = uv_r, q_r
                     retry = ~occluded & ~(qual >= QUALITY_MIN)
                     locked = ~occluded & ~retry
@@ -494,16 +440,6 @@ class FrontEnd:
                 better = retry & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(qual, nan=-1))
                 uv_ref[better], qual[better] = uv_r[better], q_r[better]
                 retry = ~occluded & ~(qual >= QUALITY_MIN)
-        locked = ~occluded & ~retry
-        if opts.updated_template == "fallback" and retry.any() and locked.sum() < FALLBACK_BELOW:
-            # Too far from the prediction: track those corners from the previous
-            # frame (the updated template) and correct them again.
-            again, tracked_r = self._updated_step(frame, gains, uv_guess, retry)
-            tracked |= tracked_r
-            if tracked_r.any():
-                uv_r, q_r = self._refine(frame, gains, tmpl, again, tracked_r)
-                better = tracked_r & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(qual, nan=-1))
-                uv_ref[better], qual[better] = uv_r[better], q_r[better]
         good = np.isfinite(qual) & (qual >= QUALITY_MIN)
         measured = np.full((TIP + 1, 2), np.nan)
         measured[:TIP] = np.where(good[:, None], uv_ref, np.nan)
@@ -533,8 +469,6 @@ class FrontEnd:
             fit = refit_pose(self.model, fit, measured, self.offsets, self._weights,
                              self.options.fit_shift)
         n_corners = int(good.sum())
-        if opts.updated_template != "off":
-            self._keep_previous(frame, gains, measured[:TIP], start_uv, tracked)
 
         reason = ""
         if not tip.ok:
@@ -621,9 +555,6 @@ class FrontEnd:
             return last, last
         return last, 2 * last - self._q_hist[-2]
 
-    def _tmpl_img_missing(self) -> np.ndarray:
-        return np.array([t is None for t in self._tmpl_img])
-
     def _region(self, frame, uv):
         """Origin (u, v) of a fixed-size region centred on the points (OpenCV's
         pyramidal LK wants equal sizes), or None."""
@@ -676,55 +607,6 @@ class FrontEnd:
                 break
         return q
 
-    def _updated_step(self, frame, gains, uv_guess, which):
-        """Pyramidal LK of the corners in ``which`` from their updated templates.
-
-        Returns (start positions (12, 2), tracked (12,) bool); untracked corners
-        keep ``uv_guess``."""
-        uv = uv_guess.copy()
-        ok = np.zeros(TIP, bool)
-        which = which & np.array([t is not None for t in self._tmpl_img])
-        if not which.any():
-            return uv, ok
-        g, origin = self._region_map(frame, gains, uv_guess)
-        if g is None:
-            return uv, ok
-        u8 = to_uint8(g)
-        groups: dict[int, list[int]] = {}
-        for k in np.flatnonzero(which):
-            groups.setdefault(id(self._tmpl_img[k]), []).append(k)
-        for ks in groups.values():
-            ks = np.array(ks)
-            tmpl = self._tmpl_img[ks[0]]
-            res, fb = track_updated(tmpl.u8(), tmpl.origin, self._tmpl_uv[ks], u8, origin,
-                                    uv_guess[ks], self.options.lk_half_px,
-                                    self.options.pyramid_levels)  # fmt: skip
-            good = fb < FB_MAX_PX
-            uv[ks[good]] = res[good]
-            ok[ks[good]] = True
-        return uv, ok
-
-    def _keep_previous(self, frame, gains, measured, start_uv, tracked) -> None:
-        """Matthews et al.'s rule: a corner's updated template moves on to this frame
-        when its drift correction agreed with the updated-template track (within
-        UPDATE_EPS_PX), or when it was not tracked from a template this frame;
-        otherwise it keeps its old one."""
-        found = np.isfinite(measured).all(axis=1)
-        agree = np.hypot(*(measured - start_uv).T) < UPDATE_EPS_PX
-        move = found & (~tracked | agree)
-        if not move.any():
-            return
-        origin = self._region(frame, measured[found])
-        if origin is None:
-            return
-        u0, v0 = origin.astype(int)
-        rw, rh = self._region_size
-        # A copy of the region; its contrast map is made only if a later frame needs it.
-        entry = _Template(frame[v0 : v0 + rh, u0 : u0 + rw].copy(), origin, gains)
-        for k in np.flatnonzero(move):
-            self._tmpl_img[k] = entry
-            self._tmpl_uv[k] = measured[k]
-
     def _refine(self, frame, gains, templates, start_uv, active):
         """Drift correction of every active corner against its warped rest patch.
 
@@ -735,9 +617,6 @@ class FrontEnd:
         opts = self.options
         half = opts.lk_half_px + opts.roi_margin_px
         active = active & self._patches_inside(frame, start_uv, half)[0]
-        if opts.subpixel != "lk":  # template matching searches the whole patch
-            patches, origins, _ = self._share_patches(frame, gains, start_uv, half)
-            return match_parabolic(patches, origins, templates, start_uv, active)
         near = opts.lk_half_px + min(NEAR_MARGIN_PX, opts.roi_margin_px)
         patches, origins, _ = self._share_patches(frame, gains, start_uv, near)
         uv, qual = refine_first_template(patches, origins, templates, start_uv, active)
@@ -865,20 +744,6 @@ class FrontEnd:
     def _fail(self, reason: str) -> FrameResult:
         self._lost = True
         return FrameResult.untrusted(self._index, reason)
-
-
-class _Template:
-    """An updated template: a frame's region (BGR copy), its origin and gains;
-    the 8-bit contrast map for OpenCV's LK is made on first use."""
-
-    def __init__(self, bgr: np.ndarray, origin: np.ndarray, gains: np.ndarray):
-        self.bgr, self.origin, self.gains = bgr, origin, gains
-        self._u8 = None
-
-    def u8(self) -> np.ndarray:
-        if self._u8 is None:
-            self._u8 = to_uint8(contrast_map(self.bgr, self.gains))
-        return self._u8
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
