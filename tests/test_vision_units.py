@@ -101,6 +101,37 @@ def test_paper_geometry_defaults_reproduce_table_one():
     assert math.degrees(theta[0]) == pytest.approx(math.degrees(math.atan2(-40, 30)), abs=1e-9)
 
 
+def _paper_points(scale: float) -> np.ndarray:
+    """13 points (square TL, TR, BR, BL; arm ends +u, +v, -u, -v in pairs; tip) about
+    (100, 80), spread by ``scale``: cross widths 100 and 80 px, square 10 and 8 px."""
+    square = [(-5, -4), (5, -4), (5, 4), (-5, 4)]
+    arms = [(60, -1), (60, 1), (-1, 50), (1, 50), (-40, 1), (-40, -1), (1, -30), (-1, -30)]
+    uv = np.array(square + arms + [(0, 0)], float) * scale + (100.0, 80.0)
+    uv[-1] = (130.0, 60.0)  # the tip does not scale
+    return uv
+
+
+def test_projected_widths_by_hand():
+    np.testing.assert_allclose(paper.projected_widths(_paper_points(1.0)), [100, 80, 10, 8])
+    hidden = _paper_points(1.0)
+    hidden[4] = np.nan  # one end of the +u arm
+    assert np.isnan(paper.projected_widths(hidden)[0])
+
+
+def test_paper_pose_substitutes_a_width_where_an_arm_end_is_hidden():
+    g = paper.PaperGeometry.from_sensor(Sensor())
+    rest = paper.PaperRest.from_points(_paper_points(1.0))
+    moved = _paper_points(1.03)
+    dz, _, _ = g.pose_from_points(rest, moved)
+    assert dz == pytest.approx(g.z_i_mm * (1 - 100 / 103), rel=1e-12)  # Eq. (2) on b_u
+    moved[5] = np.nan
+    dz_v, phi, theta = g.pose_from_points(rest, moved)
+    assert dz_v == pytest.approx(g.z_i_mm * (1 - 80 / 82.4), rel=1e-12)  # b_v substituted
+    assert np.isfinite([phi, theta]).all()
+    moved[-1] = np.nan
+    assert np.isnan(g.pose_from_points(rest, moved)).all()
+
+
 # ------------------------------------------------------------------ colour
 
 
