@@ -138,7 +138,7 @@ def test_zero_motion_gives_zero(nominal):
     assert r.ok
     assert abs(r.dz_mm) < 1e-5 and abs(r.phi_deg) < 1e-5
     assert abs(r.sx_mm) < 1e-5 and abs(r.sy_mm) < 1e-5
-    np.testing.assert_allclose(r.points_uv, fe.rest_uv, atol=1e-4)
+    np.testing.assert_allclose(r.points_uv, fe.rest.uv, atol=1e-4)
 
 
 def test_rest_frames_with_fresh_noise_stay_near_zero(nominal):
@@ -270,7 +270,7 @@ def test_jump_with_three_corners_in_view_measures_the_tip_and_recovers():
     fe = FrontEnd(Sensor())
     fe.start(frames[0])
     a, b = (math.radians(20.0) * f(math.radians(60.0)) for f in (math.cos, math.sin))
-    corners = fe.model.corners(np.array([0.5, a, b, 0.0, 0.0])) + fe.offsets[:TIP]
+    corners = fe.model.corners(np.array([0.5, a, b, 0.0, 0.0])) + fe.rest.offsets[:TIP]
     covered = frames[1].copy()
     rng = np.random.default_rng(6)
     for k, (u, v) in enumerate(np.round(corners).astype(int)):
