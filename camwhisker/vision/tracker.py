@@ -311,7 +311,7 @@ class FrontEnd:
         self._lost = False
         self._index = index
         self._template_cache = None
-        # The corners' step once at rest: its compiled kernels load now (~20 ms),
+        # The corners' step once at rest: its compiled kernels load now,
         # not on the first tracked frame, and the rest templates are ready.
         look = _Look(frame, self.rest.gains, self.rest.cloth_level)
         self._refine(look, self._templates(self.q), self.rest.uv[:TIP], np.ones(TIP, bool))
@@ -622,7 +622,7 @@ class FrontEnd:
         target = tip_uv - self.rest.offsets[TIP]
         for _ in range(TILT_MAX_ITER):
             uv, jac = self.model.tip(q)
-            # OpenCV's LU solve: ~10x less overhead than np.linalg.solve at 2 x 2.
+            # OpenCV's LU solve: far less call overhead than np.linalg.solve at 2 x 2.
             solved, step = cv2.solve(jac[:, 1:3], (target - uv)[:, None])
             if not solved:
                 break
