@@ -150,16 +150,14 @@ def test_rest_frame_option_leaves_earlier_rows_untrusted(video, tmp_path):
 def test_tracker_knobs_from_the_command_line(video, tmp_path, capsys):
     out = tmp_path / "k.csv"
     rc = main(["batch", str(video["video"]), "--sensor", str(video["sensor"]), "--out", str(out),
-               "--subpixel", "parabola", "--lk-half-px", "10", "--updated-template", "fallback",
-               "--quiet"])  # fmt: skip
+               "--lk-half-px", "10", "--quiet"])  # fmt: skip
     assert rc == 0
     options = json.loads((tmp_path / "k.json").read_text())["options"]
-    assert (options["subpixel"], options["lk_half_px"], options["updated_template"]) == (
-        "parabola", 10, "fallback")
+    assert options["lk_half_px"] == 10
     truth = PoseTrack.read_csv(video["truth"])
     rows = _read(out)
     assert all(r["ok"] == "1" for r in rows)
-    # NCC's parabola is coarser than the LK (the benchmark: ~0.025 deg against 0.014 deg)
+    # a smaller window tracks this clip too, if less closely than the default
     assert max(abs(float(r["phi_deg"]) - p) for r, p in zip(rows, truth.phi_deg, strict=True)) < 0.1
     assert main(["batch", str(video["video"]), "--out", str(tmp_path / "b.csv"),
                  "--lk-half-px", "2"]) == 2  # fmt: skip

@@ -12,7 +12,7 @@ import pytest
 
 from camwhisker.bench.configs import CONFIGS, DEFAULT, select
 from camwhisker.bench.pareto import pareto_front
-from camwhisker.vision.lk import parabolic_peak
+from camwhisker.bench.peers import parabolic_peak
 
 DEFAULT_PHI_RMSE_MAX_DEG = 0.05
 

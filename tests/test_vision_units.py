@@ -33,7 +33,7 @@ from camwhisker.vision.colour import (
     unmixing_weights,
     white_balance_gains,
 )
-from camwhisker.vision.lk import match_parabolic, refine_first_template, warp_templates
+from camwhisker.vision.lk import refine_first_template, warp_templates
 from camwhisker.vision.pose import (
     TIP,
     PlateModel,
@@ -99,6 +99,37 @@ def test_paper_geometry_defaults_reproduce_table_one():
     expected = math.atan(g.rho_mm_per_px * math.hypot(30.0, 40.0 * g.mu) / 7.5)
     assert phi[0] == pytest.approx(expected, rel=1e-12)
     assert math.degrees(theta[0]) == pytest.approx(math.degrees(math.atan2(-40, 30)), abs=1e-9)
+
+
+def _paper_points(scale: float) -> np.ndarray:
+    """13 points (square TL, TR, BR, BL; arm ends +u, +v, -u, -v in pairs; tip) about
+    (100, 80), spread by ``scale``: cross widths 100 and 80 px, square 10 and 8 px."""
+    square = [(-5, -4), (5, -4), (5, 4), (-5, 4)]
+    arms = [(60, -1), (60, 1), (-1, 50), (1, 50), (-40, 1), (-40, -1), (1, -30), (-1, -30)]
+    uv = np.array(square + arms + [(0, 0)], float) * scale + (100.0, 80.0)
+    uv[-1] = (130.0, 60.0)  # the tip does not scale
+    return uv
+
+
+def test_projected_widths_by_hand():
+    np.testing.assert_allclose(paper.projected_widths(_paper_points(1.0)), [100, 80, 10, 8])
+    hidden = _paper_points(1.0)
+    hidden[4] = np.nan  # one end of the +u arm
+    assert np.isnan(paper.projected_widths(hidden)[0])
+
+
+def test_paper_pose_substitutes_a_width_where_an_arm_end_is_hidden():
+    g = paper.PaperGeometry.from_sensor(Sensor())
+    rest = paper.PaperRest.from_points(_paper_points(1.0))
+    moved = _paper_points(1.03)
+    dz, _, _ = g.pose_from_points(rest, moved)
+    assert dz == pytest.approx(g.z_i_mm * (1 - 100 / 103), rel=1e-12)  # Eq. (2) on b_u
+    moved[5] = np.nan
+    dz_v, phi, theta = g.pose_from_points(rest, moved)
+    assert dz_v == pytest.approx(g.z_i_mm * (1 - 80 / 82.4), rel=1e-12)  # b_v substituted
+    assert np.isfinite([phi, theta]).all()
+    moved[-1] = np.nan
+    assert np.isnan(g.pose_from_points(rest, moved)).all()
 
 
 # ------------------------------------------------------------------ colour
@@ -340,23 +371,6 @@ def test_lk_recovers_subpixel_shift_on_non_square_image():
     uv, quality = refine_first_template(moved, np.zeros(2), tmpl, pts + 1.0, np.array([True]))
     np.testing.assert_allclose(uv[0], [55.0, 39.375], atol=0.02)
     assert quality[0] > 0.99
-
-
-def test_parabola_subpixel_recovers_shift_on_one_region_per_point():
-    """The "parabola" alternative: NCC over each point's region and a parabolic peak. A
-    parabola through a sampled NCC peak is biased toward whole pixels for a sharp corner;
-    0.15 px bounds it here (the benchmark measures what that costs in phi)."""
-    rest = _corner_image(corner=(52.375, 41.625))
-    moved = _corner_image(corner=(55.0, 39.375))
-    pts = np.array([[52.375, 41.625]])
-    tmpl = warp_templates(rest, np.zeros(2), pts, np.eye(2)[None])
-    origin = np.array([[35.0, 22.0]])
-    region = moved[None, 22:62, 35:75]  # (1, h, w): one region per point
-    uv, quality = match_parabolic(region, origin, tmpl, pts, np.array([True]))
-    np.testing.assert_allclose(uv[0], [55.0, 39.375], atol=0.15)
-    assert quality[0] > 0.99
-    none, q = match_parabolic(region, origin, tmpl, pts, np.array([False]))
-    assert np.isnan(none).all() and np.isnan(q).all()
 
 
 def test_lk_float32_and_float64_inputs_agree():

@@ -3,11 +3,9 @@
 The default against each knob of ``FrontEndOptions`` varied on its own:
 ``mode`` (the paper's eqs. 2-7 or the exact model), ``fit_shift``,
 ``lock_gains`` (the white-balance method: gains per frame from the cloth, or
-the rest frame's), ``updated_template`` ("off", "fallback", "always"),
-``pyramid_levels`` (of the updated-template LK, so varied with it),
-``lk_half_px`` (the LK window), ``roi_margin_px`` (the region of interest
-around each corner) and ``subpixel`` ("lk" or "parabola"); then the
-paper-literal pipeline and the peers.
+the rest frame's), ``lk_half_px`` (the LK window) and ``roi_margin_px`` (the
+region of interest around each corner); then the paper-literal pipeline and
+the peers.
 """
 
 from __future__ import annotations
@@ -69,15 +67,10 @@ CONFIGS = [
     Config("peer: kornia", peer="kornia", note="8 frames x 13 points, NCC + soft-argmax"),
     Config("fit_shift=False", FrontEndOptions(fit_shift=False)),
     Config("lock_gains=True", FrontEndOptions(lock_gains=True)),
-    Config('updated_template="fallback"', FrontEndOptions(updated_template="fallback")),
-    Config('updated_template="fallback", pyramid_levels=1',
-           FrontEndOptions(updated_template="fallback", pyramid_levels=1)),
-    Config('updated_template="always"', FrontEndOptions(updated_template="always")),
     Config("lk_half_px=8", FrontEndOptions(lk_half_px=8)),
     Config("lk_half_px=16", FrontEndOptions(lk_half_px=16)),
     Config("roi_margin_px=10", FrontEndOptions(roi_margin_px=10)),
     Config("roi_margin_px=30", FrontEndOptions(roi_margin_px=30)),
-    Config('subpixel="parabola"', FrontEndOptions(subpixel="parabola")),
 ]
 
 

@@ -25,13 +25,14 @@ from collections.abc import Iterable, Iterator
 import cv2
 import numpy as np
 
-from camwhisker.vision.lk import PATCH_HALF_PX, parabolic_peak
+from camwhisker.vision.lk import PATCH_HALF_PX
 from camwhisker.vision.pose import TIP
 
 __all__ = [
     "PEERS",
     "REACH_CORNER_PX",
     "REACH_TIP_PX",
+    "parabolic_peak",
     "track_match_template",
     "track_phase_correlation",
     "track_csrt",
@@ -56,6 +57,24 @@ PHASE_UPSAMPLE = 20
 #: 3 x 3 correlation neighbourhood of the peak.
 KORNIA_BATCH = 8
 SOFT_ARGMAX_TEMPERATURE = 100.0
+
+
+def parabolic_peak(score: np.ndarray) -> tuple[float, float, float]:
+    """Sub-pixel (x, y) and value of the maximum of a 2-D score map.
+
+    A parabola through the peak and its two neighbours along each axis; the
+    integer peak where it lies on the border."""
+    _, top, _, (x, y) = cv2.minMaxLoc(score)
+    dx = dy = 0.0
+    if 0 < x < score.shape[1] - 1:
+        a, b, c = score[y, x - 1], score[y, x], score[y, x + 1]
+        den = a - 2 * b + c
+        dx = 0.5 * (a - c) / den if den < 0 else 0.0
+    if 0 < y < score.shape[0] - 1:
+        a, b, c = score[y - 1, x], score[y, x], score[y + 1, x]
+        den = a - 2 * b + c
+        dy = 0.5 * (a - c) / den if den < 0 else 0.0
+    return x + dx, y + dy, float(top)
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:

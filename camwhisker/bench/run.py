@@ -41,7 +41,7 @@ from camwhisker.bench.peers import PEERS
 from camwhisker.bench.vision import SCENES, render_scene, scene_errors
 from camwhisker.sources import VideoSource
 from camwhisker.synth.bound import nominal_bound_pose, pose_bound
-from camwhisker.vision.colour import contrast_map, white_balance_gains
+from camwhisker.vision.colour import contrast_map
 from camwhisker.vision.detect import detect_features
 from camwhisker.vision.pose import TIP, fit_pose
 from camwhisker.vision.tracker import (
@@ -154,7 +154,7 @@ def _run_frontend(config: Config, scene: Scene):
     for frame in scene.frames[1:]:
         r = fe.update(frame)
         if config.full_frame_map:
-            contrast_map(frame, fe.gains_rest)  # Eq. (1), the whole frame
+            contrast_map(frame, fe.rest.gains)  # Eq. (1), the whole frame
         rows.append((r.dz_mm, r.phi_deg, r.theta_deg, r.ok))
     return rows, time.perf_counter() - t0, time.process_time() - c0
 
@@ -168,13 +168,14 @@ def _run_detect(config: Config, scene: Scene):
     w[TIP] = TIP_WEIGHT
     t0, c0 = time.perf_counter(), time.process_time()
     for frame in scene.frames[1:]:
-        gains = white_balance_gains(frame, *fe._cloth)
+        gains = fe.gains(frame)
         uv = detect_features(frame, gains, fe.model, require=()).uv
         if config.options.mode == "paper":
-            dz, phi, theta = fe._paper_solve(uv)  # eqs. (2)-(7), as the front end applies them
+            # Eqs. (2)-(7), as the front end applies them.
+            dz, phi, theta = fe.paper.pose_from_points(fe.rest.paper, uv)
             ok = bool(np.isfinite(phi))
         else:  # pragma: no cover - only the paper variant is configured
-            fit = fit_pose(fe.model, uv, fe.offsets, np.zeros(5), w, config.options.fit_shift)
+            fit = fit_pose(fe.model, uv, fe.rest.offsets, np.zeros(5), w, config.options.fit_shift)
             ok = bool(fit.converged and fit.rms_px <= MAX_RMS_PX)
             dz, phi, theta = fit.pose.dz_mm, fit.pose.phi_deg, fit.pose.theta_deg
         if ok and phi < PHI_MIN_FOR_THETA_DEG:
@@ -194,7 +195,7 @@ def _run_peer(config: Config, scene: Scene):
     t0, c0 = time.perf_counter(), time.process_time()
     for uv in PEERS[config.peer](scene.frames[1:], scene.frames[0], rest_uv):
         with np.errstate(all="ignore"):  # a degenerate fit to lost points is flagged below
-            fit = fit_pose(fe.model, uv, fe.offsets, q, w, config.options.fit_shift)
+            fit = fit_pose(fe.model, uv, fe.rest.offsets, q, w, config.options.fit_shift)
         n_corners = int(fit.used[:TIP].sum()) if fit.used is not None else 0
         ok = bool(fit.converged and np.isfinite(uv[TIP]).all() and n_corners >= MIN_CORNERS
                   and fit.rms_px <= MAX_RMS_PX)  # fmt: skip

@@ -149,12 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenes", default=",".join(SCENES), help="comma-separated scene names")
     p.add_argument("--codec", choices=("avi", "mp4"), default="avi", help="MJPG AVI or H.264")
     p.add_argument("--no-shift", action="store_true", help="fit without the lateral shift")
-    p.add_argument("--updated-template", choices=("fallback", "always", "off"),
-                   default=FrontEndOptions.updated_template,
-                   help="when to track from the updated template (see FrontEndOptions)")
     args = p.parse_args(argv)
-    options = FrontEndOptions(fit_shift=not args.no_shift,
-                              updated_template=args.updated_template)  # fmt: skip
+    options = FrontEndOptions(fit_shift=not args.no_shift)
     rows = []
     with tempfile.TemporaryDirectory(prefix="camwhisker-bench-") as tmp:
         for name in args.scenes.split(","):

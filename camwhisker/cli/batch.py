@@ -55,18 +55,10 @@ def tracker_args(p) -> None:
     from camwhisker.vision import FrontEndOptions
 
     d = FrontEndOptions()
-    p.add_argument("--updated-template", choices=("off", "fallback", "always"),
-                   default=d.updated_template,
-                   help=f"the paper's updated-template LK: never, after a jump, or first "
-                        f"(default {d.updated_template})")  # fmt: skip
     p.add_argument("--lk-half-px", type=int, default=d.lk_half_px, metavar="N",
                    help=f"half size of a corner's template (default {d.lk_half_px})")
     p.add_argument("--roi-margin-px", type=int, default=d.roi_margin_px, metavar="N",
                    help=f"region of interest beyond the LK window (default {d.roi_margin_px})")
-    p.add_argument("--pyramid-levels", type=int, default=d.pyramid_levels, metavar="N",
-                   help=f"levels of the updated-template LK (default {d.pyramid_levels})")
-    p.add_argument("--subpixel", choices=("lk", "parabola"), default=d.subpixel,
-                   help=f"corner placement: Lucas-Kanade or NCC peak (default {d.subpixel})")
 
 
 def _run_batch(args) -> int:
@@ -78,11 +70,8 @@ def _run_batch(args) -> int:
         mode=args.mode,
         fit_shift=not args.no_shift,
         lock_gains=args.lock_gains,
-        updated_template=args.updated_template,
         lk_half_px=args.lk_half_px,
         roi_margin_px=args.roi_margin_px,
-        pyramid_levels=args.pyramid_levels,
-        subpixel=args.subpixel,
     )
     sensor = load_sensor(args.sensor)
     if args.out is None:

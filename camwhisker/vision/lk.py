@@ -1,16 +1,11 @@
 """Translation-only Lucas-Kanade on small patches, all tracked points in one call.
 
-Two steps per frame, after Matthews, Ishikawa & Baker (2004), "The template
-update problem":
-
-1. :func:`track_updated` follows each point from the previous frame with
-   OpenCV's pyramidal LK (the template is the previous frame: the updated
-   template), with a forward-backward check.
-2. :func:`refine_first_template` corrects the result against the first
-   template, the rest frame's patch, so errors do not accumulate (drift
-   correction). The rest patch is first warped by the affine map the plate
-   model predicts between the rest pose and the current pose, so the
-   remaining motion is a pure translation even at large tilts.
+:func:`refine_first_template` places each point against its first template,
+the rest frame's patch, so errors do not accumulate (the drift correction of
+Matthews, Ishikawa & Baker, 2004). The rest patch is first warped by the
+affine map the plate model predicts between the rest pose and the current
+pose (:func:`warp_templates`), so the remaining motion is a pure translation
+even at large tilts.
 
 References
 ----------
@@ -22,7 +17,6 @@ References
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from numba import njit
 
@@ -30,10 +24,6 @@ __all__ = [
     "PATCH_HALF_PX",
     "warp_templates",
     "refine_first_template",
-    "match_parabolic",
-    "parabolic_peak",
-    "track_updated",
-    "to_uint8",
 ]
 
 #: Half size of the LK window (px): 25 x 25 covers a corner's two edges out to
@@ -44,14 +34,6 @@ PATCH_HALF_PX = 12
 LK_STEP_TOL_PX = 0.002
 #: Cap on the iterations per point; a converging point needs a handful.
 LK_MAX_ITER = 20
-#: Scale of the contrast map into 8 bits for OpenCV's LK: G in [-2, 2] -> [8, 248].
-UINT8_SCALE = 60.0
-
-
-def to_uint8(g: np.ndarray) -> np.ndarray:
-    """Contrast map G to uint8 (128 + 60 G, clipped) for OpenCV's pyramidal LK."""
-    # +0.5 then truncation: rounding to nearest.
-    return np.clip(g * UINT8_SCALE + 128.5, 0.0, 255.0).astype(np.uint8)
 
 
 def warp_templates(
@@ -250,102 +232,3 @@ def _sample(img, dx, dy, half, m, out):
             top = img[r, c] * (1 - fx) + img[r, c + 1] * fx
             bottom = img[r + 1, c] * (1 - fx) + img[r + 1, c + 1] * fx
             out[i, j] = top * (1 - fy) + bottom * fy
-
-
-def parabolic_peak(score: np.ndarray) -> tuple[float, float, float]:
-    """Sub-pixel (x, y) and value of the maximum of a 2-D score map.
-
-    A parabola through the peak and its two neighbours along each axis; the
-    integer peak where it lies on the border."""
-    _, top, _, (x, y) = cv2.minMaxLoc(score)
-    dx = dy = 0.0
-    if 0 < x < score.shape[1] - 1:
-        a, b, c = score[y, x - 1], score[y, x], score[y, x + 1]
-        den = a - 2 * b + c
-        dx = 0.5 * (a - c) / den if den < 0 else 0.0
-    if 0 < y < score.shape[0] - 1:
-        a, b, c = score[y - 1, x], score[y, x], score[y + 1, x]
-        den = a - 2 * b + c
-        dy = 0.5 * (a - c) / den if den < 0 else 0.0
-    return x + dx, y + dy, float(top)
-
-
-def match_parabolic(
-    image: np.ndarray,
-    origin: np.ndarray,
-    templates: np.ndarray,
-    start_uv: np.ndarray,
-    active: np.ndarray,
-):
-    """Each template's best match in its region: NCC (cv2.matchTemplate) and a parabolic peak.
-
-    The alternative to :func:`refine_first_template` (same arguments and
-    returns; ``image`` holds one region per point, shape (K, h, w)). The whole
-    region is searched, so ``start_uv`` only says which points have one.
-    Quality is the peak's zero-mean normalised cross-correlation.
-    """
-    k_all = templates.shape[0]
-    uv = np.full((k_all, 2), np.nan)
-    quality = np.full(k_all, np.nan)
-    window = np.ascontiguousarray(templates[:, 1:-1, 1:-1], np.float32)  # as the LK's
-    half = (window.shape[1] - 1) / 2
-    origins = np.empty((k_all, 2))
-    origins[:] = origin
-    for k in np.flatnonzero(np.asarray(active, bool) & np.isfinite(start_uv).all(axis=1)):
-        if not window[k].std() > 0:
-            continue
-        score = cv2.matchTemplate(np.ascontiguousarray(image[k], np.float32), window[k],
-                                  cv2.TM_CCOEFF_NORMED)  # fmt: skip
-        x, y, top = parabolic_peak(score)
-        uv[k] = origins[k] + (x + half, y + half)
-        quality[k] = top
-    return uv, quality
-
-
-#: Pyramidal LK for the updated-template step: levels and window cover motions of
-#: ~ (2^3) * 12 = 100 px between frames (a jump between two stage holds).
-PYR_LEVELS = 3
-_PYR_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
-
-
-def track_updated(prev_u8: np.ndarray, prev_origin, prev_uv, cur_u8, cur_origin, guess_uv,
-                  half: int = PATCH_HALF_PX, levels: int = PYR_LEVELS):  # fmt: skip
-    """Pyramidal LK from the previous frame, with a forward-backward check.
-
-    Parameters
-    ----------
-    prev_u8, cur_u8 : ndarray, shape (h, w), uint8
-        Contrast maps (see :func:`to_uint8`) of the previous and current frame
-        over regions whose top-left pixels are ``prev_origin`` and ``cur_origin``.
-    prev_uv : ndarray, shape (K, 2)
-        Positions in the previous frame.
-    guess_uv : ndarray, shape (K, 2)
-        Expected positions in the current frame (a motion prediction).
-    half, levels : int
-        Window (2 half + 1 px square) and pyramid levels of cv2.calcOpticalFlowPyrLK.
-
-    Returns
-    -------
-    uv : ndarray, shape (K, 2)
-        Tracked positions, NaN where LK failed.
-    fb_px : ndarray, shape (K,)
-        Forward-backward error (px), inf where LK failed.
-    """
-    p0 = (prev_uv - prev_origin).astype(np.float32).reshape(-1, 1, 2)
-    g0 = (guess_uv - cur_origin).astype(np.float32).reshape(-1, 1, 2)
-    win = (2 * half + 1, 2 * half + 1)
-    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(
-        prev_u8, cur_u8, p0, g0.copy(), winSize=win, maxLevel=levels,
-        criteria=_PYR_CRITERIA, flags=flags,
-    )  # fmt: skip
-    p2, st2, _ = cv2.calcOpticalFlowPyrLK(
-        cur_u8, prev_u8, p1, p0.copy(), winSize=win, maxLevel=levels,
-        criteria=_PYR_CRITERIA, flags=flags,
-    )  # fmt: skip
-    ok = (st1.ravel() == 1) & (st2.ravel() == 1)
-    uv = p1.reshape(-1, 2).astype(np.float64) + cur_origin
-    fb = np.hypot(*(p2.reshape(-1, 2) - p0.reshape(-1, 2)).T).astype(np.float64)
-    uv[~ok] = np.nan
-    fb[~ok] = np.inf
-    return uv, fb

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camwhisker.sensor import Sensor
+from camwhisker.vision.pose import N_SQUARE, TIP
 
 __all__ = [
     "axial_deflection",
@@ -36,6 +37,8 @@ __all__ = [
     "v_u_corrector",
     "mm_per_px",
     "rotation_magnitude",
+    "projected_widths",
+    "PaperRest",
     "PaperGeometry",
 ]
 
@@ -79,6 +82,50 @@ def rotation_magnitude(rho_mm_per_px: float, du_px, dv_px, mu: float, h_r_mm: fl
     """phi_n = arctan(rho sqrt(du^2 + (dv mu)^2) / h_r), radians: eq. (7)."""
     du, dv = np.asarray(du_px, float), np.asarray(dv_px, float)
     return np.arctan(rho_mm_per_px * np.sqrt(du**2 + (dv * mu) ** 2) / h_r_mm)  # Eq. (7)
+
+
+def projected_widths(uv: np.ndarray) -> np.ndarray:
+    """Projected widths (px) that eq. (2) compares: cross b_u, b_v, square t_u, t_v.
+
+    Parameters
+    ----------
+    uv : ndarray, shape (13, 2)
+        Tracked points (square corners, cross arm-end corners, tip); NaN where lost.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        NaN where one of a width's points is not tracked.
+    """
+    p = uv.tolist()  # a few sums: Python floats, without numpy's per-call cost
+    arm = [((p[k][0] + p[k + 1][0]) / 2, (p[k][1] + p[k + 1][1]) / 2)
+           for k in range(N_SQUARE, TIP, 2)]  # fmt: skip
+    sq = p[:N_SQUARE]
+    return np.array([
+        arm[0][0] - arm[2][0],
+        arm[1][1] - arm[3][1],
+        (sq[1][0] + sq[2][0] - sq[0][0] - sq[3][0]) / 2,
+        (sq[2][1] + sq[3][1] - sq[0][1] - sq[1][1]) / 2,
+    ])  # fmt: skip
+
+
+@dataclass(frozen=True)
+class PaperRest:
+    """The rest frame's measurements that eqs. (2)-(4) refer to.
+
+    widths_px : ndarray, shape (4,)
+        :func:`projected_widths` at rest (b_ui and its substitutes).
+    tip_uv : ndarray, shape (2,)
+        The tip's rest pixel (c_i before the principal point is removed).
+    """
+
+    widths_px: np.ndarray
+    tip_uv: np.ndarray
+
+    @classmethod
+    def from_points(cls, uv: np.ndarray) -> PaperRest:
+        """From the rest frame's tracked points, shape (13, 2)."""
+        return cls(projected_widths(uv), np.array(uv[TIP], float))
 
 
 @dataclass(frozen=True)
@@ -133,3 +180,24 @@ class PaperGeometry:
         phi = rotation_magnitude(self.rho_mm_per_px, delta[:, 0], delta[:, 1], self.mu, self.h_r_mm)
         theta = np.arctan2(delta[:, 1], delta[:, 0])
         return dz, phi, theta
+
+    def pose_from_points(self, rest: PaperRest, uv: np.ndarray) -> tuple[float, float, float]:
+        """Eqs. (2)-(7) on one frame's tracked points: (dz_mm, phi_deg, theta_deg).
+
+        Eq. (2) takes b_u; where an arm end is hidden it substitutes b_v, then the
+        square's t_u, t_v ("any can be substituted", section II.B). NaN where no
+        width or the tip is untracked.
+
+        Parameters
+        ----------
+        rest : PaperRest
+        uv : ndarray, shape (13, 2)
+        """
+        widths_n = projected_widths(uv)
+        usable = np.isfinite(widths_n) & np.isfinite(rest.widths_px)
+        if not (usable.any() and np.isfinite(uv[TIP]).all()):
+            return (math.nan, math.nan, math.nan)
+        k = int(np.argmax(usable))  # Eq. (2): the first usable width, b_u first
+        dz, phi, theta = self.solve(rest.widths_px[k], widths_n[k : k + 1], rest.tip_uv,
+                                    uv[TIP][None, :])  # fmt: skip
+        return float(dz[0]), math.degrees(phi[0]), math.degrees(theta[0])
