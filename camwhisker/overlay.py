@@ -31,7 +31,7 @@ from camwhisker import __version__
 from camwhisker.atomic import atomic_path, atomic_write_bytes
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.sources import open_source
-from camwhisker.video_out import write_video
+from camwhisker.video_out import VIDEO_SUFFIXES, write_video
 from camwhisker.vision.pose import N_SQUARE, POINT_NAMES, TIP, PlateModel
 from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 
@@ -434,9 +434,11 @@ def annotate_video(
         raise ValueError(f"rest_index must be >= 0, got {rest_index}")
     if max_frames is not None and max_frames < 1:
         raise ValueError(f"max_frames must be >= 1, got {max_frames}")
+    out = Path(out)
+    if out.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"{out}: video must end in .avi (MJPG) or .mp4 (H.264)")
     options = options or FrontEndOptions()
     source = open_source(video)
-    out = Path(out)
     report = OverlayReport(out, out.with_suffix(".json"), rest_check_path(out))
     frames = _annotated_frames(islice(source, max_frames), sensor, options, rest_index, scale,
                                report)  # fmt: skip
