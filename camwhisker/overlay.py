@@ -275,7 +275,20 @@ def annotate_frame(
             _draw_points(image, uv, expected)
     if "text" in layers:
         _draw_text(image, status_line(result), (0, 0))
+        _draw_text(image, _legend(scale), (0, image.shape[0] - _text_box_height(image)))
     return image
+
+
+def _legend(scale: float) -> str:
+    return (f"green: tracked  magenta x: not tracked  cyan: tip  yellow: fitted model  "
+            f"orange: motion x{scale:g}")  # fmt: skip
+
+
+def _text_box_height(image: np.ndarray) -> int:
+    """Height (px) of a :func:`_draw_text` box."""
+    scale, thick = _text_scale(image)
+    (_, h), base = cv2.getTextSize("Ag", cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    return h + base + 2 * max(2, h // 4)
 
 
 def _draw_label(image, text, uv, centre_uv, radius_px) -> None:
@@ -324,12 +337,13 @@ def rest_check_image(
     ndarray, shape (H, W, 3), uint8
     """
     placement = Placement.from_rest(model, result)
-    image = annotate_frame(frame, result, placement, np.zeros(5), layers=("outline", "points"))
+    image = annotate_frame(frame, result, placement, np.zeros(5), layers=("outline",))
     if names:
         centre = placement.rest_uv[:TIP].mean(axis=0)
         radius = LABEL_RADIUS * np.hypot(*(placement.rest_uv[:TIP] - centre).T).max()
         for name, uv in zip(POINT_NAMES, placement.rest_uv, strict=True):
             _draw_label(image, name, uv, centre, radius)
+    _draw_points(image, placement.rest_uv, None)  # over the labels' lines
     found = int(np.isfinite(result.points_uv).all(axis=1).sum())
     _draw_text(image, f"rest frame {result.frame}: {found} of {TIP + 1} features found", (0, 0))
     return image
