@@ -38,6 +38,11 @@ from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 __all__ = [
     "ARROW_SCALE",
     "LAYERS",
+    "TRACKED_BGR",
+    "UNTRACKED_BGR",
+    "TIP_BGR",
+    "OUTLINE_BGR",
+    "ARROW_BGR",
     "Placement",
     "OverlayReport",
     "pose_vector",
@@ -54,6 +59,8 @@ ARROW_SCALE = 10.0
 #: What :func:`annotate_frame` draws, bottom to top.
 LAYERS = ("outline", "arrows", "points", "text")
 
+#: Colours (BGR): each stands out on the blue square, the red cross, the black
+#: tip and a light cloth; :func:`_legend` names them.
 TRACKED_BGR = (0, 255, 0)
 UNTRACKED_BGR = (255, 0, 255)
 TIP_BGR = (255, 255, 0)
