@@ -52,6 +52,7 @@ __all__ = [
     "write_rest_check",
     "annotate_video",
     "rest_check_path",
+    "sidecar_path",
 ]
 
 #: Motion arrows are drawn this many times their length, as in the paper's Fig. 4.
@@ -356,6 +357,13 @@ def rest_check_image(
     return image
 
 
+def sidecar_path(out: str | Path) -> Path:
+    """``OUT.overlay.json`` beside ``OUT.mp4``: apart from batch's ``OUT.json`` of the
+    same recording."""
+    out = Path(out)
+    return out.with_name(out.stem + ".overlay.json")
+
+
 def rest_check_path(out: str | Path) -> Path:
     """``OUT.rest.png`` beside an output ``OUT.ext``."""
     out = Path(out)
@@ -426,7 +434,7 @@ def annotate_video(
         A video file OpenCV can read, or a folder of images.
     sensor : Sensor
     out : path
-        ``.mp4`` (H.264) or ``.avi`` (MJPG). Beside it: ``OUT.json`` (how it
+        ``.mp4`` (H.264) or ``.avi`` (MJPG). Beside it: ``OUT.overlay.json`` (how it
         was made) and ``OUT.rest.png`` (:func:`rest_check_image`).
     options : FrontEndOptions, optional
     rest_index : int
@@ -460,7 +468,7 @@ def annotate_video(
         raise ValueError(f"{out}: video must end in .avi (MJPG) or .mp4 (H.264)")
     options = options or FrontEndOptions()
     source = open_source(video)
-    report = OverlayReport(out, out.with_suffix(".json"), rest_check_path(out))
+    report = OverlayReport(out, sidecar_path(out), rest_check_path(out))
     frames = _annotated_frames(islice(source, max_frames), sensor, options, rest_index, scale,
                                report)  # fmt: skip
     total = len(source) or None

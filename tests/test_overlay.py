@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 
+import av
 import cv2
 import numpy as np
 import pytest
@@ -114,13 +115,15 @@ def test_output_has_every_frame_at_the_input_size(scene, annotated):
     d, frames = annotated
     assert len(frames) == len(scene["frames"]) == N_FRAMES
     assert {f.shape for f in frames} == {scene["frames"][0].shape} == {(720, 1280, 3)}
-    meta = json.loads((d / "ann.json").read_text())
+    meta = json.loads((d / "ann.overlay.json").read_text())
     assert meta["camwhisker_version"] and meta["made_by"] == "camwhisker.overlay.annotate_video"
     assert meta["frames"] == N_FRAMES and meta["frames_ok"] == N_FRAMES
     assert meta["arrow_scale"] == 10.0 and meta["rest_frame"] == 0
     assert meta["sensor_file"] == str(scene["paths"]["sensor"])
     assert meta["options"]["mode"] == "model"
     assert (d / "ann.rest.png").is_file()
+    with av.open(str(d / "ann.mp4")) as container:
+        assert container.streams.video[0].codec_context.name == "h264"
     assert not list(d.glob(".ann*"))  # no temporary left behind
 
 

@@ -18,7 +18,7 @@ def add_overlay(sub) -> None:
         help="video -> annotated video (tracked points, fitted outline, motion arrows)",
         description="Draw on every frame the tracked corners and tip (a cross where one was "
         "not tracked), the fitted model's outline, each point's motion from rest at "
-        f"{ARROW_SCALE:g}x and the pose. Beside OUT: OUT.json (how it was made) and "
+        f"{ARROW_SCALE:g}x and the pose. Beside OUT: OUT.overlay.json (how it was made) and "
         "OUT.rest.png (the rest frame with every feature named).",
     )
     p.add_argument("video", help="a video file OpenCV can read, or a folder of images")
