@@ -4,6 +4,7 @@ One module per part of the data flow, each registering its commands:
 
 - :mod:`~camwhisker.cli.synth`   render, bound, make-samples, describe, make-experiment
 - :mod:`~camwhisker.cli.batch`   batch: video(s) -> signal table(s)
+- :mod:`~camwhisker.cli.overlay` overlay: video -> annotated video
 - :mod:`~camwhisker.cli.live`    list-cameras, live, replay
 - :mod:`~camwhisker.cli.contact` simulate-stage, calibrate, contact
 - :mod:`~camwhisker.cli.bench`   chain, contact-bench, bench

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import batch, bench, contact, live, synth
+from camwhisker.cli import batch, bench, contact, live, overlay, synth
 from camwhisker.cli.common import INPUT_ERRORS
 
 __all__ = ["build_parser", "main"]
@@ -24,6 +24,7 @@ _COMMANDS = [
     contact.add_contact,
     bench.add_contact_bench,
     batch.add_batch,
+    overlay.add_overlay,
     live.add_list_cameras,
     live.add_live,
     live.add_replay,

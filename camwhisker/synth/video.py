@@ -1,10 +1,9 @@
 """Render a scenario to a real video file, with its truth table and provenance.
 
-``.avi`` is Motion-JPEG, what a webcam delivers, written by OpenCV's MJPEG
-encoder at the scenario's JPEG quality. ``.mp4`` is H.264 (libx264 through
-PyAV, 4:4:4 chroma so that colours survive), what a recording usually is.
-Every output is written to a temporary name and renamed into place, so a
-crash never leaves a file that looks whole.
+``.avi`` is Motion-JPEG at the scenario's JPEG quality, ``.mp4`` is H.264
+(:func:`camwhisker.video_out.write_video`). Every output is written to a
+temporary name and renamed into place, so a crash never leaves a file that
+looks whole.
 
 For ``NAME.avi`` the files are::
 
@@ -18,12 +17,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Iterable, Iterator
-from fractions import Fraction
+from collections.abc import Iterator
 from pathlib import Path
 
-import av
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -33,6 +29,7 @@ from camwhisker.sensor import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.synth.artefacts import apply_artefacts, illumination_field
 from camwhisker.synth.render import SceneRenderer
 from camwhisker.synth.scenarios import Scenario
+from camwhisker.video_out import write_video
 
 __all__ = ["write_video", "render_frames", "render_scenario", "atomic_path", "sidecar_paths"]
 
@@ -45,55 +42,6 @@ def sidecar_paths(video: Path) -> dict[str, Path]:
         "sensor": stem.with_name(stem.name + ".sensor.toml"),
         "meta": stem.with_name(stem.name + ".json"),
     }
-
-
-def write_video(
-    path: Path,
-    frames: Iterable[np.ndarray],
-    fps: float,
-    jpeg_quality: int | None = 88,
-    h264_crf: int = 18,
-) -> int:
-    """Write uint8 BGR frames to ``.avi`` (MJPG, at ``jpeg_quality``) or ``.mp4``
-    (H.264, at constant rate factor ``h264_crf``); returns the count."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".avi", ".mp4"):
-        raise ValueError(f"{path}: video must end in .avi (MJPG) or .mp4 (H.264)")
-    n = 0
-    with atomic_path(path) as tmp:
-        if suffix == ".avi":
-            writer = None
-            for frame in frames:
-                if writer is None:
-                    h, w = frame.shape[:2]
-                    writer = cv2.VideoWriter(
-                        str(tmp), cv2.CAP_OPENCV_MJPEG, cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h)
-                    )
-                    if not writer.isOpened():
-                        raise RuntimeError(f"{path}: OpenCV could not open an MJPG writer")
-                    writer.set(cv2.VIDEOWRITER_PROP_QUALITY, float(jpeg_quality or 95))
-                writer.write(frame)
-                n += 1
-            if writer is not None:
-                writer.release()
-        else:
-            with av.open(str(tmp), "w", format="mp4") as container:
-                stream = None
-                for frame in frames:
-                    if stream is None:
-                        stream = container.add_stream(
-                            "libx264", rate=Fraction(fps).limit_denominator(1001)
-                        )
-                        stream.height, stream.width = frame.shape[:2]
-                        stream.pix_fmt = "yuv444p"  # 4:2:0 shifts colours by ~3 DN
-                        stream.options = {"crf": str(int(h264_crf)), "preset": "medium"}
-                    packet = av.VideoFrame.from_ndarray(frame, format="bgr24")
-                    container.mux(stream.encode(packet))
-                    n += 1
-                if stream is not None:
-                    container.mux(stream.encode())
-    return n
 
 
 def render_frames(
