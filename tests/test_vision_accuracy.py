@@ -27,12 +27,12 @@ import math
 import numpy as np
 import pytest
 
+from camwhisker.model import TIP
 from camwhisker.sensor import Sensor
 from camwhisker.synth.artefacts import jpeg_roundtrip
 from camwhisker.synth.scenarios import PoseTrack, make_scenario, wrap_deg
 from camwhisker.synth.video import render_frames
 from camwhisker.vision import FeaturesNotFound, FrontEnd, FrontEndOptions, track
-from camwhisker.vision.pose import TIP
 from camwhisker.vision.tracker import RIM_REFIT_MM, RIM_REFIT_RAD
 
 

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from camwhisker.model import N_SQUARE, TIP, PlateModel
+from camwhisker.polygon import polygon_area
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
-from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, polygon_area
 from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
 
 __all__ = [
@@ -272,8 +273,7 @@ def _dirs(uv: np.ndarray, centre: np.ndarray) -> np.ndarray:
 
 def _cross_outline_uv(model: PlateModel, q: np.ndarray) -> np.ndarray:
     from camwhisker.camera import project
-    from camwhisker.plate import cross_outline, plate_to_camera
-    from camwhisker.vision.pose import q_to_pose
+    from camwhisker.plate import cross_outline, plate_to_camera, q_to_pose
 
     plate = model.sensor.plate
     return project(plate_to_camera(cross_outline(plate), q_to_pose(q), plate), model.sensor.camera)

@@ -53,6 +53,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from camwhisker.model import N_SQUARE, TIP, PlateModel
+from camwhisker.polygon import polygon_area
 from camwhisker.sensor import Sensor
 from camwhisker.vision.colour import (
     cloth_level,
@@ -74,15 +76,7 @@ from camwhisker.vision.lk import (
     warp_templates,
 )
 from camwhisker.vision.paper import PaperGeometry
-from camwhisker.vision.pose import (
-    N_SQUARE,
-    TIP,
-    PlateModel,
-    PoseFit,
-    fit_pose,
-    polygon_area,
-    refit_pose,
-)
+from camwhisker.vision.pose import PoseFit, fit_pose, refit_pose
 from camwhisker.vision.tip import (
     TipMeasurement,
     face_near,
