@@ -29,16 +29,12 @@ __all__ = [
     "refit_pose",
 ]
 
-#: Gauss-Newton stops when the largest step is below this (mm or rad). The next step
-#: would be far smaller: on the live clip's fits, after a step below 1e-3 the next was
-#: at most 0.003 of it, so < 3e-8 rad (2e-6 deg) is left unsolved, far below the
-#: noise. 1e-6 cost a projection more in most fits (2.6 against 2.2 a fit).
+#: Gauss-Newton stops when the largest step is below this (mm or rad): convergence is
+#: quadratic, so what the next step would add lies far below the noise.
 GN_STEP_TOL = 1e-5
 GN_MAX_ITER = 12
 #: :func:`refit_pose` takes one step up to this (mm or rad); a larger one is
-#: iterated. On the live clip's 103 refits (steps up to 0.023 mm and 3.7e-3 rad)
-#: one step left <= 7e-6 rad (4e-4 deg) of tilt and <= 1.2e-4 mm of dz and shift
-#: unsolved: 3% and 2% of the front end's phi and dz errors, added in quadrature.
+#: iterated: below it, what one step leaves unsolved is a few % of the front end's error.
 REFIT_STEP_MAX = 0.03
 
 
@@ -90,7 +86,7 @@ class PoseFit:
 
 #: Outlier rejection: a point whose residual exceeds both OUTLIER_MIN_PX and
 #: OUTLIER_FACTOR times the median residual is dropped and the pose refitted, at
-#: most MAX_REJECTED times. Good corners leave ~0.1 px (nominal) to ~0.3 px (hard).
+#: most MAX_REJECTED times. OUTLIER_MIN_PX lies above a good corner's residual.
 OUTLIER_MIN_PX = 0.6
 OUTLIER_FACTOR = 4.0
 MAX_REJECTED = 3
@@ -177,10 +173,8 @@ def _fit_once(
             converged = True
             break
     if converged:
-        # The last step is below GN_STEP_TOL: the model at q is the last projection
-        # moved along its Jacobian, to 1e-6 px (the tip row, whose Jacobian is the
-        # disc centre's; 200 random poses), and the Jacobian at q differs from the
-        # last one by < 1e-6 relative. q is unchanged; one projection is saved.
+        # After a step below GN_STEP_TOL the last projection moved along its Jacobian
+        # is the model at q to ~1e-6 px: one projection saved, q unchanged.
         return _pose_fit(q, uv + jac @ step, jac, target, use, sw, n_par, True)
     uv, jac, _ = model.project(q)
     return _pose_fit(q, uv, jac, target, use, sw, n_par, False)
@@ -274,8 +268,8 @@ def _normal_equations(uv, jac, target, sw, n_par):
 def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
     jtj, jtr, _ = _normal_equations(uv, jac, target, sw, n_par)
-    # The normal equations (symmetric, positive definite unless singular) by
-    # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
+    # Cholesky (the normal equations are symmetric positive definite unless singular)
+    # by OpenCV: far less call overhead than np.linalg.solve at 5 x 5.
     solved, step = cv2.solve(jtj, jtr, flags=cv2.DECOMP_CHOLESKY)
     if not solved:
         return None
