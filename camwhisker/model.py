@@ -14,7 +14,9 @@ circle (the projection of a disc's centre is not its image's centroid).
 Jacobians: :meth:`PlateModel.project` gives d uv / d q, the hot path's
 (its tip row is the disc centre's); :meth:`PlateModel.jacobians` gives the
 exact d uv / d q and d uv / d geometry, the camera intrinsics and every
-dimension of the ``[plate]`` table (``GEOMETRY_NAMES``), for calibration.
+dimension of the ``[plate]`` table (``GEOMETRY_NAMES``), for calibration. A
+key added to that table joins the geometry by itself once
+:func:`tracked_object_points` depends on it.
 """
 
 from __future__ import annotations
@@ -194,10 +196,9 @@ class PlateModel:
     def _points_by_plate(self) -> np.ndarray:
         """d object_points / d the [plate] dimensions, shape (n, 3, len(_PLATE_KEYS));
         z_i moves no plate point (it enters the motion)."""
-        plate = self.sensor.plate
+        plate, h = self.sensor.plate, _PLATE_STEP_MM
         cols = []
         for key in _PLATE_KEYS:
-            h = _PLATE_STEP_MM
             v = getattr(plate, key)
             up = tracked_object_points(dataclasses.replace(plate, **{key: v + h}))
             down = tracked_object_points(dataclasses.replace(plate, **{key: v - h}))
