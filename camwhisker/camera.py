@@ -12,7 +12,10 @@ Projection of a point (X, Y, Z) in the camera frame::
     u = fx x_d + cx,  v = fy y_d + cy
 
 Both directions are delegated to OpenCV (``cv2.projectPoints`` and the
-iterative ``cv2.undistortPoints``).
+iterative ``cv2.undistortPoints``). :func:`project_rigid` is the one call of
+``cv2.projectPoints``: it moves object points by a rigid motion (rvec, tvec)
+into the camera frame, projects them, and returns OpenCV's analytic Jacobian
+with respect to the motion and the intrinsics (columns ``JAC_*``).
 
 Degenerate cases
 ----------------
@@ -33,7 +36,17 @@ import numpy as np
 
 from camwhisker.sensor import CameraConfig
 
-__all__ = ["project", "unproject", "pixel_rays", "ROUND_TRIP_TOL_PX"]
+__all__ = [
+    "project",
+    "project_rigid",
+    "unproject",
+    "pixel_rays",
+    "ROUND_TRIP_TOL_PX",
+    "INTRINSIC_NAMES",
+    "JAC_RVEC",
+    "JAC_TVEC",
+    "JAC_INTRINSICS",
+]
 
 #: A ray is accepted only if it projects back within this distance of its pixel.
 #: The iteration reaches ~1e-13 px where it converges; 1e-6 px leaves room for
@@ -44,6 +57,43 @@ ROUND_TRIP_TOL_PX = 1e-6
 # the frame; the round-trip check catches the rest.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
 _ZERO3 = np.zeros(3)
+
+#: The intrinsics in the order of :func:`project_rigid`'s Jacobian columns
+#: ``JAC_INTRINSICS``; k1 ... k3 are ``CameraConfig.distortion`` in its order.
+INTRINSIC_NAMES = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2", "k3")
+#: Columns of :func:`project_rigid`'s Jacobian (OpenCV's order): d / d rvec,
+#: d / d tvec (the same as d / d the point in the camera frame), d / d intrinsics.
+JAC_RVEC = slice(0, 3)
+JAC_TVEC = slice(3, 6)
+JAC_INTRINSICS = slice(6, 6 + len(INTRINSIC_NAMES))
+
+
+def project_rigid(
+    points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, camera: CameraConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Project object points moved by a rigid motion, with the Jacobian.
+
+    The point p goes to R(rvec) p + tvec in the camera frame (R by Rodrigues'
+    formula), then to pixels as in the module notes. No checks: every point
+    must be finite and lie in front of the camera (see :func:`project`).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+        Points in the object frame, float64.
+    rvec, tvec : ndarray, shape (3,)
+        Rotation vector (rad) and translation of the motion.
+    camera : CameraConfig
+
+    Returns
+    -------
+    uv : ndarray, shape (N, 2)
+    jac : ndarray, shape (2 N, 15)
+        d (u0, v0, u1, v1, ...) / d (rvec, tvec, fx, fy, cx, cy, k1, k2, p1,
+        p2, k3): see ``JAC_RVEC``, ``JAC_TVEC`` and ``JAC_INTRINSICS``.
+    """
+    uv, jac = cv2.projectPoints(points, rvec, tvec, camera.matrix, camera.dist_coeffs)
+    return uv.reshape(-1, 2), jac
 
 
 def project(points_in_camera: np.ndarray, camera: CameraConfig) -> np.ndarray:
@@ -66,10 +116,7 @@ def project(points_in_camera: np.ndarray, camera: CameraConfig) -> np.ndarray:
     valid = np.isfinite(flat).all(axis=1) & (flat[:, 2] > 0)
     uv = np.full((flat.shape[0], 2), np.nan)
     if valid.any():
-        projected, _ = cv2.projectPoints(
-            flat[valid], _ZERO3, _ZERO3, camera.matrix, camera.dist_coeffs
-        )
-        uv[valid] = projected.reshape(-1, 2)
+        uv[valid] = project_rigid(flat[valid], _ZERO3, _ZERO3, camera)[0]
     return uv.reshape(*shape, 2)
 
 

@@ -29,10 +29,10 @@ from tqdm import tqdm
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_path, atomic_write_bytes
+from camwhisker.model import N_SQUARE, POINT_NAMES, TIP, PlateModel
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.sources import open_source
 from camwhisker.video_out import VIDEO_SUFFIXES, write_video
-from camwhisker.vision.pose import N_SQUARE, POINT_NAMES, TIP, PlateModel
 from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 
 __all__ = [

@@ -1,6 +1,10 @@
 """The forward model: plate pose -> 3D feature points -> pixels.
 
-This is the one model that the renderer draws and the front end inverts.
+This is the one model that the renderer draws and the front end inverts:
+the features' geometry in the plate frame (the square, the cross, the rod and
+its end face's rim, from the sensor file's ``[plate]`` table) and the plate's
+rigid motion, projected by :mod:`camwhisker.camera`. :mod:`camwhisker.model`
+caches it for the tracked points, with its Jacobians.
 
 Plate frame (SENSOR.md sections 2-3): origin at the centre of rotation, axes
 parallel to the camera's at rest, z toward the whisker. A pose
@@ -13,6 +17,14 @@ where R tilts the plate by phi about the in-plane axis a = (sin theta,
 to (h_r sin phi cos theta, h_r sin phi sin theta, z_i - dz - h_r cos phi):
 theta is the image direction in which the tip moves, exactly as SENSOR.md
 section 2 defines it.
+
+The same motion has two forms: the matrix R of :func:`rotation_cam_from_plate`
+(for 3D points and the renderer's rays) and the rotation vector of
+:func:`rigid_motion`, phi (sin theta, -cos theta, 0), which
+:func:`camwhisker.camera.project_rigid` takes with its Jacobian. The pose fit
+works on the pose vector q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) with
+a = phi cos(theta) and b = phi sin(theta): the tilt as a 2-vector, smooth
+through phi = 0 where theta has no meaning; the rotation vector is (b, -a, 0).
 """
 
 from __future__ import annotations
@@ -22,19 +34,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camwhisker.camera import project
+from camwhisker.camera import JAC_RVEC, JAC_TVEC, project
 from camwhisker.sensor import PlateConfig, Sensor
 
 __all__ = [
     "Pose",
+    "q_to_pose",
+    "rigid_motion",
+    "pose_jacobian",
     "rotation_cam_from_plate",
     "plate_to_camera",
     "square_corners",
     "cross_outline",
     "cross_arm_edges",
+    "corner_edge_directions",
     "rod_ends",
+    "rod_rims",
+    "end_face_rim",
+    "in_square",
+    "in_cross",
     "feature_pixels",
+    "ROD_RIM",
 ]
+
+#: Points on each of the rod's end rims: its outline is their convex hull.
+ROD_RIM = 24
 
 
 @dataclass(frozen=True)
@@ -60,6 +84,34 @@ class Pose:
     @property
     def theta_deg(self) -> float:
         return math.degrees(self.theta_rad)
+
+
+def q_to_pose(q: np.ndarray) -> Pose:
+    """Pose from the pose vector q = (dz_mm, a_rad, b_rad[, sx_mm, sy_mm])."""
+    sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
+    return Pose(float(q[0]), math.hypot(q[1], q[2]), math.atan2(q[2], q[1]), float(sx), float(sy))
+
+
+def rigid_motion(q: np.ndarray, z_i_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The plate's motion at pose vector q as (rvec, tvec) for
+    :func:`camwhisker.camera.project_rigid`: rvec = (b, -a, 0) rad,
+    tvec = (sx, sy, z_i - dz) mm. A 3-vector q has no shift."""
+    q = np.asarray(q, dtype=float)
+    sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
+    return np.array([q[2], -q[1], 0.0]), np.array([sx, sy, z_i_mm - q[0]])
+
+
+# project_rigid's Jacobian columns and signs that make d / d (dz, a, b, sx, sy),
+# by the chain rule through rigid_motion.
+_RVEC, _TVEC = JAC_RVEC.start, JAC_TVEC.start
+_Q_COLUMNS = np.array([_TVEC + 2, _RVEC + 1, _RVEC, _TVEC, _TVEC + 1])
+_Q_SIGNS = np.array([-1.0, -1.0, 1.0, 1.0, 1.0])
+
+
+def pose_jacobian(jac: np.ndarray) -> np.ndarray:
+    """:func:`camwhisker.camera.project_rigid`'s Jacobian, shape (..., 15), at the
+    motion of :func:`rigid_motion` as d / d q = d / d (dz, a, b, sx, sy), (..., 5)."""
+    return jac[..., _Q_COLUMNS] * _Q_SIGNS
 
 
 def rotation_cam_from_plate(phi_rad: float, theta_rad: float) -> np.ndarray:
@@ -121,9 +173,54 @@ def cross_arm_edges(plate: PlateConfig) -> np.ndarray:
     )
 
 
+def corner_edge_directions(plate: PlateConfig) -> np.ndarray:
+    """Directions of the two edges leaving each tracked corner, shape (12, 2, 3), not
+    normalised: the square's 4 corners, then the arm ends' 8 (arms +x, +y, -x, -y,
+    two corners each, as :func:`cross_arm_edges`): along the end edge, then inward."""
+    sq = square_corners(plate)
+    sq_dirs = np.stack([np.roll(sq, 1, axis=0) - sq, np.roll(sq, -1, axis=0) - sq], axis=1)
+    arm = cross_arm_edges(plate)
+    inward = np.array([[-1.0, 0, 0], [0, -1.0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
+    return np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
+
+
 def rod_ends(plate: PlateConfig) -> np.ndarray:
     """Rod axis end points, shape (2, 3): its base on the cross, and the tip's centre."""
     return np.array([[0.0, 0.0, -plate.cross_offset_mm], [0.0, 0.0, -plate.h_r_mm]])
+
+
+def _ring(plate: PlateConfig, n: int) -> np.ndarray:
+    ang = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    rho = plate.rod_diameter_mm / 2
+    return np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
+
+
+def rod_rims(plate: PlateConfig, n: int = ROD_RIM) -> np.ndarray:
+    """The rod's two end rims, shape (2 n, 3): n points on the rim at its base on
+    the cross, then n on the rim at the tip."""
+    ring = _ring(plate, n)
+    return np.concatenate(
+        [np.column_stack([ring, np.full(n, z)]) for z in (-plate.cross_offset_mm, -plate.h_r_mm)]
+    )
+
+
+def end_face_rim(plate: PlateConfig, n: int) -> np.ndarray:
+    """n points on the rim of the rod's end face (the magnifier tip), shape (n, 3)."""
+    return np.column_stack([_ring(plate, n), np.full(n, -plate.h_r_mm)])
+
+
+def in_square(x: np.ndarray, y: np.ndarray, plate: PlateConfig) -> np.ndarray:
+    """Whether plate points (x, y) in the square's plane lie on the square."""
+    h = plate.square_side_mm / 2
+    return (np.abs(x) <= h) & (np.abs(y) <= h)
+
+
+def in_cross(x: np.ndarray, y: np.ndarray, plate: PlateConfig) -> np.ndarray:
+    """Whether plate points (x, y) in the cross's plane lie on the cross."""
+    s, a = plate.cross_span_mm / 2, plate.cross_arm_mm / 2
+    ax, ay = np.abs(x), np.abs(y)
+    return ((ax <= a) & (ay <= s)) | ((ax <= s) & (ay <= a))
 
 
 def feature_pixels(pose: Pose, sensor: Sensor) -> dict[str, np.ndarray]:

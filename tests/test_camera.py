@@ -1,9 +1,18 @@
 """Camera model: round trips, hand values, degenerate cases."""
 
+import cv2
 import numpy as np
 import pytest
 
-from camwhisker.camera import pixel_rays, project, unproject
+from camwhisker.camera import (
+    INTRINSIC_NAMES,
+    JAC_INTRINSICS,
+    JAC_TVEC,
+    pixel_rays,
+    project,
+    project_rigid,
+    unproject,
+)
 from camwhisker.sensor import Sensor
 
 PLAIN = Sensor().camera
@@ -76,3 +85,48 @@ def test_pixel_rays_match_unproject():
 def test_float32_and_float64_agree():
     pts = np.array([[1.5, -0.7, 21.0], [-3.0, 2.0, 26.5]])
     assert np.abs(project(pts.astype(np.float32), PLAIN) - project(pts, PLAIN)).max() < 1e-4
+
+
+def _object_points():
+    rng = np.random.default_rng(5)
+    return np.column_stack([rng.uniform(-5, 5, 20), rng.uniform(-4, 4, 20), rng.uniform(-8, 2, 20)])
+
+
+RVEC = np.array([0.21, -0.33, 0.05])
+TVEC = np.array([0.4, -0.3, 24.0])
+
+
+@pytest.mark.parametrize("cam", [PLAIN, DISTORTED], ids=["pinhole", "distorted"])
+def test_project_rigid_is_project_after_the_motion(cam):
+    pts = _object_points()
+    uv, jac = project_rigid(pts, RVEC, TVEC, cam)
+    in_camera = pts @ cv2.Rodrigues(RVEC)[0].T + TVEC
+    assert np.abs(uv - project(in_camera, cam)).max() < 1e-9
+    assert jac.shape == (2 * len(pts), 15)
+
+
+@pytest.mark.parametrize("cam", [PLAIN, DISTORTED], ids=["pinhole", "distorted"])
+def test_project_rigid_jacobian_columns_by_central_differences(cam):
+    pts = _object_points()
+    jac = project_rigid(pts, RVEC, TVEC, cam)[1].reshape(len(pts), 2, -1)
+    h = 1e-6
+    for i in range(3):  # d / d tvec: the same as d / d the point in the camera frame
+        e = np.eye(3)[i] * h
+        fd = project_rigid(pts, RVEC, TVEC + e, cam)[0] - project_rigid(pts, RVEC, TVEC - e, cam)[0]
+        np.testing.assert_allclose(jac[:, :, JAC_TVEC][:, :, i], fd / (2 * h), rtol=0, atol=1e-5)
+    for i, name in enumerate(INTRINSIC_NAMES):
+        h = 1e-3  # the pixels are linear in every intrinsic
+        up = project_rigid(pts, RVEC, TVEC, _moved(cam, name, h))[0]
+        down = project_rigid(pts, RVEC, TVEC, _moved(cam, name, -h))[0]
+        np.testing.assert_allclose(jac[:, :, JAC_INTRINSICS][:, :, i], (up - down) / (2 * h),
+                                   rtol=0, atol=1e-7)  # fmt: skip
+
+
+def _moved(cam, name, d):
+    """The camera with intrinsic ``name`` of INTRINSIC_NAMES moved by d."""
+    distortion = ("k1", "k2", "p1", "p2", "k3")
+    if name in distortion:
+        k = list(cam.distortion)
+        k[distortion.index(name)] += d
+        return Sensor(camera=cam).replace(camera={"distortion": k}).camera
+    return Sensor(camera=cam).replace(camera={name: getattr(cam, name) + d}).camera

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
+from camwhisker.model import N_SQUARE, TIP
 from camwhisker.overlay import (
     ARROW_BGR,
     OUTLINE_BGR,
@@ -44,7 +45,6 @@ from camwhisker.plate import Pose, feature_pixels
 from camwhisker.sensor import Sensor, dump_sensor, load_sensor
 from camwhisker.synth.scenarios import make_scenario
 from camwhisker.synth.video import render_scenario
-from camwhisker.vision.pose import N_SQUARE, TIP
 from camwhisker.vision.tracker import FrameResult, FrontEnd
 
 COLOUR_TOL_DN = 60

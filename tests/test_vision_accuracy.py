@@ -27,13 +27,13 @@ import math
 import numpy as np
 import pytest
 
+from camwhisker.model import TIP
 from camwhisker.sensor import Sensor
 from camwhisker.stream import track
 from camwhisker.synth.artefacts import jpeg_roundtrip
 from camwhisker.synth.scenarios import PoseTrack, make_scenario, wrap_deg
 from camwhisker.synth.video import render_frames
 from camwhisker.vision import FeaturesNotFound, FrontEnd, FrontEndOptions
-from camwhisker.vision.pose import TIP
 from camwhisker.vision.tracker import RIM_REFIT_MM, RIM_REFIT_RAD
 
 

@@ -21,7 +21,9 @@ import cv2
 import numpy as np
 import pytest
 
+from camwhisker.model import TIP, PlateModel
 from camwhisker.plate import Pose, feature_pixels
+from camwhisker.polygon import polygon_area, polygon_centroid
 from camwhisker.sensor import Sensor
 from camwhisker.vision import paper
 from camwhisker.vision.blobs import blobs
@@ -34,14 +36,7 @@ from camwhisker.vision.colour import (
     white_balance_gains,
 )
 from camwhisker.vision.lk import refine_first_template, warp_templates
-from camwhisker.vision.pose import (
-    TIP,
-    PlateModel,
-    fit_pose,
-    polygon_area,
-    polygon_centroid,
-    refit_pose,
-)
+from camwhisker.vision.pose import fit_pose, refit_pose
 from camwhisker.vision.tip import (
     BODY_ANGLES,
     BODY_BLUR_PX,

@@ -25,8 +25,8 @@ from collections.abc import Iterable, Iterator
 import cv2
 import numpy as np
 
+from camwhisker.model import TIP
 from camwhisker.vision.lk import PATCH_HALF_PX
-from camwhisker.vision.pose import TIP
 
 __all__ = [
     "PEERS",

@@ -39,11 +39,12 @@ from camwhisker.bench.configs import DEFAULT, PAPER, Config
 from camwhisker.bench.pareto import pareto_front
 from camwhisker.bench.peers import PEERS
 from camwhisker.bench.vision import SCENES, render_scene, scene_errors
+from camwhisker.model import TIP
 from camwhisker.sources import VideoSource
 from camwhisker.synth.bound import nominal_bound_pose, pose_bound
 from camwhisker.vision.colour import contrast_map
 from camwhisker.vision.detect import detect_features
-from camwhisker.vision.pose import TIP, fit_pose
+from camwhisker.vision.pose import fit_pose
 from camwhisker.vision.tracker import (
     MAX_RMS_PX,
     MIN_CORNERS,

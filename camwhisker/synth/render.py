@@ -39,7 +39,10 @@ from camwhisker.camera import pixel_rays, project
 from camwhisker.plate import (
     Pose,
     cross_outline,
+    in_cross,
+    in_square,
     plate_to_camera,
+    rod_rims,
     rotation_cam_from_plate,
     square_corners,
 )
@@ -116,10 +119,10 @@ class SceneRenderer:
         """Noise-free image of the scene, float32, shape (height, width, 3), BGR."""
         app, plate = self.appearance, self.sensor.plate
         img = self.background.copy()
-        square = self._planar_layer(pose, square_corners(plate), _in_square(plate))
+        square = self._planar_layer(pose, square_corners(plate), in_square)
         self._composite(img, *square, app.square_bgr)
         self._composite_springs(img, pose)
-        cross = self._planar_layer(pose, cross_outline(plate), _in_cross(plate))
+        cross = self._planar_layer(pose, cross_outline(plate), in_cross)
         self._composite(img, *cross, app.cross_bgr)
         self._composite_rod(img, pose)
         return img
@@ -163,7 +166,7 @@ class SceneRenderer:
 
     def _planar_layer(self, pose: Pose, outline: np.ndarray, inside):
         """Coverage of a flat feature with the given outline, shape (M, 3), in the plate
-        frame (constant z), and membership test ``inside(x, y)``.
+        frame (constant z), and membership test ``inside(x, y, plate)``.
 
         Returns (coverage, bbox), coverage float32 in [0, 1] over the bbox.
         """
@@ -185,7 +188,7 @@ class SceneRenderer:
             with np.errstate(divide="ignore", invalid="ignore"):
                 s = depth / denom
             p = s[:, None] * (d @ rt.T) - rt_t
-            return inside(p[:, 0], p[:, 1]) & (s > 0)
+            return inside(p[:, 0], p[:, 1], plate) & (s > 0)
 
         return self._coverage(box, hit), box
 
@@ -256,14 +259,7 @@ class SceneRenderer:
 
     def _composite_rod(self, img: np.ndarray, pose: Pose) -> None:
         plate = self.sensor.plate
-        rho = plate.rod_diameter_mm / 2
-        ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
-        ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
-        ends = [
-            np.column_stack([ring, np.full(len(ring), z)])
-            for z in (-plate.cross_offset_mm, -plate.h_r_mm)
-        ]
-        box = self._bbox(plate_to_camera(np.concatenate(ends), pose, plate))
+        box = self._bbox(plate_to_camera(rod_rims(plate), pose, plate))
         if box is None:
             return
         rows, cols = box
@@ -343,26 +339,6 @@ class SceneRenderer:
         weave /= weave.std()
         texture = 1.0 + app.cloth_folds * folds + app.cloth_weave * weave
         return texture[..., None] * np.asarray(app.cloth_bgr, np.float32)
-
-
-# Feature membership tests in plate coordinates (x, y).
-def _in_square(plate):
-    h = plate.square_side_mm / 2
-
-    def inside(x, y):
-        return (np.abs(x) <= h) & (np.abs(y) <= h)
-
-    return inside
-
-
-def _in_cross(plate):
-    s, a = plate.cross_span_mm / 2, plate.cross_arm_mm / 2
-
-    def inside(x, y):
-        ax, ay = np.abs(x), np.abs(y)
-        return ((ax <= a) & (ay <= s)) | ((ax <= s) & (ay <= a))
-
-    return inside
 
 
 def _densify(polygon: np.ndarray, n: int) -> np.ndarray:

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from camwhisker.model import N_SQUARE, TIP, PlateModel
+from camwhisker.polygon import polygon_area
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
-from camwhisker.vision.pose import N_SQUARE, TIP, PlateModel, polygon_area
 from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
 
 __all__ = [
@@ -212,6 +213,8 @@ def detect_features(
     """
     q = np.zeros(5) if q is None else np.asarray(q, float)
     uv_model, _, rim = model.project(q, jacobian=False)
+    _, rod_rims_uv, cross_uv = model.outlines(q)
+    corner_dirs = model.edge_directions(q)
     g = contrast_map(frame, gains)
     found_uv = np.full((TIP + 1, 2), np.nan)
     missing = []
@@ -226,14 +229,13 @@ def detect_features(
         corners = _assign_corners(hull, centre, dirs) if hull is not None else None
         if corners is not None:
             found_uv[:N_SQUARE] = refine_corners(
-                np.maximum(g, 0.0), corners, model.edge_directions(q)[:N_SQUARE]
+                np.maximum(g, 0.0), corners, corner_dirs[:N_SQUARE]
             )
     if not np.isfinite(found_uv[:N_SQUARE]).all():
         missing.append("square corners")
 
     cr_model = uv_model[N_SQUARE:TIP]
-    outline = _cross_outline_uv(model, q)
-    comp = _component((g < -RED_MIN).astype(np.uint8), polygon_area(outline) * 0.85,
+    comp = _component((g < -RED_MIN).astype(np.uint8), polygon_area(cross_uv) * 0.85,
                       cr_model.mean(axis=0))  # fmt: skip
     if comp is not None:
         mask, centre = comp
@@ -241,7 +243,7 @@ def detect_features(
         if poly is not None:
             corners = _assign_corners(poly, centre, _dirs(cr_model, cr_model.mean(axis=0)))
             found_uv[N_SQUARE:TIP] = refine_corners(
-                np.maximum(-g, 0.0), corners, model.edge_directions(q)[N_SQUARE:TIP]
+                np.maximum(-g, 0.0), corners, corner_dirs[N_SQUARE:TIP]
             )
     if not np.isfinite(found_uv[N_SQUARE:TIP]).all():
         missing.append("cross arm ends")
@@ -253,7 +255,7 @@ def detect_features(
     if tip is not None and tip.ok:
         # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).
         shift = tip.centre_uv - uv_model[TIP]
-        tip = rim_centre(edges, rim + shift, model.outlines(q)[1] + shift)
+        tip = rim_centre(edges, rim + shift, rod_rims_uv + shift)
     if tip is not None and tip.ok:
         found_uv[TIP] = tip.centre_uv
     else:
@@ -269,11 +271,3 @@ def _dirs(uv: np.ndarray, centre: np.ndarray) -> np.ndarray:
     d = uv - centre
     return np.degrees(np.arctan2(d[:, 1], d[:, 0]))
 
-
-def _cross_outline_uv(model: PlateModel, q: np.ndarray) -> np.ndarray:
-    from camwhisker.camera import project
-    from camwhisker.plate import cross_outline, plate_to_camera
-    from camwhisker.vision.pose import q_to_pose
-
-    plate = model.sensor.plate
-    return project(plate_to_camera(cross_outline(plate), q_to_pose(q), plate), model.sensor.camera)

@@ -1,14 +1,9 @@
-"""Plate pose from tracked image points, through the exact camera model.
+"""Plate pose from tracked image points, through the forward model.
 
-The pose vector is q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) with
-a = phi cos(theta) and b = phi sin(theta): the tilt as a 2-vector, smooth
-through phi = 0 where theta has no meaning. The rotation vector of the plate
-is then (b, -a, 0), the Rodrigues form of :func:`camwhisker.plate.rotation_cam_from_plate`.
-
-Tracked points (``POINT_NAMES``): the square's 4 corners, the 8 outer corners
-of the cross's arm ends, and the magnifier tip. The tip's image is the end
-face's centroid; its model value is the area centroid of the projected rim
-circle (the projection of a disc's centre is not its image's centroid).
+The pose vector is q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) of
+:mod:`camwhisker.plate`; the model pixels of the tracked points
+(``camwhisker.model.POINT_NAMES``) and their Jacobian come from
+:class:`camwhisker.model.PlateModel`.
 
 The fit is Gauss-Newton on the pixel residuals
 ``measured - rest_offset - model(q)``, with OpenCV's analytic projection
@@ -25,207 +20,22 @@ import cv2
 import numpy as np
 from numba import njit
 
-from camwhisker.plate import Pose, cross_arm_edges, cross_outline, rod_ends, square_corners
-from camwhisker.sensor import Sensor
+from camwhisker.model import TIP, PlateModel
+from camwhisker.plate import Pose, q_to_pose
 
 __all__ = [
-    "POINT_NAMES",
-    "N_SQUARE",
-    "N_CROSS",
-    "TIP",
-    "PlateModel",
     "PoseFit",
     "fit_pose",
     "refit_pose",
-    "q_to_pose",
-    "polygon_centroid",
-    "polygon_area",
 ]
 
-POINT_NAMES = (
-    [f"square_{c}" for c in ("tl", "tr", "br", "bl")]
-    + [f"cross_{arm}_{k}" for arm in ("px", "py", "mx", "my") for k in (0, 1)]
-    + ["tip"]
-)
-N_SQUARE = 4
-N_CROSS = 8
-#: Index of the tip in the point arrays.
-TIP = N_SQUARE + N_CROSS
-
-#: Points on the rim of the end face used for its projected centroid. With 64 the
-#: polygon's centroid differs from the ellipse's by < 1e-4 px at phi = 35 deg.
-N_RIM = 64
-
-#: Points on each of the rod's end rims for its outline.
-ROD_RIM = 24
-#: cv2.projectPoints' Jacobian columns (rvec x, y, z, tvec x, y, z, ...) that make
-#: d / d (dz, a, b, sx, sy), with rvec = (b, -a, 0) and tvec = (sx, sy, z_i - dz).
-_JAC_COLUMNS = np.array([5, 1, 0, 3, 4])
-_JAC_SIGNS = np.array([-1.0, -1.0, 1.0, 1.0, 1.0])
-
-#: Gauss-Newton stops when the largest step is below this (mm or rad). The next step
-#: would be far smaller: on the live clip's fits, after a step below 1e-3 the next was
-#: at most 0.003 of it, so < 3e-8 rad (2e-6 deg) is left unsolved, far below the
-#: noise. 1e-6 cost a projection more in most fits (2.6 against 2.2 a fit).
+#: Gauss-Newton stops when the largest step is below this (mm or rad): convergence is
+#: quadratic, so what the next step would add lies far below the noise.
 GN_STEP_TOL = 1e-5
 GN_MAX_ITER = 12
 #: :func:`refit_pose` takes one step up to this (mm or rad); a larger one is
-#: iterated. On the live clip's 103 refits (steps up to 0.023 mm and 3.7e-3 rad)
-#: one step left <= 7e-6 rad (4e-4 deg) of tilt and <= 1.2e-4 mm of dz and shift
-#: unsolved: 3% and 2% of the front end's phi and dz errors, added in quadrature.
+#: iterated: below it, what one step leaves unsolved is a few % of the front end's error.
 REFIT_STEP_MAX = 0.03
-
-
-def _pose_jacobian(jac: np.ndarray) -> np.ndarray:
-    """Rows of cv2.projectPoints' Jacobian as d / d (dz, a, b, sx, sy), shape (..., 5)."""
-    return jac[..., _JAC_COLUMNS] * _JAC_SIGNS
-
-
-def q_to_pose(q: np.ndarray) -> Pose:
-    """Pose from q = (dz_mm, a_rad, b_rad[, sx_mm, sy_mm])."""
-    sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
-    return Pose(float(q[0]), math.hypot(q[1], q[2]), math.atan2(q[2], q[1]), float(sx), float(sy))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def polygon_centroid(uv: np.ndarray) -> np.ndarray:
-    """Area centroid of a closed polygon, shape (N, 2) -> (2,) (shoelace formula)."""
-    n = uv.shape[0]
-    area = cx = cy = 0.0
-    for i in range(n):
-        j = (i + 1) % n
-        cross = uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
-        area += cross
-        cx += cross * (uv[i, 0] + uv[j, 0])
-        cy += cross * (uv[i, 1] + uv[j, 1])
-    out = np.empty(2)
-    out[0], out[1] = cx / (3.0 * area), cy / (3.0 * area)
-    return out
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def polygon_area(uv: np.ndarray) -> float:
-    """Unsigned area of a closed polygon, shape (N, 2) (shoelace formula)."""
-    n = uv.shape[0]
-    twice = 0.0
-    for i in range(n):
-        j = (i + 1) % n
-        twice += uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
-    return abs(twice) / 2.0
-
-
-class PlateModel:
-    """The forward model of :mod:`camwhisker.plate` for the tracked points, with Jacobian.
-
-    Parameters
-    ----------
-    sensor : Sensor
-    """
-
-    def __init__(self, sensor: Sensor):
-        self.sensor = sensor
-        plate, cam = sensor.plate, sensor.camera
-        rho = plate.rod_diameter_mm / 2
-        ang = np.linspace(0.0, 2 * np.pi, N_RIM, endpoint=False)
-        rim = np.column_stack([rho * np.cos(ang), rho * np.sin(ang), np.full(N_RIM, -plate.h_r_mm)])
-        #: Plate-frame points: 12 tracked corners, the tip centre, the rim.
-        self.object_points = np.ascontiguousarray(
-            np.concatenate(
-                [square_corners(plate), cross_arm_edges(plate).reshape(-1, 3),
-                 rod_ends(plate)[1:], rim]
-            )
-        )  # fmt: skip
-        self._tip_points = self.object_points[TIP:]  # the face's centre, then its rim
-        self._corner_points = np.ascontiguousarray(self.object_points[:TIP])
-        # Edge directions at each tracked corner, in the plate frame: (12, 2, 3).
-        sq = square_corners(plate)
-        sq_dirs = np.stack([np.roll(sq, 1, axis=0) - sq, np.roll(sq, -1, axis=0) - sq], axis=1)
-        arm = cross_arm_edges(plate)  # (4, 2, 3): the two end corners of each arm
-        inward = np.array(
-            [[-1.0, 0, 0], [0, -1.0, 0], [1.0, 0, 0], [0, 1.0, 0]]
-        )  # arms +x +y -x -y
-        cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
-        self._edge_dirs_plate = np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
-        #: The corners and points step_mm along their edges, by step_mm (see edge_directions).
-        self._edge_points: dict[float, np.ndarray] = {}
-        # Plate-frame outlines (see outlines()): the end face's rim, the rod's two
-        # end rims, the cross.
-        ang = np.linspace(0.0, 2 * np.pi, ROD_RIM, endpoint=False)
-        ring = np.column_stack([rho * np.cos(ang), rho * np.sin(ang)])
-        self._outline_points = np.ascontiguousarray(
-            np.concatenate([
-                rim,
-                np.column_stack([ring, np.full(ROD_RIM, -plate.cross_offset_mm)]),
-                np.column_stack([ring, np.full(ROD_RIM, -plate.h_r_mm)]),
-                cross_outline(plate),
-            ])
-        )  # fmt: skip
-        self.K = cam.matrix
-        self.dist = cam.dist_coeffs
-        self.z_i_mm = plate.z_i_mm
-
-    def edge_directions(self, q: np.ndarray, step_mm: float = 0.05) -> np.ndarray:
-        """Image directions of the two edges leaving each of the 12 corners, (12, 2, 2)."""
-        pts = self._edge_points.get(step_mm)
-        if pts is None:
-            corners = self.object_points[:TIP]
-            d = self._edge_dirs_plate / np.linalg.norm(self._edge_dirs_plate, axis=-1,
-                                                       keepdims=True)  # fmt: skip
-            pts = np.concatenate([corners, (corners[:, None] + step_mm * d).reshape(-1, 3)])
-            self._edge_points[step_mm] = pts
-        uv = self._project(pts, q)[0]
-        return uv[TIP:].reshape(TIP, 2, 2) - uv[:TIP, None]
-
-    def outlines(self, q: np.ndarray):
-        """The end face's rim (N_RIM, 2), the rod's two end rims (2 ROD_RIM, 2;
-        their convex hull is the rod's outline) and the cross's outline (12, 2)
-        in the image at pose q, from one projection."""
-        uv = self._project(self._outline_points, q)[0]
-        rod_end = N_RIM + 2 * ROD_RIM
-        return uv[:N_RIM], uv[N_RIM:rod_end], uv[rod_end:]
-
-    def _project(self, pts: np.ndarray, q: np.ndarray):
-        """cv2.projectPoints of plate-frame points (n, 3) at pose q: pixels (n, 2) and
-        OpenCV's Jacobian (2 n, 15)."""
-        q = np.asarray(q, dtype=float)
-        sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
-        rvec = np.array([q[2], -q[1], 0.0])
-        tvec = np.array([sx, sy, self.z_i_mm - q[0]])
-        uv, jac = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
-        return uv.reshape(-1, 2), jac
-
-    def corners(self, q: np.ndarray) -> np.ndarray:
-        """The 12 tracked corners' rows of :meth:`project` alone, shape (12, 2), from
-        one projection of those points."""
-        return self._project(self._corner_points, q)[0]
-
-    def tip(self, q: np.ndarray):
-        """The tip's row of :meth:`project` alone, from one smaller projection: the
-        face centroid (2,) and its Jacobian (2, 5)."""
-        pts, jac = self._project(self._tip_points, q)
-        return polygon_centroid(pts[1:]), _pose_jacobian(jac[:2])
-
-    def project(self, q: np.ndarray, jacobian: bool = True):
-        """Model pixels of the 13 tracked points (tip = face centroid), shape (13, 2).
-
-        Returns
-        -------
-        uv : ndarray, shape (13, 2)
-        jac : ndarray, shape (13, 2, 5) or None
-            d uv / d (dz, a, b, sx, sy). The tip row is the Jacobian of the
-            projected disc centre, which differs from the centroid's by O(1e-3).
-        rim_uv : ndarray, shape (N_RIM, 2)
-            Projected rim of the end face.
-        """
-        pts, jac = self._project(self.object_points, q)
-        uv = np.empty((TIP + 1, 2))
-        uv[:TIP] = pts[:TIP]
-        rim = pts[TIP + 1 :]
-        uv[TIP] = polygon_centroid(rim)
-        if not jacobian:
-            return uv, None, rim
-        j = jac[: 2 * (TIP + 1)].reshape(TIP + 1, 2, -1)
-        return uv, _pose_jacobian(j), rim
 
 
 @dataclass(frozen=True)
@@ -276,7 +86,7 @@ class PoseFit:
 
 #: Outlier rejection: a point whose residual exceeds both OUTLIER_MIN_PX and
 #: OUTLIER_FACTOR times the median residual is dropped and the pose refitted, at
-#: most MAX_REJECTED times. Good corners leave ~0.1 px (nominal) to ~0.3 px (hard).
+#: most MAX_REJECTED times. OUTLIER_MIN_PX lies above a good corner's residual.
 OUTLIER_MIN_PX = 0.6
 OUTLIER_FACTOR = 4.0
 MAX_REJECTED = 3
@@ -363,10 +173,8 @@ def _fit_once(
             converged = True
             break
     if converged:
-        # The last step is below GN_STEP_TOL: the model at q is the last projection
-        # moved along its Jacobian, to 1e-6 px (the tip row, whose Jacobian is the
-        # disc centre's; 200 random poses), and the Jacobian at q differs from the
-        # last one by < 1e-6 relative. q is unchanged; one projection is saved.
+        # After a step below GN_STEP_TOL the last projection moved along its Jacobian
+        # is the model at q to ~1e-6 px: one projection saved, q unchanged.
         return _pose_fit(q, uv + jac @ step, jac, target, use, sw, n_par, True)
     uv, jac, _ = model.project(q)
     return _pose_fit(q, uv, jac, target, use, sw, n_par, False)
@@ -460,8 +268,8 @@ def _normal_equations(uv, jac, target, sw, n_par):
 def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
     jtj, jtr, _ = _normal_equations(uv, jac, target, sw, n_par)
-    # The normal equations (symmetric, positive definite unless singular) by
-    # OpenCV's Cholesky solver: ~10x less overhead than np.linalg.solve at 5 x 5.
+    # Cholesky (the normal equations are symmetric positive definite unless singular)
+    # by OpenCV: far less call overhead than np.linalg.solve at 5 x 5.
     solved, step = cv2.solve(jtj, jtr, flags=cv2.DECOMP_CHOLESKY)
     if not solved:
         return None

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from camwhisker.polygon import polygon_centroid
 from camwhisker.vision.blobs import blobs
-from camwhisker.vision.pose import polygon_centroid
 
 __all__ = [
     "TipMeasurement",

@@ -42,6 +42,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from camwhisker.model import N_SQUARE, TIP, PlateModel
+from camwhisker.polygon import polygon_area
 from camwhisker.sensor import Sensor
 from camwhisker.vision.colour import (
     cloth_level,
@@ -54,15 +56,7 @@ from camwhisker.vision.colour import (
 from camwhisker.vision.detect import FeaturesNotFound, detect_features
 from camwhisker.vision.lk import PATCH_HALF_PX, refine_first_template, warp_templates
 from camwhisker.vision.paper import PaperGeometry, PaperRest
-from camwhisker.vision.pose import (
-    N_SQUARE,
-    TIP,
-    PlateModel,
-    PoseFit,
-    fit_pose,
-    polygon_area,
-    refit_pose,
-)
+from camwhisker.vision.pose import PoseFit, fit_pose, refit_pose
 from camwhisker.vision.rest import RestReference, region_origin, region_size, rest_colours
 from camwhisker.vision.tip import (
     TipMeasurement,

@@ -1,0 +1,73 @@
+"""Area and centroid of closed image polygons (shoelace formula), and the
+centroid's derivative.
+
+A projected rim is such a polygon: the magnifier tip's model position is the
+area centroid of its end face's projected rim (the projection of a disc's
+centre is not its image's centroid), and the tip measured in a frame is the
+centroid of the fitted rim.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["polygon_area", "polygon_centroid", "polygon_centroid_jacobian"]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def polygon_centroid(uv: np.ndarray) -> np.ndarray:
+    """Area centroid of a closed polygon, shape (N, 2) -> (2,) (shoelace formula)."""
+    n = uv.shape[0]
+    area = cx = cy = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        cross = uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
+        area += cross
+        cx += cross * (uv[i, 0] + uv[j, 0])
+        cy += cross * (uv[i, 1] + uv[j, 1])
+    out = np.empty(2)
+    out[0], out[1] = cx / (3.0 * area), cy / (3.0 * area)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def polygon_area(uv: np.ndarray) -> float:
+    """Unsigned area of a closed polygon, shape (N, 2) (shoelace formula)."""
+    n = uv.shape[0]
+    twice = 0.0
+    for i in range(n):
+        j = (i + 1) % n
+        twice += uv[i, 0] * uv[j, 1] - uv[j, 0] * uv[i, 1]
+    return abs(twice) / 2.0
+
+
+def polygon_centroid_jacobian(uv: np.ndarray, duv: np.ndarray) -> np.ndarray:
+    """Derivative of :func:`polygon_centroid` along the vertices' derivatives.
+
+    Parameters
+    ----------
+    uv : ndarray, shape (N, 2)
+        The polygon's vertices.
+    duv : ndarray, shape (N, 2, P)
+        d uv / d p for P parameters p.
+
+    Returns
+    -------
+    ndarray, shape (2, P)
+        d centroid / d p, by differentiating the shoelace sums: with
+        c_i = x_i y_(i+1) - x_(i+1) y_i, A2 = sum c_i and
+        C_x = sum c_i (x_i + x_(i+1)) / (3 A2).
+    """
+    x, y = uv[:, 0, None], uv[:, 1, None]
+    xn, yn = np.roll(x, -1, axis=0), np.roll(y, -1, axis=0)
+    dx, dy = duv[:, 0], duv[:, 1]
+    dxn, dyn = np.roll(dx, -1, axis=0), np.roll(dy, -1, axis=0)
+    c = x * yn - xn * y
+    dc = dx * yn + x * dyn - dxn * y - xn * dy
+    a3 = 3.0 * c.sum()
+    da3 = 3.0 * dc.sum(axis=0)
+    centroid = np.array([(c * (x + xn)).sum(), (c * (y + yn)).sum()]) / a3
+    d_sx = (dc * (x + xn) + c * (dx + dxn)).sum(axis=0)
+    d_sy = (dc * (y + yn) + c * (dy + dyn)).sum(axis=0)
+    return (np.stack([d_sx, d_sy]) - centroid[:, None] * da3) / a3
