@@ -86,9 +86,10 @@ class Validation:
     """One trial of test 1 or 2: per-pause applied and measured values and their statistics.
 
     ``pauses`` holds arrays of shape (P,), one entry per stage pause: ``t_start_s``,
-    ``t_end_s`` (camera clock), ``x_mm``, ``applied``, ``measured`` (median),
-    ``sd`` (of the frames), ``n_frames``, ``used`` (enough trusted frames and an
-    applied value), and for test 1 ``r_mm`` and ``dx_mm``. The statistics are
+    ``t_end_s`` (camera clock), ``x_mm`` (the stage's median over the pause),
+    ``applied``, ``measured`` (median), ``sd`` (of the frames), ``n_frames``,
+    ``used`` (enough trusted frames and an applied value), and for test 1
+    ``r_mm`` and ``dx_mm``. The statistics are
     over the used pauses: ``rmse`` and ``bias`` of the frames against their
     pause's applied value, ``rmse_medians`` of the medians, ``slope`` and
     ``intercept`` of medians against applied (NaN if applied never varies).
@@ -149,16 +150,16 @@ def _clock(signals: dict, log: StageLog, measured, offset_s):
     return offset, True, score
 
 
-def _applied_phi(log: StageLog, pauses: Pauses, median, x_contact_mm):
-    """Test 1: (phi applied, extra columns, x_contact_mm, estimated) per pause."""
+def _applied_phi(log: StageLog, pauses: Pauses, x, median, x_contact_mm):
+    """Test 1: (phi applied, extra columns, x_contact_mm, estimated) per pause at positions x."""
     sign = log.travel_sign
     estimated = x_contact_mm is None
-    x0 = contact_onset_x(pauses.x_mm, median, sign) if estimated else float(x_contact_mm)
+    x0 = contact_onset_x(x, median, sign) if estimated else float(x_contact_mm)
     if not math.isfinite(x0):
         raise ValidationError(f"{log.source}: no contact seen (phi never reaches "
                               "the onset threshold in a pause); give the contact position")
     r = log_pause_medians(log, log.r_mm, pauses)
-    dx = sign * (pauses.x_mm - x0)
+    dx = sign * (x - x0)
     return rigid_phi_deg(r, dx), {"r_mm": r, "dx_mm": dx}, x0, estimated
 
 
@@ -209,9 +210,12 @@ def validate(signals: dict, log: StageLog, test: int, offset_s: float | None = N
     enough = n >= MIN_PAUSE_FRAMES
     median = _per_pause(np.median, measured, frames, enough)
     sd = _per_pause(lambda v: np.std(v, ddof=1), measured, frames, enough)
+    # The stage's position over each pause: a pause's first sample may still be
+    # finishing the step (within the stationary tolerance).
+    x = log_pause_medians(log, log.x_mm, pauses)
     extra, x0, x0_estimated = {}, math.nan, False
     if test == 1:
-        applied, extra, x0, x0_estimated = _applied_phi(log, pauses, median, x_contact_mm)
+        applied, extra, x0, x0_estimated = _applied_phi(log, pauses, x, median, x_contact_mm)
     else:
         applied = log_pause_medians(log, log.dz_mm, pauses)
     used = enough & np.isfinite(applied)
@@ -222,7 +226,7 @@ def validate(signals: dict, log: StageLog, test: int, offset_s: float | None = N
     residual = np.concatenate([measured[frames[k]] - applied[k] for k in np.flatnonzero(used)])
     slope, intercept = _line(applied[used], median[used])
     table = {"t_start_s": pauses.t_start_s + offset, "t_end_s": pauses.t_end_s + offset,
-             "x_mm": pauses.x_mm, **extra, "applied": applied, "measured": median, "sd": sd,
+             "x_mm": x, **extra, "applied": applied, "measured": median, "sd": sd,
              "n_frames": n, "used": used}
     return Validation(
         test=test, pauses=table, rmse=float(np.sqrt(np.mean(residual**2))),
