@@ -242,7 +242,9 @@ def simulate_run(
 
     ``scene`` is in the lab frame; with ``travel_sign`` -1 the stage travels
     in -x. ``steps`` and the ``schedule_*`` arrays stay in the travel frame
-    (x -> -x), where every scene is solved.
+    (x -> -x), where every scene is solved. Without a ``protocol``, test 1 and
+    2 take their own (:data:`TEST1_PROTOCOL`, :data:`TEST2_PROTOCOL`), other
+    kinds the default.
     """
     if travel_sign not in (1.0, -1.0):
         raise ValueError(f"travel_sign must be +1 or -1, got {travel_sign}")
