@@ -1,7 +1,8 @@
 """Linear-stage logs: parse and validate, find pauses, estimate the clock offset, pause medians.
 
 A stage log (docs/sensor.md section 7) is a CSV with header ``t_s,x_mm`` and an
-optional ``r_mm``, on the stage's own clock. The camera's signal table
+optional ``r_mm`` (known contact distance) and ``dz_mm`` (applied axial
+deflection), on the stage's own clock. The camera's signal table
 (section 6) has its own clock; ``offset_s`` below always means
 
     t_camera = t_stage + offset_s.
@@ -30,6 +31,8 @@ __all__ = [
     "estimate_offset",
     "pause_medians",
     "pause_index",
+    "pause_frames",
+    "log_pause_medians",
     "contact_onset_x",
     "MIN_PAUSE_S",
 ]
@@ -70,6 +73,7 @@ class StageLog:
     x_mm: np.ndarray
     r_mm: np.ndarray | None
     source: str
+    dz_mm: np.ndarray | None = None
 
     @property
     def travel_sign(self) -> float:
@@ -122,7 +126,8 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
     for need in ("t_s", "x_mm"):
         if need not in header:
             raise StageLogError(f"{path}: row 1: missing column {need!r} (header: {header})")
-    cols = {name: header.index(name) for name in ("t_s", "x_mm", "r_mm") if name in header}
+    cols = {name: header.index(name) for name in ("t_s", "x_mm", "r_mm", "dz_mm")
+            if name in header}
     data = {name: [] for name in cols}
     for i, row in enumerate(rows[1:], start=2):
         if not row or all(not c.strip() for c in row):
@@ -133,17 +138,18 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
             data[name].append(_number(row[j].strip(), f"{path}: row {i}, column {name}"))
     arrays = {k: np.array(v, float) for k, v in data.items()}
     return stage_log_from_arrays(arrays["t_s"], arrays["x_mm"], arrays.get("r_mm"),
-                                 source=str(path), max_gap_s=max_gap_s, first_row=2)
+                                 source=str(path), max_gap_s=max_gap_s, first_row=2,
+                                 dz_mm=arrays.get("dz_mm"))
 
 
 def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN_PAUSE_S,
-                          first_row=0) -> StageLog:
+                          first_row=0, dz_mm=None) -> StageLog:
     """Validate arrays as a stage log (see :func:`read_stage_log`); rows counted from first_row."""
     t = np.asarray(t_s, float)
     x = np.asarray(x_mm, float)
     if t.size < 2:
         raise StageLogError(f"{source}: needs at least 2 samples, got {t.size}")
-    if x.shape != t.shape or (r_mm is not None and np.shape(r_mm) != t.shape):
+    if x.shape != t.shape or any(v is not None and np.shape(v) != t.shape for v in (r_mm, dz_mm)):
         raise StageLogError(f"{source}: columns have different lengths")
     for name, v in (("t_s", t), ("x_mm", x)):
         bad = np.flatnonzero(~np.isfinite(v))
@@ -165,7 +171,8 @@ def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN
             f"(more than {max_gap_s} s without a sample)"
         )
     r = None if r_mm is None else np.asarray(r_mm, float)
-    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source)
+    dz = None if dz_mm is None else np.asarray(dz_mm, float)
+    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source, dz_mm=dz)
 
 
 @dataclass(frozen=True)
@@ -209,6 +216,25 @@ def pause_index(t_camera_s, pauses: Pauses, offset_s: float, trim_s: float):
     kc = np.clip(k, 0, None)
     inside = (k >= 0) & (t_stage <= pauses.t_end_s[kc] - trim_s) & np.isfinite(t_stage)
     return np.where(inside, k, -1)
+
+
+def pause_frames(t_camera_s, good, pauses: Pauses, offset_s: float) -> list[np.ndarray]:
+    """Indices of the ``good`` frames in each pause, :data:`PAUSE_TRIM_S` in from either end."""
+    idx = pause_index(t_camera_s, pauses, offset_s, PAUSE_TRIM_S)
+    order = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[order], np.arange(pauses.t_start_s.size + 1))
+    good = np.asarray(good, bool)
+    return [f[good[f]] for f in (order[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True))]
+
+
+def log_pause_medians(log: StageLog, values, pauses: Pauses) -> np.ndarray:
+    """Median of a log column (r_mm, dz_mm) over the samples of each pause; NaN without it."""
+    out = np.full(pauses.t_start_s.size, np.nan)
+    if values is None:
+        return out
+    for k, (a, b) in enumerate(zip(pauses.t_start_s, pauses.t_end_s, strict=True)):
+        out[k] = np.median(values[(log.t_s >= a) & (log.t_s <= b)])
+    return out
 
 
 def _explained(signal, pause_idx, n_pauses, x_frames, pause_x):
@@ -331,22 +357,15 @@ def pause_medians(log: StageLog, t_camera_s, phi_deg, dz_mm, ok, offset_s: float
     phi = np.asarray(phi_deg, float)
     dz = np.asarray(dz_mm, float)
     good = np.asarray(ok).astype(bool) & np.isfinite(phi) & np.isfinite(dz)
-    idx = pause_index(t, pauses, offset_s, PAUSE_TRIM_S)
     p = pauses.t_start_s.size
-    phi_med, dz_med, r_med = np.full(p, np.nan), np.full(p, np.nan), np.full(p, np.nan)
+    phi_med, dz_med = np.full(p, np.nan), np.full(p, np.nan)
     n = np.zeros(p, int)
-    order = np.argsort(idx, kind="stable")
-    bounds = np.searchsorted(idx[order], np.arange(p + 1))
-    for k in range(p):
-        frames = order[bounds[k]:bounds[k + 1]]
-        frames = frames[good[frames]]
+    for k, frames in enumerate(pause_frames(t, good, pauses, offset_s)):
         n[k] = frames.size
         if frames.size >= MIN_PAUSE_FRAMES:
             phi_med[k] = np.median(phi[frames])
             dz_med[k] = np.median(dz[frames])
-        if log.r_mm is not None:
-            inside = (log.t_s >= pauses.t_start_s[k]) & (log.t_s <= pauses.t_end_s[k])
-            r_med[k] = np.median(log.r_mm[inside])
+    r_med = log_pause_medians(log, log.r_mm, pauses)
     return PauseTable(
         t_start_s=pauses.t_start_s + offset_s, t_end_s=pauses.t_end_s + offset_s,
         x_mm=pauses.x_mm, phi_deg=phi_med, dz_mm=dz_med, r_mm=r_med, n_frames=n,

@@ -23,7 +23,8 @@ def add_simulate_stage(sub) -> None:
     )
 
     p = sub.add_parser("simulate-stage", help="simulate a stage experiment (mechanics) to files")
-    p.add_argument("--kind", required=True, choices=KINDS)
+    p.add_argument("--kind", required=True, choices=KINDS,
+                   help="test1 and test2: the paper's accuracy tests, for `camwhisker validate`")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise-phi-deg", type=float, default=PAPER_NOISE_PHI_DEG,

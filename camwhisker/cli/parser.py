@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import batch, bench, contact, live, overlay, synth
+from camwhisker.cli import batch, bench, contact, live, overlay, synth, validate
 from camwhisker.cli.common import INPUT_ERRORS
 
 __all__ = ["build_parser", "main"]
@@ -22,6 +22,7 @@ _COMMANDS = [
     contact.add_simulate_stage,
     contact.add_calibrate,
     contact.add_contact,
+    validate.add_validate,
     bench.add_contact_bench,
     batch.add_batch,
     overlay.add_overlay,

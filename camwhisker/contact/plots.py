@@ -24,14 +24,15 @@ from camwhisker import __version__  # noqa: E402
 from camwhisker.atomic import atomic_write_bytes  # noqa: E402
 from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
 
-__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes"]
+__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "save_figure"]
 
 
 #: Share of the figure's height kept above the axes for the provenance line.
 HEADER_HEIGHT = 0.035
 
 
-def _save(fig, path, how: str) -> None:
+def save_figure(fig, path, how: str) -> None:
+    """Write ``fig`` as a PNG at ``path`` (atomically) under a line saying ``how`` it was made."""
     # The panels (constrained layout, legends below them included) end under a strip
     # that says how the figure was made.
     fig.get_layout_engine().set(rect=(0, 0, 1, 1 - HEADER_HEIGHT))
@@ -68,7 +69,7 @@ def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
     ax.set_ylabel("r (mm)")
     ax.set_title(f"GM model vs calibration data (used: {calib.gm.kind})")
     ax.legend(loc="lower right")
-    _save(fig, path, how or "GM model vs data (Fig. 7A)")
+    save_figure(fig, path, how or "GM model vs data (Fig. 7A)")
 
 
 def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
@@ -84,7 +85,7 @@ def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_ylabel("r - r_hat (mm)")
     ax.set_title("Contact distance error (Fig. 8)")
-    _save(fig, path, how or "error boxes (Fig. 8)")
+    save_figure(fig, path, how or "error boxes (Fig. 8)")
 
 
 def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
@@ -127,4 +128,4 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
             entries.setdefault(label, handle)
     fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=4,
                fontsize=8)  # fmt: skip
-    _save(fig, path, how or "shape reconstruction (Fig. 9)")
+    save_figure(fig, path, how or "shape reconstruction (Fig. 9)")

@@ -5,6 +5,8 @@
 - :mod:`~camwhisker.mechanics.scenes`: pegs (rigid, compliant); a tilted box with
   Coulomb friction (stick at its corner, then slip up its face); a bottle whose
   side the whisker slides down, tangent to it; quasi-static sweeps of the base.
+- :mod:`~camwhisker.mechanics.rigid`: the rigid whisker of the paper's accuracy
+  tests (its rotation from the stage geometry, an axial push).
 - :mod:`~camwhisker.mechanics.experiment`: stage runs with clocks, noise, truth.
 - :mod:`~camwhisker.mechanics.files`: writing runs to CSV files.
 """

@@ -13,8 +13,12 @@ Kinds (see :data:`KINDS`): ``rigid`` (pegs at the paper's radii), ``compliant``
 (pegs on springs, the paper's pipe cleaner radii), ``slide-box`` (a tilted box:
 stick at its corner, then Coulomb slip up its face), ``slide-circle`` (a water
 bottle swept past on both sides, the stage travelling +x then -x: the whisker's
-side slides down the bottle), and ``eq8`` (phi generated from eq. (8) with
-C = 132 instead of mechanics, so C recovery can be tested).
+side slides down the bottle), ``eq8`` (phi generated from eq. (8) with
+C = 132 instead of mechanics, so C recovery can be tested), and the paper's
+accuracy tests of Sec. III-A on a rigid whisker (:mod:`camwhisker.mechanics.rigid`):
+``test1`` (stepped past a contact at a known r, phi 0-18 deg, the stage log
+carries ``r_mm``) and ``test2`` (pushed along its axis in known dz steps of
+0-1 mm, the stage log carries the applied ``dz_mm``), two trials each.
 
 Every scene is solved with the stage travelling +x (:mod:`camwhisker.mechanics.scenes`);
 a run in -x solves the mirrored scene and maps x back, so its stage log, truth
@@ -33,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from camwhisker.eq8 import eq8_phi_deg
+from camwhisker.mechanics.rigid import AxialPush, axial_push_sweep, rigid_peg_sweep
 from camwhisker.mechanics.scenes import BoxScene, CircleScene, PegScene, Sweep, sweep
 from camwhisker.mechanics.whisker import WhiskerMechanics, beam_dz_from_phi
 
@@ -83,7 +88,7 @@ BOTTLE = CircleScene(0.0, 55.0, 45.0)
 PAPER_NOISE_PHI_DEG, PAPER_NOISE_DZ_MM = 0.22, 0.04
 FRONT_END_NOISE_PHI_DEG, FRONT_END_NOISE_DZ_MM = 0.05, 0.02
 
-KINDS = ("rigid", "compliant", "slide-box", "slide-circle", "eq8")
+KINDS = ("rigid", "compliant", "slide-box", "slide-circle", "eq8", "test1", "test2")
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,17 @@ PAPER_NOISE = NoiseModel()
 FRONT_END_NOISE = NoiseModel(phi_deg=FRONT_END_NOISE_PHI_DEG, dz_mm=FRONT_END_NOISE_DZ_MM)
 NOISE_LEVELS = {"paper": PAPER_NOISE, "front-end": FRONT_END_NOISE}
 
+# Test 1: two trials at known contact distances, 1 mm steps from one pause before
+# touch until phi reaches 18 deg (the paper's range).
+TEST1_RADII_MM = (30.0, 40.0)
+TEST1_PROTOCOL = StageProtocol(approach_steps=1, phi_stop_deg=18.0)
+# Test 2: two trials of 0.1 mm dz steps from touch to 1 mm (the paper's range; its
+# manual stage is good to 0.05 mm); the stage reads TEST2_TOUCH_X_MM at touch.
+TEST2_TRIALS = 2
+TEST2_PROTOCOL = StageProtocol(step_mm=0.1, approach_steps=0, max_travel_mm=1.0)
+TEST2_TOUCH_X_MM = 25.0
+_PROTOCOLS = {"test1": TEST1_PROTOCOL, "test2": TEST2_PROTOCOL}
+
 
 @dataclass
 class StageRun:
@@ -145,6 +161,10 @@ def _scenes(kind: str):
         return [("box", BoxScene(0.0, 40.0, face_angle_deg=78.0, mu=BOX_MU), 1.0)]
     if kind == "slide-circle":
         return [("left", BOTTLE, 1.0), ("right", BOTTLE, -1.0)]
+    if kind == "test1":
+        return [(f"r{r:g}", PegScene(r), 1.0) for r in TEST1_RADII_MM]
+    if kind == "test2":
+        return [(f"trial{i + 1}", AxialPush(TEST2_TOUCH_X_MM), 1.0) for i in range(TEST2_TRIALS)]
     raise ValueError(f"unknown experiment kind {kind!r} (known: {', '.join(KINDS)})")
 
 
@@ -182,6 +202,17 @@ def _eq8_sweep(scene: PegScene, mech: WhiskerMechanics, positions, c: float) -> 
     )
 
 
+def _steps(kind: str, scene, mech: WhiskerMechanics, positions, model: str, c: float) -> Sweep:
+    """The equilibria of a run's stage positions, by the model its kind stands for."""
+    if kind == "eq8":
+        return _eq8_sweep(scene, mech, positions, c)
+    if kind == "test1":
+        return rigid_peg_sweep(scene, mech, positions)
+    if kind == "test2":
+        return axial_push_sweep(scene, mech, positions)
+    return _cached_sweep(scene, mech, positions, model)
+
+
 def _schedule(n_steps, x_start, protocol: StageProtocol, rng):
     """Breakpoints (t, x) of the piecewise-linear stage motion, true time from 0."""
     t, x = [0.0, protocol.rest_s], [x_start, x_start]
@@ -211,12 +242,14 @@ def simulate_run(
 
     ``scene`` is in the lab frame; with ``travel_sign`` -1 the stage travels
     in -x. ``steps`` and the ``schedule_*`` arrays stay in the travel frame
-    (x -> -x), where every scene is solved.
+    (x -> -x), where every scene is solved. Without a ``protocol``, test 1 and
+    2 take their own (:data:`TEST1_PROTOCOL`, :data:`TEST2_PROTOCOL`), other
+    kinds the default.
     """
     if travel_sign not in (1.0, -1.0):
         raise ValueError(f"travel_sign must be +1 or -1, got {travel_sign}")
     mech = mech or WhiskerMechanics()
-    protocol = protocol or StageProtocol()
+    protocol = protocol or _PROTOCOLS.get(kind, StageProtocol())
     noise = noise or NoiseModel()
     lab_scene = scene
     if travel_sign < 0:
@@ -225,10 +258,7 @@ def simulate_run(
     x_start = x_first - protocol.approach_steps * protocol.step_mm
     n_max = protocol.approach_steps + int(round(protocol.max_travel_mm / protocol.step_mm))
     positions = tuple(float(v) for v in x_start + protocol.step_mm * np.arange(n_max + 1))
-    if kind == "eq8":
-        steps = _eq8_sweep(scene, mech, positions, c)
-    else:
-        steps = _cached_sweep(scene, mech, positions, model)
+    steps = _steps(kind, scene, mech, positions, model, c)
     stop = np.flatnonzero(~(steps.phi_deg < protocol.phi_stop_deg))  # also stops at NaN
     n_steps = int(stop[0]) if stop.size else n_max
     sched_t, sched_x = _schedule(n_steps, x_start, protocol, rng)
@@ -255,6 +285,10 @@ def simulate_run(
     if kind in ("rigid", "eq8"):
         stage["r_mm"] = along_x(steps.r_mm, x_stage)
         stage["r_mm"] = np.where(np.isfinite(stage["r_mm"]), stage["r_mm"], scene.r_mm)
+    if kind == "test1":  # the paper's r (along the rest axis) stays put for a rigid whisker
+        stage["r_mm"] = np.full(x_stage.shape, scene.r_mm)
+    if kind == "test2":
+        stage["dz_mm"] = signal_arrays_from(steps, used, x_stage)["dz_mm"]
 
     n_frames = int(math.floor(duration * protocol.fps)) + 1
     t_cam = np.arange(n_frames) / protocol.fps

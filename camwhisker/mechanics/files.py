@@ -42,7 +42,8 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
         "",
     ]
     for run in runs:
-        stage_cols = {k: run.stage[k] for k in ("t_s", "x_mm", "r_mm") if k in run.stage}
+        stage_cols = {k: run.stage[k] for k in ("t_s", "x_mm", "r_mm", "dz_mm")
+                      if k in run.stage}
         write_csv(out / f"{run.name}_stage.csv", stage_cols, digits=10)
         sig = run.signals
         write_csv(out / f"{run.name}_signals.csv",

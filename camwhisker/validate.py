@@ -1,0 +1,328 @@
+"""The paper's accuracy tests (Sec. III-A, Fig. 6 A/B): applied against measured phi or dz.
+
+From one trial's signal table (docs/sensor.md section 6) and stage log
+(section 7):
+
+- **Test 1** steps a rigid whisker along x past a rigid contact at a known
+  radial distance r (the log's ``r_mm``). The applied rotation follows from
+  the geometry, tan(phi) = dx / r
+  (:func:`camwhisker.mechanics.rigid.rigid_phi_deg`, the simulator's own), with
+  dx the travel since first contact: given, or where the pause medians of phi
+  extrapolate to zero (:func:`camwhisker.stage.contact_onset_x`).
+- **Test 2** applies known dz steps (the log's ``dz_mm``).
+
+Per stage pause (:func:`camwhisker.stage.detect_pauses`, with the clock offset
+given or estimated from the tested signal) the applied value is the log's
+median over the pause and the measured value the median of the trusted frames
+in it (the paper: "all data were collected during pauses"), their standard
+deviation the error bar. The RMSE is that of every trusted frame against its
+pause's applied value, as the paper's 0.22 deg and 0.04 mm; the slope and
+intercept are a least-squares line through the pause medians.
+
+References
+----------
+Sec. III-A and Fig. 6 A/B of the seed paper: "Identifying Contact Distance
+Uncertainty in Whisker Sensing with Tapered, Flexible Whiskers".
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.atomic import atomic_write_text
+from camwhisker.mechanics.rigid import rigid_phi_deg
+from camwhisker.sensor import Sensor, sensor_to_dict
+from camwhisker.stage import (
+    MIN_PAUSE_FRAMES,
+    MIN_PAUSE_S,
+    PAUSE_TRIM_S,
+    Pauses,
+    StageLog,
+    contact_onset_x,
+    detect_pauses,
+    estimate_offset,
+    log_pause_medians,
+    pause_frames,
+)
+from camwhisker.tables import write_csv
+
+__all__ = ["TESTS", "ValidationError", "Validation", "validate", "write_validation",
+           "plot_validation"]
+
+
+@dataclass(frozen=True)
+class _Test:
+    quantity: str  # the signal table's column that the test moves
+    symbol: str
+    unit: str
+    figure: str  # the paper's panel
+    applied_from: str
+
+
+#: The two tests: what each applies and measures.
+TESTS = {
+    1: _Test("phi_deg", "phi", "deg", "6A",
+             "phi = atan(dx / r): a rigid whisker pivoting on its base through a contact r "
+             "along its rest axis, dx the stage travel since first contact (paper Sec. III-A, "
+             "test 1; r as in Fig. 1)"),
+    2: _Test("dz_mm", "dz", "mm", "6B",
+             "dz: the stage log's dz_mm, median over each pause (paper Sec. III-A, test 2)"),
+}
+
+
+class ValidationError(ValueError):
+    """Input that cannot give a validation; the message names the file."""
+
+
+@dataclass(frozen=True)
+class Validation:
+    """One trial of test 1 or 2: per-pause applied and measured values and their statistics.
+
+    ``pauses`` holds arrays of shape (P,), one entry per stage pause: ``t_start_s``,
+    ``t_end_s`` (camera clock), ``x_mm`` (the stage's median over the pause),
+    ``applied``, ``measured`` (median), ``sd`` (of the frames), ``n_frames``,
+    ``used`` (enough trusted frames and an applied value), and for test 1
+    ``r_mm`` and ``dx_mm``. The statistics are
+    over the used pauses: ``rmse`` and ``bias`` of the frames against their
+    pause's applied value, ``rmse_medians`` of the medians, ``slope`` and
+    ``intercept`` of medians against applied (NaN if applied never varies).
+    """
+
+    test: int
+    pauses: dict
+    rmse: float
+    bias: float
+    rmse_medians: float
+    slope: float
+    intercept: float
+    n_frames: int
+    offset_s: float
+    offset_estimated: bool
+    offset_score: float
+    x_contact_mm: float
+    x_contact_estimated: bool
+    signals_source: str
+    stage_source: str
+
+    @property
+    def spec(self) -> _Test:
+        return TESTS[self.test]
+
+    def statistics(self) -> dict:
+        """The summary numbers, named with their unit."""
+        u = self.spec.unit
+        return {f"rmse_{u}": self.rmse, f"bias_{u}": self.bias,
+                f"rmse_medians_{u}": self.rmse_medians, "slope": self.slope,
+                f"intercept_{u}": self.intercept, "pauses_used": int(self.pauses["used"].sum()),
+                "pauses_found": int(self.pauses["used"].size), "frames_used": self.n_frames}
+
+
+def _check_log(log: StageLog, test: int) -> Pauses:
+    if test not in TESTS:
+        raise ValidationError(f"test must be 1 or 2, got {test!r}")
+    column = {1: "r_mm", 2: "dz_mm"}[test]
+    if getattr(log, column) is None:
+        raise ValidationError(f"{log.source}: test {test} needs the stage log's {column} column "
+                              "(docs/sensor.md section 7)")
+    pauses = detect_pauses(log)
+    if pauses.t_start_s.size == 0:
+        raise ValidationError(f"{log.source}: no pauses: the stage never stands still for "
+                              f"{MIN_PAUSE_S:g} s")
+    return pauses
+
+
+def _clock(signals: dict, log: StageLog, measured, offset_s):
+    """(offset_s, estimated, score): the given offset, else estimated from the tested signal."""
+    if offset_s is not None:
+        return float(offset_s), False, math.nan
+    # The one signal that the test moves; the other holds only noise.
+    offset, score = estimate_offset(log, signals["t_s"], measured)
+    if not math.isfinite(offset):
+        raise ValidationError(f"{log.source}: cannot estimate the clock offset (fewer than 2 "
+                              "pauses); give it")
+    return offset, True, score
+
+
+def _applied_phi(log: StageLog, pauses: Pauses, x, median, x_contact_mm):
+    """Test 1: (phi applied, extra columns, x_contact_mm, estimated) per pause at positions x."""
+    sign = log.travel_sign
+    estimated = x_contact_mm is None
+    x0 = contact_onset_x(x, median, sign) if estimated else float(x_contact_mm)
+    if not math.isfinite(x0):
+        raise ValidationError(f"{log.source}: no contact seen (phi never reaches "
+                              "the onset threshold in a pause); give the contact position")
+    r = log_pause_medians(log, log.r_mm, pauses)
+    dx = sign * (x - x0)
+    return rigid_phi_deg(r, dx), {"r_mm": r, "dx_mm": dx}, x0, estimated
+
+
+def _per_pause(stat, values, frames, enough) -> np.ndarray:
+    """``stat`` of the values of each pause's frames where there are ``enough``, else NaN."""
+    return np.array([stat(values[f]) if ok else np.nan
+                     for f, ok in zip(frames, enough, strict=True)])
+
+
+def _line(applied, median):
+    """Least-squares slope and intercept of median on applied; NaN where applied never varies."""
+    if np.ptp(applied) == 0.0:
+        return math.nan, math.nan
+    slope, intercept = np.polyfit(applied, median, 1)
+    return float(slope), float(intercept)
+
+
+def validate(signals: dict, log: StageLog, test: int, offset_s: float | None = None,
+             x_contact_mm: float | None = None) -> Validation:
+    """Applied against measured phi (test 1) or dz (test 2), pause by pause.
+
+    Parameters
+    ----------
+    signals : dict
+        A signal table as :func:`camwhisker.signals.read_signal_table` gives it.
+    log : StageLog
+        The trial's stage log, with ``r_mm`` (test 1) or ``dz_mm`` (test 2).
+    test : {1, 2}
+    offset_s : float, optional
+        Known clock offset, t_camera = t_stage + offset_s; default: estimated.
+    x_contact_mm : float, optional
+        Test 1: stage position at first contact; default: from the pause medians.
+
+    Raises
+    ------
+    ValidationError
+        A missing column, no pauses, no offset or contact found, or fewer than
+        two pauses with :data:`~camwhisker.stage.MIN_PAUSE_FRAMES` trusted frames.
+    """
+    pauses = _check_log(log, test)
+    spec = TESTS[test]
+    t = np.asarray(signals["t_s"], float)
+    measured = np.asarray(signals[spec.quantity], float)
+    good = np.asarray(signals["ok"], bool) & np.isfinite(measured)
+    offset, estimated, score = _clock(signals, log, np.where(good, measured, np.nan), offset_s)
+    frames = pause_frames(t, good, pauses, offset)
+    n = np.array([f.size for f in frames])
+    enough = n >= MIN_PAUSE_FRAMES
+    median = _per_pause(np.median, measured, frames, enough)
+    sd = _per_pause(lambda v: np.std(v, ddof=1), measured, frames, enough)
+    # The stage's position over each pause: a pause's first sample may still be
+    # finishing the step (within the stationary tolerance).
+    x = log_pause_medians(log, log.x_mm, pauses)
+    extra, x0, x0_estimated = {}, math.nan, False
+    if test == 1:
+        applied, extra, x0, x0_estimated = _applied_phi(log, pauses, x, median, x_contact_mm)
+    else:
+        applied = log_pause_medians(log, log.dz_mm, pauses)
+    used = enough & np.isfinite(applied)
+    if used.sum() < 2:
+        raise ValidationError(f"{signals.get('source', '<signals>')}: {int(used.sum())} of the "
+                              f"{used.size} pauses of {log.source} hold {MIN_PAUSE_FRAMES} or "
+                              "more trusted frames; need 2 (is the clock offset right?)")
+    residual = np.concatenate([measured[frames[k]] - applied[k] for k in np.flatnonzero(used)])
+    slope, intercept = _line(applied[used], median[used])
+    table = {"t_start_s": pauses.t_start_s + offset, "t_end_s": pauses.t_end_s + offset,
+             "x_mm": x, **extra, "applied": applied, "measured": median, "sd": sd,
+             "n_frames": n, "used": used}
+    return Validation(
+        test=test, pauses=table, rmse=float(np.sqrt(np.mean(residual**2))),
+        bias=float(np.mean(residual)),
+        rmse_medians=float(np.sqrt(np.mean((median[used] - applied[used]) ** 2))),
+        slope=slope, intercept=intercept, n_frames=int(residual.size), offset_s=offset,
+        offset_estimated=estimated, offset_score=score, x_contact_mm=x0,
+        x_contact_estimated=x0_estimated, signals_source=str(signals.get("source", "<signals>")),
+        stage_source=log.source,
+    )
+
+
+def _pause_columns(result: Validation) -> dict:
+    """The per-pause CSV's columns, named with the tested quantity and its unit."""
+    p, s = result.pauses, result.spec
+    cols = {"pause": np.arange(p["x_mm"].size), "t_start_s": p["t_start_s"],
+            "t_end_s": p["t_end_s"], "x_mm": p["x_mm"]}
+    cols.update({k: p[k] for k in ("r_mm", "dx_mm") if k in p})
+    cols[f"{s.symbol}_applied_{s.unit}"] = p["applied"]
+    cols[f"{s.symbol}_measured_{s.unit}"] = p["measured"]
+    cols[f"{s.symbol}_sd_{s.unit}"] = p["sd"]
+    cols["n_frames"] = p["n_frames"]
+    cols["used"] = p["used"].astype(int)
+    return cols
+
+
+def _no_nan(value):
+    """``value`` with every non-finite float as None (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _no_nan(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_validation(result: Validation, out_dir: str | Path, sensor: Sensor | None = None,
+                     command: str = "") -> dict:
+    """Write ``test<N>_pauses.csv``, ``test<N>.json`` and the figure ``fig<6A|6B>.png``.
+
+    The JSON says how the result was made: package version, command, time,
+    inputs, sensor file, clock offset, contact position, how the applied values
+    were found, the constants of the pause detection, and the statistics.
+    Returns the written paths by role (``pauses``, ``summary``, ``plot``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    spec = result.spec
+    paths = {"pauses": out / f"test{result.test}_pauses.csv",
+             "summary": out / f"test{result.test}.json",
+             "plot": out / f"fig{spec.figure.lower()}.png"}
+    write_csv(paths["pauses"], _pause_columns(result))
+    plot_validation(result, paths["plot"], command or f"camwhisker.validate, test {result.test}")
+    record = {
+        "camwhisker_version": __version__,
+        "made_by": "camwhisker.validate.write_validation",
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "test": result.test,
+        "quantity": spec.quantity,
+        "applied_from": spec.applied_from,
+        "inputs": {"signals": result.signals_source, "stage": result.stage_source},
+        "sensor_file": None if sensor is None else sensor.source,
+        "sensor": None if sensor is None else sensor_to_dict(sensor),
+        "clock_offset_s": result.offset_s,
+        "clock_offset_estimated": result.offset_estimated,
+        "clock_offset_score": result.offset_score,
+        "x_contact_mm": result.x_contact_mm,
+        "x_contact_estimated": result.x_contact_estimated,
+        "constants": {"MIN_PAUSE_S": MIN_PAUSE_S, "PAUSE_TRIM_S": PAUSE_TRIM_S,
+                      "MIN_PAUSE_FRAMES": MIN_PAUSE_FRAMES},
+        "statistics": result.statistics(),
+        "files": {k: p.name for k, p in paths.items()},
+    }
+    atomic_write_text(paths["summary"], json.dumps(_no_nan(record), indent=2, default=str) + "\n")
+    return paths
+
+
+def plot_validation(result: Validation, path: str | Path, how: str = "") -> None:
+    """Fig. 6 A/B: measured against applied per pause, sd error bars, identity line, RMSE."""
+    import matplotlib.pyplot as plt
+
+    from camwhisker.contact.plots import save_figure  # selects the Agg backend
+
+    spec, p = result.spec, result.pauses
+    used = p["used"]
+    fig, ax = plt.subplots(figsize=(5.2, 5.0), layout="constrained")
+    lo = float(min(p["applied"][used].min(), p["measured"][used].min()))
+    hi = float(max(p["applied"][used].max(), p["measured"][used].max()))
+    ax.plot([lo, hi], [lo, hi], "-", color="0.6", lw=1, label="measured = applied")
+    ax.errorbar(p["applied"][used], p["measured"][used], yerr=p["sd"][used], fmt="o", ms=4,
+                capsize=3, color="C0", label="pause median, ±1 sd of its frames")
+    ax.set_xlabel(f"applied {spec.symbol} ({spec.unit})")
+    ax.set_ylabel(f"measured {spec.symbol} ({spec.unit})")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"Fig. {spec.figure}: test {result.test}, RMSE {result.rmse:.3g} {spec.unit}\n"
+                 f"slope {result.slope:.4f}, {int(used.sum())} pauses, {result.n_frames} frames",
+                 fontsize=10)
+    ax.legend(loc="upper left", fontsize=8)
+    save_figure(fig, path, how or f"Fig. {spec.figure} (test {result.test})")
