@@ -271,42 +271,14 @@ def simulate_run(
     x_stage = np.interp(t_stage_true, sched_t, sched_x)
     stage = {"t_s": t_stage_true - offset_s, "x_mm": travel_sign * x_stage}
     used = slice(0, n_steps + 1)
-    xs_used = steps.base_x_mm[used]
-    contact_used = steps.in_contact[used]
-
-    def along_x(values, x):
-        v = np.asarray(values, float)[used]
-        good = contact_used & np.isfinite(v)
-        if not good.any():
-            return np.full(np.shape(x), np.nan)
-        out = np.interp(x, xs_used[good], v[good])
-        return np.where(x > x_first, out, np.nan)
-
-    if kind in ("rigid", "eq8"):
-        stage["r_mm"] = along_x(steps.r_mm, x_stage)
-        stage["r_mm"] = np.where(np.isfinite(stage["r_mm"]), stage["r_mm"], scene.r_mm)
-    if kind == "test1":  # the paper's r (along the rest axis) stays put for a rigid whisker
-        stage["r_mm"] = np.full(x_stage.shape, scene.r_mm)
-    if kind == "test2":
-        stage["dz_mm"] = signal_arrays_from(steps, used, x_stage)["dz_mm"]
+    stage.update(_known_columns(kind, scene, steps, used, x_first, x_stage))
 
     n_frames = int(math.floor(duration * protocol.fps)) + 1
     t_cam = np.arange(n_frames) / protocol.fps
     x_cam = np.interp(t_cam, sched_t, sched_x)
     clean = signal_arrays_from(steps, used, x_cam)
     theta_deg = theta_deg_for(travel_sign)
-    truth = {
-        "t_s": t_cam,
-        "x_mm": travel_sign * x_cam,
-        "dx_mm": np.clip(x_cam - x_first, 0.0, None),
-        "phi_deg": clean["phi_deg"],
-        "dz_mm": clean["dz_mm"],
-        "r_mm": along_x(steps.r_mm, x_cam),
-        "contact_x_mm": travel_sign * along_x(steps.contact_x_mm, x_cam),
-        "contact_y_mm": along_x(steps.contact_y_mm, x_cam),
-        "in_contact": (x_cam > x_first).astype(int),
-        "slipping": np.interp(x_cam, xs_used, steps.slipping[used].astype(float)) > 0.5,
-    }
+    truth = _truth(steps, used, x_first, t_cam, x_cam, clean, travel_sign)
     signals = _measure(clean["phi_deg"], clean["dz_mm"], theta_deg, noise, rng)
     signals = {"frame": np.arange(n_frames), "t_s": t_cam, **signals}
     return StageRun(
@@ -317,6 +289,45 @@ def simulate_run(
               "theta_deg": theta_deg, "model": model,
               "noise": noise.__dict__, "protocol": protocol.__dict__, "mechanics": mech.__dict__},
     )
+
+
+def _along_x(steps: Sweep, used, x_first: float, values, x):
+    """A per-step quantity at base positions x, from the steps in contact (NaN before)."""
+    v = np.asarray(values, float)[used]
+    good = steps.in_contact[used] & np.isfinite(v)
+    if not good.any():
+        return np.full(np.shape(x), np.nan)
+    out = np.interp(x, steps.base_x_mm[used][good], v[good])
+    return np.where(x > x_first, out, np.nan)
+
+
+def _known_columns(kind: str, scene, steps: Sweep, used, x_first: float, x_stage):
+    """The stage log's known values: r_mm (rigid, eq8, test 1) or the applied dz_mm (test 2)."""
+    if kind in ("rigid", "eq8"):
+        r_mm = _along_x(steps, used, x_first, steps.r_mm, x_stage)
+        return {"r_mm": np.where(np.isfinite(r_mm), r_mm, scene.r_mm)}
+    if kind == "test1":  # the paper's r (along the rest axis) stays put for a rigid whisker
+        return {"r_mm": np.full(x_stage.shape, scene.r_mm)}
+    if kind == "test2":
+        return {"dz_mm": signal_arrays_from(steps, used, x_stage)["dz_mm"]}
+    return {}
+
+
+def _truth(steps: Sweep, used, x_first: float, t_cam, x_cam, clean, travel_sign: float):
+    """The camera-clock truth table of a run (lab frame)."""
+    return {
+        "t_s": t_cam,
+        "x_mm": travel_sign * x_cam,
+        "dx_mm": np.clip(x_cam - x_first, 0.0, None),
+        "phi_deg": clean["phi_deg"],
+        "dz_mm": clean["dz_mm"],
+        "r_mm": _along_x(steps, used, x_first, steps.r_mm, x_cam),
+        "contact_x_mm": travel_sign * _along_x(steps, used, x_first, steps.contact_x_mm, x_cam),
+        "contact_y_mm": _along_x(steps, used, x_first, steps.contact_y_mm, x_cam),
+        "in_contact": (x_cam > x_first).astype(int),
+        "slipping": np.interp(x_cam, steps.base_x_mm[used], steps.slipping[used].astype(float))
+        > 0.5,
+    }
 
 
 def signal_arrays_from(steps: Sweep, used, x_mm):
