@@ -67,13 +67,14 @@ def scene(tmp_path_factory):
     while (got := cap.read())[0]:
         frames.append(got[1])
     fe = FrontEnd(sensor)
-    results, qs = [fe.start(frames[0], 0)], [np.zeros(5)]
+    results, qs, fe_qs = [fe.start(frames[0], 0)], [np.zeros(5)], [fe.q.copy()]
     for i, frame in enumerate(frames[1:], 1):
         results.append(fe.update(frame, i))
         qs.append(pose_vector(results[-1], fe.q))
+        fe_qs.append(fe.q.copy())
     truth = scenario.track  # the truth file leaves theta empty at phi = 0
     return {"paths": paths, "sensor": sensor, "frames": frames, "results": results, "qs": qs,
-            "model": fe.model, "truth": truth}  # fmt: skip
+            "fe_qs": fe_qs, "model": fe.model, "truth": truth}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -183,6 +184,16 @@ def test_untracked_point_is_crossed_where_expected_and_arrows_scale(scene):
         beyond_uv = rest.points_uv[N_SQUARE] + [scale + 3.0, 0.0]
         assert _lit(image, tip_uv, ARROW_BGR, radius_px=0)
         assert not _lit(image, beyond_uv, ARROW_BGR, radius_px=1)
+
+
+def test_result_carries_the_fitted_pose(scene):
+    """FrameResult.q is the front end's fit: zeros at rest, its pose after each update
+    (theta unmasked, so small tilts keep their direction), NaN with no fit."""
+    assert np.array_equal(scene["results"][0].q, np.zeros(5))
+    for result, fe_q in zip(scene["results"], scene["fe_qs"], strict=True):
+        assert result.ok
+        np.testing.assert_array_equal(result.q, fe_q)
+    assert np.isnan(FrameResult.untrusted(7, "lost").q).all()
 
 
 def test_pose_vector_and_status_line(scene):

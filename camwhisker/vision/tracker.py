@@ -157,7 +157,9 @@ class FrontEndOptions:
 class FrameResult:
     """One frame's estimate. Values are NaN where untrusted; theta also where
     phi < PHI_MIN_FOR_THETA_DEG. ``points_uv`` (13, 2) and ``quality`` (13,)
-    are the tracked points; ``paper`` holds (dz_mm, phi_deg, theta_deg) of eqs. 2-7."""
+    are the tracked points; ``paper`` holds (dz_mm, phi_deg, theta_deg) of eqs. 2-7.
+    ``q`` (5,) is the fitted pose (dz_mm, a_rad, b_rad, sx_mm, sy_mm) whether trusted or
+    not, NaN where no fit converged, zeros at the rest frame; theta is not masked in it."""
 
     frame: int
     dz_mm: float
@@ -174,10 +176,12 @@ class FrameResult:
     reason: str = ""
     points_uv: np.ndarray = field(default_factory=lambda: np.full((TIP + 1, 2), np.nan))
     quality: np.ndarray = field(default_factory=lambda: np.full(TIP + 1, np.nan))
+    q: np.ndarray = field(default_factory=lambda: np.full(5, np.nan))
 
     @classmethod
     def untrusted(cls, frame: int, reason: str) -> FrameResult:
-        """A row with no estimate: every value NaN, ``ok`` False, ``reason`` saying why."""
+        """A row with no estimate: every value (``q`` too) NaN, ``ok`` False, ``reason``
+        saying why."""
         nan3 = (math.nan,) * 3
         return cls(frame, math.nan, math.nan, math.nan, False, nan3, nan3, reason=reason)
 
@@ -310,7 +314,7 @@ class FrontEnd:
         self._refine(look, self._templates(self.q), self.rest.uv[:TIP], np.ones(TIP, bool))
         return FrameResult(
             index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
-            0.0, 0.0, 0.0, 0.0, TIP, "", self.rest.uv.copy(), np.ones(TIP + 1),
+            0.0, 0.0, 0.0, 0.0, TIP, "", self.rest.uv.copy(), np.ones(TIP + 1), np.zeros(5),
         )  # fmt: skip
 
     rezero = start
@@ -726,6 +730,7 @@ class FrontEnd:
         return FrameResult(
             self._index, dz, phi, theta, ok, model, paper, pose.sx_mm, pose.sy_mm,
             math.degrees(fit.phi_sigma_rad), fit.rms_px, n_corners, reason, measured, quality,
+            fit.q.copy(),
         )  # fmt: skip
 
     def _fail(self, reason: str) -> FrameResult:
