@@ -9,7 +9,8 @@ define it. Batch, live and replay write the table through
 
 Beside ``OUT.csv``, the sidecar ``OUT.json`` records how the table was made
 (version, input, clock, rest frame, counts, problems, options, thresholds,
-sensor, columns), built by :func:`sidecar` for every writer.
+sensor, columns), built by :func:`sidecar` for every writer; its common part,
+:func:`provenance`, is every sidecar's (the overlay's too).
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "SIGNAL_COLUMNS", "REQUIRED_COLUMNS", "SignalTableError", "signal_row", "SignalWriter",
-    "write_signals", "read_signal_table", "sidecar_path", "sidecar", "write_sidecar",
+    "write_signals", "read_signal_table", "sidecar_path", "provenance", "sidecar",
+    "write_sidecar",
 ]  # fmt: skip
 
 #: Required columns first (SENSOR.md section 6), then diagnostics.
@@ -157,6 +159,43 @@ def sidecar_path(out_csv: str | Path) -> Path:
     return Path(out_csv).with_suffix(".json")
 
 
+def provenance(
+    made_by: str, source: object, options: FrontEndOptions, sensor: Sensor, **fields: object
+) -> dict:
+    """How an output was made, the keys every sidecar shares: the version, the maker, the
+    input, then ``fields``, then the front end's options and thresholds and the sensor.
+
+    Parameters
+    ----------
+    made_by : str
+        The function or class that wrote the output.
+    source : str or dict
+        The input (a path, or a capture's description).
+    options : FrontEndOptions
+    sensor : Sensor
+    **fields
+        The output's own fields, placed after ``input``.
+    """
+    # Imported here: readers of signal tables (the contact back end) need no front end.
+    from camwhisker.vision import tracker
+
+    return {
+        "camwhisker_version": __version__,
+        "made_by": made_by,
+        "input": source,
+        **fields,
+        "options": dataclasses.asdict(options),
+        "constants": {
+            "PHI_MIN_FOR_THETA_DEG": tracker.PHI_MIN_FOR_THETA_DEG,
+            "QUALITY_MIN": tracker.QUALITY_MIN,
+            "MIN_CORNERS": tracker.MIN_CORNERS,
+            "MAX_RMS_PX": tracker.MAX_RMS_PX,
+        },
+        "sensor_file": sensor.source,
+        "sensor": sensor_to_dict(sensor),
+    }
+
+
 def sidecar(
     made_by: str,
     source: object,
@@ -168,51 +207,29 @@ def sidecar(
     rest_frame: int = 0,
     **stage: object,
 ) -> dict:
-    """How a signal table was made: the sidecar's record, the same keys for every writer.
+    """How a signal table was made: the sidecar's record, the same keys for every writer
+    (:func:`provenance` with the table's fields and its columns).
 
     Parameters
     ----------
-    made_by : str
-        The function or class that wrote the table.
-    source : str or dict
-        The input (a path, or a capture's description).
+    made_by, source, options, sensor
+        As for :func:`provenance`.
     time_source : str
         Where t_s comes from.
     counts : (int, int)
         Rows and trusted rows.
     problems : list of str
         What went wrong without stopping the run (empty when nothing did).
-    options : FrontEndOptions
-    sensor : Sensor
     rest_frame : int
     **stage
         The writer's own fields (a frame rate, a live session's latencies), placed
         after ``time_source``.
     """
-    # Imported here: readers of signal tables (the contact back end) need no front end.
-    from camwhisker.vision import tracker
-
-    return {
-        "camwhisker_version": __version__,
-        "made_by": made_by,
-        "input": source,
-        "time_source": time_source,
-        **stage,
-        "rest_frame": rest_frame,
-        "frames": counts[0],
-        "frames_ok": counts[1],
-        "problems": problems,
-        "options": dataclasses.asdict(options),
-        "constants": {
-            "PHI_MIN_FOR_THETA_DEG": tracker.PHI_MIN_FOR_THETA_DEG,
-            "QUALITY_MIN": tracker.QUALITY_MIN,
-            "MIN_CORNERS": tracker.MIN_CORNERS,
-            "MAX_RMS_PX": tracker.MAX_RMS_PX,
-        },
-        "sensor_file": sensor.source,
-        "sensor": sensor_to_dict(sensor),
-        "columns": list(SIGNAL_COLUMNS),
-    }
+    record = provenance(made_by, source, options, sensor, time_source=time_source, **stage,
+                        rest_frame=rest_frame, frames=counts[0], frames_ok=counts[1],
+                        problems=problems)  # fmt: skip
+    record["columns"] = list(SIGNAL_COLUMNS)
+    return record
 
 
 def write_sidecar(out: str | Path, record: dict) -> Path:
