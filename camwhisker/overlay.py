@@ -7,7 +7,8 @@ forward model plus the rest offsets), each point's motion from its rest
 position drawn at 10x (as in the paper's Fig. 4), and a line of text with
 the pose. :func:`rest_check_image` draws the rest frame with every feature
 named, for a user to see that detection found the right things;
-:func:`write_rest_check` writes it. :func:`annotate_video` runs the front end
+:func:`write_rest_check` writes it (batch writes one beside each table).
+:func:`annotate_video` drives the streaming core (:func:`camwhisker.stream.stream`)
 over a video and writes the annotated video with a JSON sidecar.
 
 Pixels are (u, v): u to the right, v down, as everywhere in the package.
@@ -19,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
@@ -27,13 +29,14 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from camwhisker import __version__
-from camwhisker.atomic import atomic_path, atomic_write_bytes
+from camwhisker.atomic import atomic_write_bytes, atomic_write_text
 from camwhisker.model import N_SQUARE, POINT_NAMES, TIP, PlateModel
-from camwhisker.sensor import Sensor, sensor_to_dict
-from camwhisker.sources import open_source
+from camwhisker.sensor import Sensor
+from camwhisker.signals import provenance
+from camwhisker.sources import Frame, open_source
+from camwhisker.stream import stream
 from camwhisker.video_out import VIDEO_SUFFIXES, write_video
-from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
+from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
 __all__ = [
     "ARROW_SCALE",
@@ -46,6 +49,7 @@ __all__ = [
     "Placement",
     "OverlayReport",
     "pose_vector",
+    "is_rest_row",
     "status_line",
     "annotate_frame",
     "rest_check_image",
@@ -135,26 +139,20 @@ class Placement:
         }
 
 
-def pose_vector(result: FrameResult, last_q: np.ndarray | None = None) -> np.ndarray | None:
-    """The fitted pose q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) of a frame, or None.
+def pose_vector(result: FrameResult) -> np.ndarray | None:
+    """The fitted pose q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) of a frame
+    (:attr:`FrameResult.q`, a copy), or None where no fit converged."""
+    q = np.asarray(result.q, float)
+    return q.copy() if np.isfinite(q).all() else None
 
-    ``last_q`` is the front end's last pose (:attr:`FrontEnd.q`): used when it
-    is this frame's fit, since the result drops theta at small tilts."""
-    dz_mm, phi_deg, theta_deg = result.model
-    if not (math.isfinite(dz_mm) and math.isfinite(phi_deg)):
-        return None
-    if last_q is not None:
-        last_q = np.asarray(last_q, float)
-        last_phi_deg = math.degrees(math.hypot(last_q[1], last_q[2]))
-        if math.isclose(last_q[0], dz_mm, abs_tol=1e-12) and math.isclose(
-            last_phi_deg, phi_deg, abs_tol=1e-9
-        ):
-            return last_q.copy()
-    if not math.isfinite(theta_deg):
-        return None
-    phi, theta = math.radians(phi_deg), math.radians(theta_deg)
-    sx, sy = (v if math.isfinite(v) else 0.0 for v in (result.sx_mm, result.sy_mm))
-    return np.array([dz_mm, phi * math.cos(theta), phi * math.sin(theta), sx, sy])
+
+def is_rest_row(result: FrameResult, event: str, started: bool) -> bool:
+    """Whether a row of :func:`camwhisker.stream.stream` is a rest frame.
+
+    ``started``: whether an earlier row was. The stream trusts no row before
+    the front end starts, so its first trusted row is the rest frame; after
+    it, a trusted ``"rezero"`` row is a new one."""
+    return bool(result.ok) and (not started or event == "rezero")
 
 
 def status_line(result: FrameResult) -> str:
@@ -395,23 +393,29 @@ class OverlayReport:
     problems: list[str] = dataclasses.field(default_factory=list)
 
 
-def _annotated_frames(source, sensor, options, rest_index, scale, report):
-    """Run the front end over the source's frames; yield each annotated."""
-    fe = FrontEnd(sensor, options)
+def _annotated_frames(
+    frames: Iterable[Frame],
+    sensor: Sensor,
+    options: FrontEndOptions,
+    rest_index: int,
+    scale: float,
+    report: OverlayReport,
+) -> Iterator[np.ndarray]:
+    """Drive the streaming core over the frames; yield each annotated, counting the
+    rows in ``report`` and writing the rest check image at the first rest frame."""
+    model = PlateModel(sensor)
     placement = None
-    for f in source:
-        if f.index < rest_index:
-            result = FrameResult.untrusted(f.index, "before the rest frame")
-        elif f.index == rest_index:
-            result = fe.start(f.image, f.index)
-            placement = Placement.from_rest(fe.model, result)
-            write_rest_check(report.rest_check, f.image, result, fe.model)
-        else:
-            result = fe.update(f.image, f.index)
+    for frame, result in stream(frames, sensor, options, rest_index, strict=True):
         report.frames += 1
         report.frames_ok += bool(result.ok)
-        q = pose_vector(result, fe.q) if placement is not None else None
-        yield annotate_frame(f.image, result, placement, q, scale)
+        if frame.image is None:  # a recorded session's gap: no picture to draw on
+            continue
+        if is_rest_row(result, frame.event, placement is not None):
+            if placement is None:
+                write_rest_check(report.rest_check, frame.image, result, model)
+            placement = Placement.from_rest(model, result)
+        q = pose_vector(result) if placement is not None else None
+        yield annotate_frame(frame.image, result, placement, q, scale)
     if placement is None:
         raise ValueError(f"the video has no frame {rest_index} to use as the rest frame")
 
@@ -479,23 +483,10 @@ def annotate_video(
     # Stopping at max_frames is not the video ending early.
     if source.problem and (max_frames is None or report.frames < max_frames):
         report.problems.append(source.problem)
-    meta = {
-        "camwhisker_version": __version__,
-        "made_by": "camwhisker.overlay.annotate_video",
-        "input": str(Path(video)),
-        "fps": source.fps,
-        "codec": "MJPG" if out.suffix.lower() == ".avi" else "H.264",
-        "rest_frame": rest_index,
-        "max_frames": max_frames,
-        "arrow_scale": scale,
-        "frames": report.frames,
-        "frames_ok": report.frames_ok,
-        "problems": report.problems,
-        "rest_check": report.rest_check.name,
-        "options": dataclasses.asdict(options),
-        "sensor_file": sensor.source,
-        "sensor": sensor_to_dict(sensor),
-    }
-    with atomic_path(report.sidecar) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2) + "\n")
+    meta = provenance("camwhisker.overlay.annotate_video", str(Path(video)), options, sensor,
+                      fps=source.fps, codec="MJPG" if out.suffix.lower() == ".avi" else "H.264",
+                      rest_frame=rest_index, max_frames=max_frames, arrow_scale=scale,
+                      frames=report.frames, frames_ok=report.frames_ok, problems=report.problems,
+                      rest_check=report.rest_check.name)  # fmt: skip
+    atomic_write_text(report.sidecar, json.dumps(meta, indent=2, default=str) + "\n")
     return report

@@ -70,7 +70,7 @@ def scene(tmp_path_factory):
     results, qs, fe_qs = [fe.start(frames[0], 0)], [np.zeros(5)], [fe.q.copy()]
     for i, frame in enumerate(frames[1:], 1):
         results.append(fe.update(frame, i))
-        qs.append(pose_vector(results[-1], fe.q))
+        qs.append(pose_vector(results[-1]))
         fe_qs.append(fe.q.copy())
     truth = scenario.track  # the truth file leaves theta empty at phi = 0
     return {"paths": paths, "sensor": sensor, "frames": frames, "results": results, "qs": qs,
