@@ -1,20 +1,24 @@
 """Batch processing: a video in, the signal table (SENSOR.md section 6) out.
 
 :func:`run_batch` drives the streaming core (:func:`camwhisker.stream.stream`)
-over a :mod:`camwhisker.sources` source and writes ``OUT.csv`` and its sidecar
-``OUT.json`` (:mod:`camwhisker.signals`). Both are written to temporary files
-and renamed into place, so a crash never leaves a table that looks whole.
+over a :mod:`camwhisker.sources` source and writes ``OUT.csv``, its sidecar
+``OUT.json`` (:mod:`camwhisker.signals`) and the rest frame's check image
+``OUT.rest.png`` (:func:`camwhisker.overlay.write_rest_check`). Each is written
+to a temporary file and renamed into place, so a crash never leaves a table
+that looks whole.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from tqdm import tqdm
 
 from camwhisker.atomic import atomic_path
+from camwhisker.model import PlateModel
+from camwhisker.overlay import is_rest_row, rest_check_path, write_rest_check
 from camwhisker.sensor import Sensor
 from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar
 from camwhisker.sources import Frame, SessionSource, open_source
@@ -29,10 +33,12 @@ PROGRESS_MIN_FRAMES = 100
 
 @dataclass
 class BatchReport:
-    """What a batch run did: counts, and the problems met (empty when none)."""
+    """What a batch run did: its outputs (``rest_check`` None where no rest frame came),
+    counts, and the problems met (empty when none)."""
 
     out_csv: Path
     sidecar: Path
+    rest_check: Path | None = None
     frames: int = 0
     frames_ok: int = 0
     problems: list[str] = field(default_factory=list)
@@ -58,7 +64,8 @@ def run_batch(
         own clock, gaps and events, so its rows equal the live table's.
     sensor : Sensor
     out_csv : path
-        Output table; ``OUT.json`` beside it records how it was made.
+        Output table; ``OUT.json`` beside it records how it was made, ``OUT.rest.png``
+        shows the rest frame's features named, for a check by eye.
     options : FrontEndOptions, optional
     rest_index : int
         The rest (reference) frame; earlier rows are written untrusted.
@@ -91,6 +98,7 @@ def run_batch(
     report = BatchReport(Path(out_csv), sidecar_path(out_csv))
     # A recorded session is processed as live processed it: failures are rows.
     rows = stream(source, sensor, options, rest_index, strict=not session)
+    rows = _checking_rest(rows, rest_check_path(report.out_csv), PlateModel(sensor), report)
     report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress)
     if source.problem:
         report.problems.append(source.problem)
@@ -98,9 +106,21 @@ def run_batch(
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
     meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), source.time_source,
                    (report.frames, report.frames_ok), report.problems, options, sensor,
-                   rest_index, fps=source.fps)  # fmt: skip
+                   rest_index, fps=source.fps,
+                   rest_check=report.rest_check.name if report.rest_check else None)  # fmt: skip
     write_sidecar(report.out_csv, meta)
     return report
+
+
+def _checking_rest(
+    rows: Iterable[tuple[Frame, FrameResult]], path: Path, model: PlateModel, report: BatchReport
+) -> Iterator[tuple[Frame, FrameResult]]:
+    """The rows, passed on; the first rest frame's check image is written at ``path``
+    (recorded in ``report.rest_check``)."""
+    for frame, r in rows:
+        if report.rest_check is None and is_rest_row(r, frame.event, started=False):
+            report.rest_check = write_rest_check(path, frame.image, r, model)
+        yield frame, r
 
 
 def _write_table(

@@ -289,8 +289,8 @@ def _dispatch(todo, process, jobs, scheduler):
 class BatchTask:
     """The front end on one video, as a picklable campaign task.
 
-    Writes the signal table (CSV, or Parquet when ``out`` ends in .parquet)
-    and its sidecar, then marks the output complete in the sidecar with its
+    Writes the signal table (CSV, or Parquet when ``out`` ends in .parquet),
+    its rest check image and its sidecar, then marks the output complete in the sidecar with its
     size, digest, decoder and timings.
     """
 
@@ -302,6 +302,7 @@ class BatchTask:
 
     def __call__(self, video: Path, out: Path) -> dict:
         from camwhisker.batch import run_batch
+        from camwhisker.overlay import rest_check_path
 
         out = Path(out)
         parquet = out.suffix.lower() == ".parquet"
@@ -324,6 +325,8 @@ class BatchTask:
             _csv_to_parquet(table, out)
             table.unlink()
             report.sidecar.unlink()
+            if report.rest_check is not None:
+                meta["rest_check"] = report.rest_check.replace(rest_check_path(out)).name
         meta.update(
             calibration_id=self.calibration_id,
             frames_decoded=report.frames,

@@ -1,4 +1,4 @@
-"""The batch command: video -> signal table + sidecar, and its bad inputs.
+"""The batch command: video -> signal table + sidecar + rest check image, and its bad inputs.
 
 One 6-frame nominal video (seed 911) is rendered per module. Accuracy is the
 business of test_vision_accuracy; here the tolerance on phi (0.1 deg) only
@@ -16,8 +16,12 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
+from camwhisker.overlay import rest_check_image
+from camwhisker.sensor import load_sensor
+from camwhisker.sources import open_source
 from camwhisker.synth.scenarios import PoseTrack, make_scenario
 from camwhisker.synth.video import render_scenario
+from camwhisker.vision.tracker import FrontEnd
 
 REQUIRED = ["frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok"]
 
@@ -168,3 +172,24 @@ def test_negative_rest_frame_is_refused(video, tmp_path, capsys):
     out = tmp_path / "n.csv"
     assert main(["batch", str(video["video"]), "--out", str(out), "--rest-frame", "-1"]) == 2
     assert "--rest-frame" in capsys.readouterr().err and not out.exists()
+
+
+def _frame(video, index):
+    """Frame ``index`` as batch decodes it."""
+    return next(f.image for f in open_source(video) if f.index == index)
+
+
+def test_batch_writes_the_rest_check_image(video, tmp_path):
+    """OUT.rest.png beside the table: the rest frame (here frame 1) with its features
+    named, at the frame's size; the sidecar names it."""
+    out = tmp_path / "sig.csv"
+    rc = main(["batch", str(video["video"]), "--sensor", str(video["sensor"]), "--out", str(out),
+               "--rest-frame", "1", "--quiet"])  # fmt: skip
+    assert rc == 0
+    image = cv2.imread(str(tmp_path / "sig.rest.png"))
+    frame = _frame(video["video"], 1)
+    assert image is not None and image.shape == frame.shape == (720, 1280, 3)
+    assert json.loads((tmp_path / "sig.json").read_text())["rest_check"] == "sig.rest.png"
+    fe = FrontEnd(load_sensor(video["sensor"]))
+    rest = fe.start(frame, 1)
+    assert np.array_equal(image, rest_check_image(frame, rest, fe.model))  # PNG: lossless

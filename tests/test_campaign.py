@@ -161,7 +161,9 @@ def test_parquet_output_has_the_same_rows(videos):
     assert is_complete(pq_out) and sorted(p.name for p in root.glob("y*")) == [
         "y.json",
         "y.parquet",
+        "y.rest.png",
     ]
+    assert json.loads(sidecar_path(pq_out).read_text())["rest_check"] == "y.rest.png"
     header = csv_out.read_text().splitlines()[0].split(",")
     assert table.column_names == header
 

@@ -15,7 +15,8 @@ def add_batch(sub) -> None:
     p = sub.add_parser(
         "batch",
         help="video(s) -> signal table(s) (dz, phi, theta per frame)",
-        description="One video with --out: its signal table. Many videos, folders or globs: "
+        description="One video with --out: its signal table, its sidecar OUT.json and the rest "
+        "frame's check image OUT.rest.png (the features named). Many videos, folders or globs: "
         "one table each, beside the input or under --dest, skipping outputs already complete.",
     )
     p.add_argument(
@@ -83,7 +84,8 @@ def _run_batch(args) -> int:
     report = run_batch(
         args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet
     )
-    print(f"{report.frames} frames, {report.frames_ok} ok -> {report.out_csv}, {report.sidecar}")
+    outputs = ", ".join(str(p) for p in (report.out_csv, report.sidecar, report.rest_check) if p)
+    print(f"{report.frames} frames, {report.frames_ok} ok -> {outputs}")
     for problem in report.problems:
         print(f"camwhisker batch: problem: {problem}", file=sys.stderr)
     return 3 if report.problems else 0
