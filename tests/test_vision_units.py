@@ -28,6 +28,7 @@ from camwhisker.sensor import Sensor
 from camwhisker.vision import paper
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import (
+    CLOTH_MIN_SAMPLES,
     cloth_samples,
     contrast_map,
     share_patches,
@@ -157,6 +158,22 @@ def test_white_balance_undoes_a_cast():
     balanced = frame[rows, cols].astype(float) * gains
     spread = np.ptp(balanced.mean(axis=0)) / balanced.mean()
     assert spread < 0.005  # the cast was 45% between B and R
+
+
+def test_cloth_samples_keep_the_farthest_points_when_the_reach_covers_the_frame():
+    # A long rod's reach can cover a 1280 x 720 frame: the frame's corners are still cloth.
+    shape, centre = (720, 1280), np.array([639.5, 359.5])
+    rows, cols = cloth_samples(shape, centre, 2000.0)
+    assert rows.size == CLOTH_MIN_SAMPLES
+    dist = np.hypot(cols - centre[0], rows - centre[1])
+    v, u = np.mgrid[8:720:16, 8:1280:16]
+    all_dist = np.sort(np.hypot(u - centre[0], v - centre[1]).ravel())
+    # Exactly the farthest grid points (ties at the cut may go either way: equal distance).
+    assert dist.min() >= all_dist[-CLOTH_MIN_SAMPLES]
+    # Where the disc leaves enough points, the rule is the disc alone.
+    rows, cols = cloth_samples(shape, centre, 300.0)
+    assert rows.size > CLOTH_MIN_SAMPLES
+    assert np.hypot(cols - centre[0], rows - centre[1]).min() > 300.0
 
 
 def test_white_balance_leaves_out_shadows_and_clipped_samples():

@@ -38,6 +38,9 @@ __all__ = [
 #: Spacing (px) of the cloth sample grid: 3600 points on a 1280 x 720 frame, of
 #: which those beyond the rod's reach (the frame's corners) are kept.
 CLOTH_GRID_PX = 16
+#: Fewest cloth samples: where the rod's reach covers more of the frame (a longer
+#: rod, a longer focal length), the grid points farthest from the centre are kept.
+CLOTH_MIN_SAMPLES = 21
 
 #: Samples darker than this fraction of the median cloth level, or with a channel
 #: saturated at 255, are left out of the gray-world mean (shadows, the rod, clipping).
@@ -63,6 +66,8 @@ def cloth_samples(
         Centre (u, v) of the feature region, which holds no cloth.
     exclude_radius_px : float
         Radius of the feature region: as far as the magnifier tip can reach.
+        Where it leaves fewer than CLOTH_MIN_SAMPLES grid points, the
+        CLOTH_MIN_SAMPLES farthest from the centre are taken.
 
     Returns
     -------
@@ -71,8 +76,13 @@ def cloth_samples(
     """
     h, w = shape
     v, u = np.mgrid[grid_px // 2 : h : grid_px, grid_px // 2 : w : grid_px]
-    keep = np.hypot(u - exclude_center_uv[0], v - exclude_center_uv[1]) > exclude_radius_px
-    return v[keep].ravel(), u[keep].ravel()
+    v, u = v.ravel(), u.ravel()
+    dist = np.hypot(u - exclude_center_uv[0], v - exclude_center_uv[1])
+    keep = dist > exclude_radius_px
+    if keep.sum() < CLOTH_MIN_SAMPLES:
+        keep = np.zeros(dist.size, bool)
+        keep[np.argsort(dist, kind="stable")[-CLOTH_MIN_SAMPLES:]] = True
+    return v[keep], u[keep]
 
 
 def white_balance_gains(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
