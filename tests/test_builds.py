@@ -190,3 +190,22 @@ def test_a_failed_detection_says_what_was_found_and_where():
         detect_features(frame, fe.gains(frame), fe.model)
     msg = str(err.value)
     assert "square corners" in msg and "expected near" in msg and "blue regions" in msg
+
+
+def test_the_models_geometry_jacobian_holds_on_a_build():
+    """The optional keys join the model's geometry with exact derivatives."""
+    from camwhisker.model import GEOMETRY_NAMES, PlateModel, geometry_vector, with_geometry
+
+    sensor = draw_build(REALITY_SUITE.tuning_seeds[2]).sensor
+    p, t = math.radians(21.0), math.radians(-50.0)
+    q = np.array([0.3, p * math.cos(t), p * math.sin(t), 0.05, -0.1])
+    jac = PlateModel(sensor).jacobians(q).geometry
+    g0, h = geometry_vector(sensor), 1e-3
+    for i in range(len(GEOMETRY_NAMES)):
+        up, down = g0.copy(), g0.copy()
+        up[i] += h
+        down[i] -= h
+        uv_up = PlateModel(with_geometry(sensor, up)).project(q, jacobian=False)[0]
+        uv_down = PlateModel(with_geometry(sensor, down)).project(q, jacobian=False)[0]
+        numeric = (uv_up - uv_down) / (2 * h)
+        assert np.abs(jac[:, :, i] - numeric).max() <= 1e-6 * np.abs(jac[:, :, i]).max() + 1e-7
