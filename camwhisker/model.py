@@ -14,7 +14,8 @@ circle (the projection of a disc's centre is not its image's centroid).
 Jacobians: :meth:`PlateModel.project` gives d uv / d q, the hot path's
 (its tip row is the disc centre's); :meth:`PlateModel.jacobians` gives the
 exact d uv / d q and d uv / d geometry, the camera intrinsics and every
-dimension of the ``[plate]`` table (``GEOMETRY_NAMES``), for calibration. A
+dimension of the ``[plate]`` table (``GEOMETRY_NAMES``; its optional keys, a
+build's misplacements and rod tilt, included), for calibration. A
 key added to that table joins the geometry by itself once
 :func:`tracked_object_points` depends on it.
 """
@@ -77,8 +78,9 @@ _PLATE_KEYS = tuple(f.name for f in dataclasses.fields(PlateConfig))
 GEOMETRY_NAMES = tuple(f"camera.{k}" for k in INTRINSIC_NAMES) + tuple(
     f"plate.{k}" for k in _PLATE_KEYS
 )
-#: Central-difference half-step (mm) of the plate points' derivatives by the plate
-#: dimensions: the points are linear in them, so any step is exact to rounding.
+#: Central-difference half-step (mm, or deg for a rotation) of the plate points'
+#: derivatives by the plate dimensions: the points are linear in all but the
+#: optional rotations and tip offset, where the error is O(step^2), ~1e-7 relative.
 _PLATE_STEP_MM = 1e-3
 
 

@@ -18,6 +18,11 @@ to (h_r sin phi cos theta, h_r sin phi sin theta, z_i - dz - h_r cos phi):
 theta is the image direction in which the tip moves, exactly as SENSOR.md
 section 2 defines it.
 
+A real build's features may be glued off centre and rotated, and its rod
+tilted (the sensor file's optional keys, docs/sensor.md section 5.1): every
+feature function places its points accordingly, and returns the nominal
+points, bit for bit, where those keys are zero.
+
 The same motion has two forms: the matrix R of :func:`rotation_cam_from_plate`
 (for 3D points and the renderer's rays) and the rotation vector of
 :func:`rigid_motion`, phi (sin theta, -cos theta, 0), which
@@ -53,6 +58,8 @@ __all__ = [
     "end_face_rim",
     "in_square",
     "in_cross",
+    "in_cross_centre",
+    "rod_frame",
     "feature_pixels",
     "ROD_RIM",
 ]
@@ -144,7 +151,37 @@ def square_corners(plate: PlateConfig) -> np.ndarray:
     top-left, top-right, bottom-right, bottom-left."""
     h = plate.square_side_mm / 2
     z = plate.square_offset_mm
-    return np.array([[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]])
+    return _place(np.array([[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]]), *_square_at(plate))
+
+
+def _square_at(plate: PlateConfig) -> tuple[float, float, float]:
+    return plate.square_shift_x_mm, plate.square_shift_y_mm, plate.square_rotation_deg
+
+
+def _cross_at(plate: PlateConfig) -> tuple[float, float, float]:
+    return plate.cross_shift_x_mm, plate.cross_shift_y_mm, plate.cross_rotation_deg
+
+
+def _place(points: np.ndarray, dx_mm: float, dy_mm: float, rotation_deg: float) -> np.ndarray:
+    """Feature points (..., 3) as glued: rotated in-plane about the feature's centre,
+    then shifted. The nominal placement returns the points themselves, bit for bit."""
+    if dx_mm == 0.0 and dy_mm == 0.0 and rotation_deg == 0.0:
+        return points
+    c, s = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+    out = np.array(points, dtype=float)
+    x, y = out[..., 0].copy(), out[..., 1]
+    out[..., 0] = c * x - s * y + dx_mm
+    out[..., 1] = s * x + c * y + dy_mm
+    return out
+
+
+def _unplace(x, y, dx_mm: float, dy_mm: float, rotation_deg: float):
+    """Inverse of :func:`_place` for plate coordinates: the feature's own (x, y)."""
+    if dx_mm == 0.0 and dy_mm == 0.0 and rotation_deg == 0.0:
+        return x, y
+    c, s = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+    x, y = x - dx_mm, y - dy_mm
+    return c * x + s * y, -s * x + c * y
 
 
 def cross_outline(plate: PlateConfig) -> np.ndarray:
@@ -155,7 +192,7 @@ def cross_outline(plate: PlateConfig) -> np.ndarray:
         (-a, -s), (a, -s), (a, -a), (s, -a), (s, a), (a, a),
         (a, s), (-a, s), (-a, a), (-s, a), (-s, -a), (-a, -a),
     ]  # fmt: skip
-    return np.array([(x, y, z) for x, y in xy])
+    return _place(np.array([(x, y, z) for x, y in xy]), *_cross_at(plate))
 
 
 def cross_arm_edges(plate: PlateConfig) -> np.ndarray:
@@ -163,7 +200,7 @@ def cross_arm_edges(plate: PlateConfig) -> np.ndarray:
     edge as its two end points. These are the paper's tracked cross edges."""
     s, a = plate.cross_span_mm / 2, plate.cross_arm_mm / 2
     z = -plate.cross_offset_mm
-    return np.array(
+    edges = np.array(
         [
             [[s, -a, z], [s, a, z]],
             [[a, s, z], [-a, s, z]],
@@ -171,6 +208,7 @@ def cross_arm_edges(plate: PlateConfig) -> np.ndarray:
             [[-a, -s, z], [a, -s, z]],
         ]
     )
+    return _place(edges, *_cross_at(plate))
 
 
 def corner_edge_directions(plate: PlateConfig) -> np.ndarray:
@@ -181,13 +219,57 @@ def corner_edge_directions(plate: PlateConfig) -> np.ndarray:
     sq_dirs = np.stack([np.roll(sq, 1, axis=0) - sq, np.roll(sq, -1, axis=0) - sq], axis=1)
     arm = cross_arm_edges(plate)
     inward = np.array([[-1.0, 0, 0], [0, -1.0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+    inward = _place(inward, 0.0, 0.0, plate.cross_rotation_deg)
     cr_dirs = [[end[1 - i] - end[i], inward[j]] for j, end in enumerate(arm) for i in (0, 1)]
     return np.concatenate([sq_dirs, np.array(cr_dirs)], axis=0)
 
 
+def rod_frame(plate: PlateConfig) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+    """The rod's own frame, in which it stands along z from its base on the cross,
+    (0, 0, -cross_offset), to its end face at z = z_tip.
+
+    Returns
+    -------
+    rotation : ndarray, shape (3, 3), or None
+    origin_mm : ndarray, shape (3,), or None
+        A rod point p maps to the plate frame as rotation @ p + origin_mm; both
+        are None for the nominal rod, whose frame is the plate's.
+    z_tip_mm : float
+        The end face's z in the rod's frame; -h_r for the nominal rod.
+
+    The rod stands on the cross's centre (so it moves with the cross's shift);
+    a tilted rod's end face is square to the rod and its centre lies at
+    (tip_offset_x, tip_offset_y, -h_r) from the cross's centre.
+    """
+    dx, dy = plate.cross_shift_x_mm, plate.cross_shift_y_mm
+    ox, oy = plate.tip_offset_x_mm, plate.tip_offset_y_mm
+    if dx == 0.0 and dy == 0.0 and ox == 0.0 and oy == 0.0:
+        return None, None, -plate.h_r_mm
+    axis = np.array([ox, oy, plate.h_r_mm - plate.cross_offset_mm])  # base to tip, reversed z
+    length = float(np.linalg.norm(axis))
+    w = np.array([ox, oy, -axis[2]]) / length  # the rod's direction from its base, plate frame
+    # Rotation that takes (0, 0, -1) to w, about the axis perpendicular to both.
+    k = np.cross([0.0, 0.0, -1.0], w)
+    s, c = float(np.linalg.norm(k)), float(-w[2])
+    rotation = np.eye(3)
+    if s > 0.0:
+        k /= s
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        rotation = np.eye(3) + s * kx + (1.0 - c) * kx @ kx
+    base = np.array([dx, dy, -plate.cross_offset_mm])
+    origin = base - rotation @ np.array([0.0, 0.0, -plate.cross_offset_mm])
+    return rotation, origin, -plate.cross_offset_mm - length
+
+
+def _rod_to_plate(plate: PlateConfig, points: np.ndarray) -> np.ndarray:
+    rotation, origin, _ = rod_frame(plate)
+    return points if rotation is None else points @ rotation.T + origin
+
+
 def rod_ends(plate: PlateConfig) -> np.ndarray:
     """Rod axis end points, shape (2, 3): its base on the cross, and the tip's centre."""
-    return np.array([[0.0, 0.0, -plate.cross_offset_mm], [0.0, 0.0, -plate.h_r_mm]])
+    z_tip = rod_frame(plate)[2]
+    return _rod_to_plate(plate, np.array([[0.0, 0.0, -plate.cross_offset_mm], [0.0, 0.0, z_tip]]))
 
 
 def _ring(plate: PlateConfig, n: int) -> np.ndarray:
@@ -200,27 +282,38 @@ def rod_rims(plate: PlateConfig, n: int = ROD_RIM) -> np.ndarray:
     """The rod's two end rims, shape (2 n, 3): n points on the rim at its base on
     the cross, then n on the rim at the tip."""
     ring = _ring(plate, n)
-    return np.concatenate(
-        [np.column_stack([ring, np.full(n, z)]) for z in (-plate.cross_offset_mm, -plate.h_r_mm)]
+    z_tip = rod_frame(plate)[2]
+    rims = np.concatenate(
+        [np.column_stack([ring, np.full(n, z)]) for z in (-plate.cross_offset_mm, z_tip)]
     )
+    return _rod_to_plate(plate, rims)
 
 
 def end_face_rim(plate: PlateConfig, n: int) -> np.ndarray:
     """n points on the rim of the rod's end face (the magnifier tip), shape (n, 3)."""
-    return np.column_stack([_ring(plate, n), np.full(n, -plate.h_r_mm)])
+    z_tip = rod_frame(plate)[2]
+    return _rod_to_plate(plate, np.column_stack([_ring(plate, n), np.full(n, z_tip)]))
 
 
 def in_square(x: np.ndarray, y: np.ndarray, plate: PlateConfig) -> np.ndarray:
     """Whether plate points (x, y) in the square's plane lie on the square."""
     h = plate.square_side_mm / 2
+    x, y = _unplace(x, y, *_square_at(plate))
     return (np.abs(x) <= h) & (np.abs(y) <= h)
 
 
 def in_cross(x: np.ndarray, y: np.ndarray, plate: PlateConfig) -> np.ndarray:
     """Whether plate points (x, y) in the cross's plane lie on the cross."""
     s, a = plate.cross_span_mm / 2, plate.cross_arm_mm / 2
+    x, y = _unplace(x, y, *_cross_at(plate))
     ax, ay = np.abs(x), np.abs(y)
     return ((ax <= a) & (ay <= s)) | ((ax <= s) & (ay <= a))
+
+
+def in_cross_centre(x: np.ndarray, y: np.ndarray, plate: PlateConfig, radius_mm: float):
+    """Whether plate points (x, y) in the cross's plane lie within radius_mm of its centre."""
+    x, y = _unplace(x, y, *_cross_at(plate))
+    return x * x + y * y <= radius_mm * radius_mm
 
 
 def feature_pixels(pose: Pose, sensor: Sensor) -> dict[str, np.ndarray]:

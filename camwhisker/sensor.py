@@ -31,6 +31,9 @@ __all__ = [
     "sensor_from_dict",
     "sensor_to_dict",
     "dump_sensor",
+    "OPTIONAL_PLATE_KEYS",
+    "MAX_ROTATION_DEG",
+    "MAX_ROD_TILT_DEG",
 ]
 
 # Table I's angles of view, read as half angles (module docstring).
@@ -87,6 +90,15 @@ class PlateConfig:
     cross_arm_mm: float = 1.2
     cross_offset_mm: float = 1.5
     rod_diameter_mm: float = 1.0
+    # Optional keys of a real build (docs/sensor.md section 5.1); zero is nominal.
+    tip_offset_x_mm: float = 0.0
+    tip_offset_y_mm: float = 0.0
+    square_shift_x_mm: float = 0.0
+    square_shift_y_mm: float = 0.0
+    square_rotation_deg: float = 0.0
+    cross_shift_x_mm: float = 0.0
+    cross_shift_y_mm: float = 0.0
+    cross_rotation_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -111,6 +123,24 @@ class Sensor:
             data.setdefault(table, {}).update(values)
         return sensor_from_dict(data, source=f"{self.source} (modified)")
 
+
+#: [plate] keys that a nominal file leaves out: a build's in-plane misplacements
+#: and the tip's lateral offset. They are written only where they are not zero.
+OPTIONAL_PLATE_KEYS = (
+    "tip_offset_x_mm",
+    "tip_offset_y_mm",
+    "square_shift_x_mm",
+    "square_shift_y_mm",
+    "square_rotation_deg",
+    "cross_shift_x_mm",
+    "cross_shift_y_mm",
+    "cross_rotation_deg",
+)
+#: Largest in-plane rotation of a glued feature; beyond it the corners' directions
+#: from the centre would no longer identify them.
+MAX_ROTATION_DEG = 10.0
+#: Largest tilt of the rod off the plate's normal, set by the tip's lateral offset.
+MAX_ROD_TILT_DEG = 10.0
 
 _TABLES = {"camera": CameraConfig, "plate": PlateConfig, "whisker": WhiskerConfig}
 
@@ -163,8 +193,13 @@ def sensor_to_dict(sensor: Sensor) -> dict:
         out[table] = {
             f.name: list(v) if isinstance(v := getattr(cfg, f.name), tuple) else v
             for f in fields(cfg)
+            if not (table == "plate" and f.name in OPTIONAL_PLATE_KEYS and _is_zero(cfg, f.name))
         }
     return out
+
+
+def _is_zero(cfg, key: str) -> bool:
+    return getattr(cfg, key) == 0.0
 
 
 def _build_table(cls, table: str, values: dict, source: str):
@@ -209,7 +244,11 @@ def _check_geometry(sensor: Sensor) -> None:
     src = sensor.source
     positive = {
         "camera": ["width_px", "height_px", "fx_px", "fy_px"],
-        "plate": [f.name for f in fields(PlateConfig) if f.name != "square_offset_mm"],
+        "plate": [
+            f.name
+            for f in fields(PlateConfig)
+            if f.name != "square_offset_mm" and f.name not in OPTIONAL_PLATE_KEYS
+        ],
         "whisker": ["length_mm"],
     }
     for table, keys in positive.items():
@@ -236,6 +275,38 @@ def _check_geometry(sensor: Sensor) -> None:
     if plate.h_r_mm <= plate.cross_offset_mm:
         raise SensorFileError(
             f"{src}: [plate] h_r_mm: the rod must reach beyond the cross (h_r_mm > cross_offset_mm)"
+        )
+    _check_placement(sensor)
+
+
+def _check_placement(sensor: Sensor) -> None:
+    """The optional keys: misplacements small enough to leave each feature identifiable."""
+    src, plate = sensor.source, sensor.plate
+    limits = {
+        "square_shift_x_mm": (plate.square_side_mm / 4, "a quarter of square_side_mm"),
+        "square_shift_y_mm": (plate.square_side_mm / 4, "a quarter of square_side_mm"),
+        "cross_shift_x_mm": (plate.cross_span_mm / 4, "a quarter of cross_span_mm"),
+        "cross_shift_y_mm": (plate.cross_span_mm / 4, "a quarter of cross_span_mm"),
+        "square_rotation_deg": (MAX_ROTATION_DEG, "the largest rotation"),
+        "cross_rotation_deg": (MAX_ROTATION_DEG, "the largest rotation"),
+    }
+    for key, (limit, why) in limits.items():
+        value = getattr(plate, key)
+        if abs(value) > limit:
+            raise SensorFileError(
+                f"{src}: [plate] {key}: must lie within +-{limit:g} ({why}), got {value}"
+            )
+    offset = math.hypot(plate.tip_offset_x_mm, plate.tip_offset_y_mm)
+    tilt_deg = math.degrees(math.atan2(offset, plate.h_r_mm - plate.cross_offset_mm))
+    if tilt_deg > MAX_ROD_TILT_DEG:
+        key = (
+            "tip_offset_x_mm"
+            if abs(plate.tip_offset_x_mm) >= abs(plate.tip_offset_y_mm)
+            else ("tip_offset_y_mm")
+        )
+        raise SensorFileError(
+            f"{src}: [plate] {key}: tilts the rod by {tilt_deg:.1f} deg, "
+            f"more than {MAX_ROD_TILT_DEG:g} deg off the plate's normal"
         )
 
 

@@ -19,7 +19,7 @@ from camwhisker.model import (
     geometry_vector,
     with_geometry,
 )
-from camwhisker.sensor import PlateConfig, Sensor
+from camwhisker.sensor import OPTIONAL_PLATE_KEYS, PlateConfig, Sensor
 
 REL_TOL = 1e-6
 ABS_TOL = 1e-7
@@ -94,7 +94,7 @@ def test_geometry_names_cover_the_plate_table_and_intrinsics():
     assert {"camera.fx_px", "camera.fy_px", "camera.cx_px", "camera.cy_px", "camera.k1"} <= set(
         GEOMETRY_NAMES
     )
-    assert len(set(GEOMETRY_NAMES)) == len(GEOMETRY_NAMES) == 17
+    assert len(set(GEOMETRY_NAMES)) == len(GEOMETRY_NAMES) == 17 + len(OPTIONAL_PLATE_KEYS)
 
 
 def test_geometry_vector_round_trip():

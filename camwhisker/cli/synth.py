@@ -16,6 +16,13 @@ def add_render(sub) -> None:
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument(
+        "--build",
+        type=int,
+        metavar="SEED",
+        help="draw hand-made build SEED from the sensor file (its true file is written "
+        "beside the truth, its description in the .json)",
+    )
     sensor_arg(p)
     p.set_defaults(func=_run_render)
 
@@ -25,7 +32,13 @@ def _run_render(args) -> int:
     from camwhisker.synth.video import render_scenario
 
     scenario = make_scenario(args.scenario, args.frames, args.seed, args.fps)
-    paths = render_scenario(scenario, load_sensor(args.sensor), args.out, args.seed, True)
+    sensor = load_sensor(args.sensor)
+    build = None
+    if args.build is not None:
+        from camwhisker.synth.builds import draw_build
+
+        build = draw_build(args.build, sensor)
+    paths = render_scenario(scenario, sensor, args.out, args.seed, True, build)
     for kind, path in paths.items():
         print(f"{kind:>6}: {path}")
     return 0

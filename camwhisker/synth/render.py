@@ -3,7 +3,9 @@
 The scene, back to front: the white cloth, the blue square (plate z =
 +square_offset), four grey serpentine springs (plate z = 0) whose inner ends
 follow the plate, the red cross (plate z = -cross_offset), and the red rod
-with its black end face, seen in perspective.
+with its black end face, seen in perspective. :class:`Appearance` dresses it
+otherwise for a real build (:mod:`camwhisker.synth.builds`): its colours,
+white translucent springs along the cross's arms, a light cross centre.
 
 Every plate feature is drawn by casting the pixel's own ray through the
 camera model of :mod:`camwhisker.camera` (distortion included) and
@@ -40,8 +42,10 @@ from camwhisker.plate import (
     Pose,
     cross_outline,
     in_cross,
+    in_cross_centre,
     in_square,
     plate_to_camera,
+    rod_frame,
     rod_rims,
     rotation_cam_from_plate,
     square_corners,
@@ -69,6 +73,16 @@ class Appearance:
     spring_turns: int = 9
     spring_amplitude_mm: float = 0.9
     spring_width_mm: float = 0.5
+    #: "diagonal": springs leave the plate at 45, 135, 225 and 315 deg (the nominal
+    #: sensor); "arms": along the cross's arms, from the square's edge.
+    spring_layout: str = "diagonal"
+    #: Opacity of the springs: translucent acrylic lets the cloth show through.
+    spring_opacity: float = 1.0
+    #: The rod's body colour; None paints it like the cross.
+    rod_bgr: tuple[float, float, float] | None = None
+    #: A light disc at the cross's centre (unpainted), or None for a red centre.
+    cross_centre_bgr: tuple[float, float, float] | None = None
+    cross_centre_diameter_mm: float = 1.6
 
 
 def fibonacci_offsets(n: int) -> np.ndarray:
@@ -124,6 +138,8 @@ class SceneRenderer:
         self._composite_springs(img, pose)
         cross = self._planar_layer(pose, cross_outline(plate), in_cross)
         self._composite(img, *cross, app.cross_bgr)
+        if app.cross_centre_bgr is not None:
+            self._composite(img, *self._cross_centre(pose), app.cross_centre_bgr)
         self._composite_rod(img, pose)
         return img
 
@@ -192,6 +208,15 @@ class SceneRenderer:
 
         return self._coverage(box, hit), box
 
+    def _cross_centre(self, pose: Pose):
+        """Coverage and bbox of the light disc at the cross's centre."""
+        plate = self.sensor.plate
+        r = self.appearance.cross_centre_diameter_mm / 2
+        ang = np.linspace(0.0, 2 * np.pi, 32, endpoint=False)
+        centre = cross_outline(plate).mean(axis=0)
+        disc = centre + np.column_stack([r * np.cos(ang), r * np.sin(ang), np.zeros(32)])
+        return self._planar_layer(pose, disc, lambda x, y, p: in_cross_centre(x, y, p, r))
+
     def _coverage(self, box, hit) -> np.ndarray:
         rows, cols = box
         rays = self.rays[rows, cols]
@@ -218,8 +243,9 @@ class SceneRenderer:
     def _rod_shade(self, xy: np.ndarray, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         """Label (0 miss, 1 body, 2 end face) and BGR colour of each ray, shape (N,), (N, 3).
 
-        The rod is the cylinder x^2 + y^2 = rho^2, -h_r <= z <= -cross_offset in
-        the plate frame; its end face z = -h_r faces the camera.
+        The rod is the cylinder x^2 + y^2 = rho^2, z_tip <= z <= -cross_offset in
+        its own frame (:func:`camwhisker.plate.rod_frame`; the plate's, with
+        z_tip = -h_r, for the nominal rod); its end face z = z_tip faces the camera.
         """
         plate, app = self.sensor.plate, self.appearance
         rho = plate.rod_diameter_mm / 2
@@ -229,10 +255,14 @@ class SceneRenderer:
         d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         dp = d @ rot  # = (R^T d^T)^T: ray directions in the plate frame
+        rod_rot, rod_origin, z_tip = rod_frame(plate)
+        if rod_rot is not None:  # into the rod's frame
+            origin = rod_rot.T @ (origin - rod_origin)
+            dp = dp @ rod_rot
         ox, oy, oz = origin
-        # End face: plane z = -h_r.
+        # End face: plane z = z_tip.
         with np.errstate(divide="ignore", invalid="ignore"):
-            s_face = (-plate.h_r_mm - oz) / dp[:, 2]
+            s_face = (z_tip - oz) / dp[:, 2]
         fx, fy = ox + s_face * dp[:, 0], oy + s_face * dp[:, 1]
         face = (fx * fx + fy * fy <= rho * rho) & (s_face > 0)
         # Side: nearest root of |o_xy + s d_xy|^2 = rho^2.
@@ -244,7 +274,7 @@ class SceneRenderer:
         s_side = np.full(len(xy), np.inf)
         s_side[ok] = (-qb[ok] - np.sqrt(disc[ok])) / (2 * qa[ok])
         z_side = oz + s_side * dp[:, 2]
-        side = ok & (z_side >= -plate.h_r_mm) & (z_side <= -plate.cross_offset_mm) & (s_side > 0)
+        side = ok & (z_side >= z_tip) & (z_side <= -plate.cross_offset_mm) & (s_side > 0)
         label = np.where(face & ~(side & (s_side < s_face)), 2, np.where(side, 1, 0))
         colour = np.zeros((len(xy), 3))
         colour[label == 2] = app.tip_bgr
@@ -254,7 +284,8 @@ class SceneRenderer:
             py = oy + s_side[body] * dp[body, 1]
             cos_view = np.abs(px * dp[body, 0] + py * dp[body, 1]) / rho
             # Lambert shading with the LEDs beside the lens: the flanks darken.
-            colour[body] = np.outer(0.45 + 0.55 * cos_view, app.cross_bgr)
+            body_bgr = app.cross_bgr if app.rod_bgr is None else app.rod_bgr
+            colour[body] = np.outer(0.45 + 0.55 * cos_view, body_bgr)
         return label, colour
 
     def _composite_rod(self, img: np.ndarray, pose: Pose) -> None:
@@ -299,7 +330,12 @@ class SceneRenderer:
         path = np.array(pts)
         path = _densify_open(path, 6)
         lines = []
-        for angle in np.radians([45.0, 135.0, 225.0, 315.0]):
+        angles = (
+            [45.0, 135.0, 225.0, 315.0]
+            if app.spring_layout == "diagonal"
+            else [0.0, 90.0, 180.0, 270.0]
+        )
+        for angle in np.radians(angles):
             er = np.array([np.cos(angle), np.sin(angle)])
             et = np.array([-np.sin(angle), np.cos(angle)])
             xy = path[:, :1] * er + path[:, 1:] * et
@@ -325,6 +361,8 @@ class SceneRenderer:
             fixed = np.round(uv * (1 << shift_bits)).astype(np.int32)
             cv2.polylines(mask, [fixed], False, 255, width_px, cv2.LINE_AA, shift_bits)
         a = (mask.astype(np.float32) / 255.0)[..., None]
+        if app.spring_opacity != 1.0:
+            a *= np.float32(app.spring_opacity)
         img *= 1 - a
         img += a * np.asarray(app.spring_bgr, np.float32)
 

@@ -10,7 +10,8 @@ For ``NAME.avi`` the files are::
     NAME.avi           the video
     NAME.truth.csv     frame, t_s, dz_mm, phi_deg, theta_deg, sx_mm, sy_mm
     NAME.sensor.toml   the sensor file the scene was rendered with
-    NAME.json          how it was made: version, scenario, artefacts, seed
+    NAME.json          how it was made: version, scenario, artefacts, seed (and
+                       for a real build, its appearance and deviations)
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import dataclasses
 import json
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -27,9 +29,12 @@ from camwhisker import __version__
 from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.synth.artefacts import apply_artefacts, illumination_field
-from camwhisker.synth.render import SceneRenderer
+from camwhisker.synth.render import Appearance, SceneRenderer
 from camwhisker.synth.scenarios import Scenario
 from camwhisker.video_out import write_video
+
+if TYPE_CHECKING:
+    from camwhisker.synth.builds import Build
 
 __all__ = ["write_video", "render_frames", "render_scenario", "atomic_path", "sidecar_paths"]
 
@@ -45,11 +50,15 @@ def sidecar_paths(video: Path) -> dict[str, Path]:
 
 
 def render_frames(
-    scenario: Scenario, sensor: Sensor, seed: int, progress: bool = False
+    scenario: Scenario,
+    sensor: Sensor,
+    seed: int,
+    progress: bool = False,
+    appearance: Appearance | None = None,
 ) -> Iterator[np.ndarray]:
     """The camera's frames (uint8 BGR, before compression) for every pose of a scenario."""
     sensor = sensor.replace(**scenario.sensor_changes) if scenario.sensor_changes else sensor
-    renderer = SceneRenderer(sensor)
+    renderer = SceneRenderer(sensor, appearance)
     light = illumination_field(renderer.shape, scenario.artefacts)
     rng = np.random.default_rng(seed)
     track = scenario.track
@@ -59,14 +68,28 @@ def render_frames(
 
 
 def render_scenario(
-    scenario: Scenario, sensor: Sensor, video: Path, seed: int, progress: bool = False
+    scenario: Scenario,
+    sensor: Sensor,
+    video: Path,
+    seed: int,
+    progress: bool = False,
+    build: Build | None = None,
 ) -> dict[str, Path]:
-    """Render a scenario to ``video`` plus its truth, sensor file and metadata sidecars."""
+    """Render a scenario to ``video`` plus its truth, sensor file and metadata sidecars.
+
+    With a ``build`` (:func:`camwhisker.synth.builds.draw_build`), the scene is
+    drawn with the build's own sensor, appearance and webcam instead of
+    ``sensor`` and the scenario's; the sensor sidecar is the build's true file
+    and the metadata describe the build.
+    """
+    if build is not None:
+        scenario, sensor = build.scenario(scenario), build.sensor
     video = Path(video)
     paths = sidecar_paths(video)
     used = sensor.replace(**scenario.sensor_changes) if scenario.sensor_changes else sensor
     art = scenario.artefacts
-    frames = render_frames(scenario, sensor, seed, progress)
+    appearance = None if build is None else build.appearance
+    frames = render_frames(scenario, sensor, seed, progress, appearance)
     n = write_video(video, frames, scenario.fps, art.jpeg_quality, art.h264_crf)
     with atomic_path(paths["truth"]) as tmp:
         scenario.track.write_csv(tmp)
@@ -84,6 +107,8 @@ def render_scenario(
         "artefacts": dataclasses.asdict(scenario.artefacts),
         "sensor": sensor_to_dict(used),
     }
+    if build is not None:
+        meta["build"] = build.describe()
     with atomic_path(paths["meta"]) as tmp:
         tmp.write_text(json.dumps(meta, indent=2) + "\n")
     return {"video": video, **paths}

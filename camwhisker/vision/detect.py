@@ -55,6 +55,17 @@ EDGE_STEP_PX = 0.25
 #: A refined corner farther than this from its polygon vertex is rejected (px): the
 #: polygon cuts a corner blurred by sigma = 2.6 px by up to ~6 px.
 REFINE_MAX_SHIFT_PX = 8.0
+#: Fallback for a feature cut into pieces: components whose centre lies within this
+#: factor of the model outline's radius, and larger than this share of its area, join.
+MERGE_REACH = 1.2
+MERGE_MIN_AREA = 0.02
+#: A pieced-together feature must keep the model's shape: its corners' mutual
+#: distances within this share (a build's scale: focal length, depth, sizes) plus
+#: MERGE_SHAPE_PX (a corner's error) of the model's.
+MERGE_SHAPE_TOL = 0.12
+MERGE_SHAPE_PX = 6.0
+#: A light cross centre is at most this many arm widths across (closing bridges it).
+CENTRE_GAP_ARMS = 1.8
 #: Refinement passes (the second starts from the first's corner, so the edge
 #: samples sit where the edges really are).
 REFINE_PASSES = 2
@@ -200,7 +211,9 @@ def detect_features(
     q : ndarray, shape (5,), optional
         Approximate pose for the expected sizes; rest pose if omitted.
     require : tuple of str
-        Features whose absence raises.
+        Features whose absence raises. A required feature found in pieces (cut
+        by a spring or the other feature, or a cross split by a light centre)
+        is pieced together.
 
     Returns
     -------
@@ -219,34 +232,26 @@ def detect_features(
     found_uv = np.full((TIP + 1, 2), np.nan)
     missing = []
 
+    details = []
     sq_model = uv_model[:N_SQUARE]
-    sq_area = polygon_area(sq_model)
-    comp = _component((g > BLUE_MIN).astype(np.uint8), sq_area, sq_model.mean(axis=0))
-    if comp is not None:
-        mask, centre = comp
-        hull = _polygon_corners(mask, 4)
-        dirs = _dirs(sq_model, sq_model.mean(axis=0))
-        corners = _assign_corners(hull, centre, dirs) if hull is not None else None
-        if corners is not None:
-            found_uv[:N_SQUARE] = refine_corners(
-                np.maximum(g, 0.0), corners, corner_dirs[:N_SQUARE]
-            )
+    blue = (g > BLUE_MIN).astype(np.uint8)
+    found_uv[:N_SQUARE] = _feature_corners(
+        blue, np.maximum(g, 0.0), sq_model, polygon_area(sq_model), 4, corner_dirs[:N_SQUARE],
+        merge="square corners" in require,
+    )  # fmt: skip
     if not np.isfinite(found_uv[:N_SQUARE]).all():
         missing.append("square corners")
+        details.append(_found_where("square", "blue", blue, sq_model, found_uv[:N_SQUARE]))
 
     cr_model = uv_model[N_SQUARE:TIP]
-    comp = _component((g < -RED_MIN).astype(np.uint8), polygon_area(cross_uv) * 0.85,
-                      cr_model.mean(axis=0))  # fmt: skip
-    if comp is not None:
-        mask, centre = comp
-        poly = _polygon_corners(mask, 12)
-        if poly is not None:
-            corners = _assign_corners(poly, centre, _dirs(cr_model, cr_model.mean(axis=0)))
-            found_uv[N_SQUARE:TIP] = refine_corners(
-                np.maximum(-g, 0.0), corners, corner_dirs[N_SQUARE:TIP]
-            )
+    red = (g < -RED_MIN).astype(np.uint8)
+    found_uv[N_SQUARE:TIP] = _feature_corners(
+        red, np.maximum(-g, 0.0), cr_model, polygon_area(cross_uv) * 0.85, 12,
+        corner_dirs[N_SQUARE:TIP], "cross arm ends" in require, _centre_gap_px(model),
+    )  # fmt: skip
     if not np.isfinite(found_uv[N_SQUARE:TIP]).all():
         missing.append("cross arm ends")
+        details.append(_found_where("cross", "red", red, cr_model, found_uv[N_SQUARE:TIP]))
 
     radius = math.sqrt(polygon_area(rim) / math.pi)
     h, w = frame.shape[:2]
@@ -260,14 +265,113 @@ def detect_features(
         found_uv[TIP] = tip.centre_uv
     else:
         missing.append("magnifier tip")
+        details.append(f"tip: no dark end face near ({uv_model[TIP][0]:.0f}, "
+                       f"{uv_model[TIP][1]:.0f}) px")  # fmt: skip
 
     need = [m for m in missing if m in require]
     if need:
-        raise FeaturesNotFound(need)
+        detail = "; ".join(d for d, m in zip(details, missing, strict=True) if m in need)
+        raise FeaturesNotFound(need, detail)
     return Detection(found_uv, np.isfinite(found_uv).all(axis=1))
+
+
+def _feature_corners(mask, gmap, model_uv, area_exp, n_vertices, edge_dirs, merge=True,
+                     bridge_px=0.0):  # fmt: skip
+    """A feature's corners (K, 2), NaN where not found: from its one component of
+    ``mask``, else, with ``merge`` (a real build: a spring or the other feature
+    cuts it, a light centre splits the cross), from the union of the components
+    near the model's, their gaps bridged by ``bridge_px``. Only a required
+    feature merges, so that a frame searched without requirements is unchanged."""
+    centre_exp = model_uv.mean(axis=0)
+    corners = _corners_of(_component(mask, area_exp, centre_exp), model_uv, n_vertices,
+                          gmap, edge_dirs)  # fmt: skip
+    if np.isfinite(corners).all() or not merge:
+        return corners
+    merged = _merged_component(mask, model_uv, area_exp, bridge_px)
+    if merged is None:
+        return corners
+    again = _corners_of(merged, model_uv, n_vertices, gmap, edge_dirs)
+    if not _same_shape(again, model_uv):  # pieces of something else, or a cut-off part
+        return corners
+    return again if np.isfinite(again).sum() > np.isfinite(corners).sum() else corners
+
+
+def _same_shape(corners: np.ndarray, model_uv: np.ndarray) -> bool:
+    """Whether the found corners' mutual distances match the model's, within a
+    build's scale deviation (MERGE_SHAPE_TOL) plus a corner's error."""
+    ok = np.isfinite(corners).all(axis=1)
+    c, m = corners[ok], model_uv[ok]
+    d = np.hypot(*(c[:, None] - c[None]).transpose(2, 0, 1))
+    dm = np.hypot(*(m[:, None] - m[None]).transpose(2, 0, 1))
+    return bool(np.all(np.abs(d - dm) <= MERGE_SHAPE_TOL * dm + MERGE_SHAPE_PX))
+
+
+def _corners_of(comp, model_uv, n_vertices, gmap, edge_dirs) -> np.ndarray:
+    out = np.full(model_uv.shape, np.nan)
+    if comp is None:
+        return out
+    mask, centre = comp
+    poly = _polygon_corners(mask, n_vertices)
+    if poly is None:
+        return out
+    corners = _assign_corners(poly, centre, _dirs(model_uv, model_uv.mean(axis=0)))
+    return refine_corners(gmap, corners, edge_dirs)
+
+
+def _merged_component(mask, model_uv, area_exp, bridge_px):
+    """The union of the components whose centre lies within the model outline's
+    reach (MERGE_REACH times its radius), as (mask, centre), if its area is right:
+    filled to their convex hull for a convex feature (``bridge_px`` 0), else with
+    gaps up to ``bridge_px`` closed."""
+    found = blobs(mask)
+    if len(found) == 0:
+        return None
+    centre = model_uv.mean(axis=0)
+    reach = MERGE_REACH * np.hypot(*(model_uv - centre).T).max()
+    near = (np.hypot(*(found.centroid - centre).T) < reach) & (
+        found.area > MERGE_MIN_AREA * area_exp
+    )
+    if not near.any():
+        return None
+    union = np.isin(found.labels, np.flatnonzero(near) + 1).astype(np.uint8)
+    if bridge_px == 0.0:  # a convex feature (the square): its pieces' hull
+        v, u = np.nonzero(union)
+        hull = cv2.convexHull(np.column_stack([u, v]).astype(np.int32))
+        cv2.fillConvexPoly(union, hull, 1)
+    else:
+        k = 2 * int(math.ceil(bridge_px / 2)) + 1
+        union = cv2.morphologyEx(union, cv2.MORPH_CLOSE,
+                                 cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))  # fmt: skip
+    area = float(union.sum())
+    if not (AREA_RANGE[0] * area_exp < area < AREA_RANGE[1] * area_exp):
+        return None
+    v, u = np.nonzero(union)
+    return union, np.array([u.mean(), v.mean()])
+
+
+def _centre_gap_px(model: PlateModel) -> float:
+    """Width in pixels of the largest light centre that can split the cross into its arms."""
+    plate = model.sensor.plate
+    return (
+        CENTRE_GAP_ARMS
+        * plate.cross_arm_mm
+        * model.camera.fx_px
+        / (plate.z_i_mm - plate.cross_offset_mm)
+    )
+
+
+def _found_where(feature: str, colour: str, mask, model_uv, corners) -> str:
+    """What was found of a feature, and where, for the error message."""
+    found = blobs(mask)
+    centre = model_uv.mean(axis=0)
+    order = np.argsort(-found.area)[:3]
+    parts = ", ".join(f"{found.area[k]:.0f} px at ({found.centroid[k][0]:.0f}, "
+                      f"{found.centroid[k][1]:.0f})" for k in order)  # fmt: skip
+    ok = int(np.isfinite(corners).all(axis=1).sum())
+    return (f"{feature}: {ok} of {len(corners)} corners; expected near ({centre[0]:.0f}, "
+            f"{centre[1]:.0f}) px; largest {colour} regions: {parts or 'none'}")  # fmt: skip
 
 
 def _dirs(uv: np.ndarray, centre: np.ndarray) -> np.ndarray:
     d = uv - centre
     return np.degrees(np.arctan2(d[:, 1], d[:, 0]))
-
