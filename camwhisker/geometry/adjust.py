@@ -28,9 +28,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
+from camwhisker.camera import JAC_TVEC, project_rigid
 from camwhisker.model import GEOMETRY_NAMES, TIP, PlateModel, geometry_vector, with_geometry
+from camwhisker.plate import rigid_motion
 from camwhisker.sensor import Sensor, SensorFileError
 
 __all__ = [
@@ -51,6 +54,9 @@ SE_LIMIT = 0.5
 #: A sweep whose largest tilt stays below this (deg) leaves the depths and the
 #: distortion poorly determined.
 PHI_MIN_SWEEP_DEG = 15.0
+#: Prior SD of a tracked corner's in-plane shift from the true corner (mm):
+#: rest detection places corners to 1-2 px, ~0.03 mm on the plate.
+CORNER_SHIFT_MM = 0.05
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
 #: Build tolerances (SENSOR.md section 8) of the plate dimensions and the
@@ -100,6 +106,8 @@ class Adjustment:
         Frames in the adjustment (enough tracked points).
     sigma_px : float
         Robust residual standard deviation per coordinate.
+    corner_shifts_mm : ndarray, shape (12, 2)
+        Each tracked corner's in-plane shift (x, y) in the plate (zero unless fitted).
     warnings : list of str
     """
 
@@ -113,6 +121,7 @@ class Adjustment:
     used: np.ndarray
     sigma_px: float
     n_iter: int
+    corner_shifts_mm: np.ndarray
     warnings: list = field(default_factory=list)
 
     @property
@@ -144,7 +153,7 @@ class _Problem:
     rest: np.ndarray  # (F,)
     sensor: Sensor
     tol: np.ndarray  # (G,)
-    free: np.ndarray  # indices into GEOMETRY_NAMES
+    free: np.ndarray  # indices into the geometry, then the point offsets (px)
     huber_px: float
 
 
@@ -172,10 +181,24 @@ def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
     return rho, w
 
 
+def _corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
+    """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2).
+
+    Not in :class:`PlateModel`: its Jacobians are by the shared dimensions only.
+    """
+    rvec, tvec = rigid_motion(q5, model.z_i_mm)
+    _, jac = project_rigid(model.object_points[:TIP], rvec, tvec, model.camera)
+    d_cam = jac.reshape(TIP, 2, -1)[:, :, JAC_TVEC]
+    return d_cam @ cv2.Rodrigues(rvec)[0][:, :2]
+
+
 def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
-    """Linearise at geometry g and poses q (F, 3); None if g is not a valid sensor."""
+    """Linearise at g (the geometry, then the corners' shifts) and poses q (F, 3);
+    None if g is not a valid sensor."""
+    n_geo = len(GEOMETRY_NAMES)
+    shifts = g[n_geo:].reshape(TIP, 2)
     try:
-        model = PlateModel(with_geometry(p.sensor, g))
+        model = PlateModel(with_geometry(p.sensor, g[:n_geo]))
     except SensorFileError:
         return None
     n_f, n = len(q), len(p.free)
@@ -183,24 +206,37 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
     residual = np.full((n_f, TIP + 1, 2), np.nan)
     weight = np.zeros((n_f, TIP + 1))
+    d_shift = np.zeros((TIP + 1, 2, 2 * TIP))
     cost = 0.0
     q5 = np.zeros(5)
     for f in np.flatnonzero(p.valid.any(axis=1)):
         q5[:3] = q[f]
         jac = model.jacobians(q5)
+        d_corner = _corner_shift_jacobian(model, q5)
+        for j in range(TIP):  # block-diagonal: each shift moves its own corner
+            d_shift[j, :, 2 * j : 2 * j + 2] = d_corner[j]
         m = p.valid[f]
-        r = p.obs[f][m] - jac.uv[m]
+        uv = jac.uv.copy()
+        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts)  # first order: shifts << z
+        r = p.obs[f][m] - uv[m]
         rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px)
         residual[f][m], weight[f][m] = r, w
         cost += rho.sum()
         sw = np.repeat(np.sqrt(w), 2)
         rw = r.reshape(-1) * sw
-        jg = (jac.geometry[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
+        d_all = np.concatenate([jac.geometry, d_shift], axis=2)
+        jg = (d_all[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
         U += jg.T @ jg
         bg += jg.T @ rw
         if not p.rest[f]:
             jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
             V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
+    # The shifts' prior, in units of CORNER_SHIFT_MM: residual -shift, Jacobian 1.
+    is_shift = p.free >= n_geo
+    x = g[p.free[is_shift]] / CORNER_SHIFT_MM
+    U[is_shift, is_shift] += 1.0
+    bg[is_shift] -= x
+    cost += float(x @ x)
     return _Normal(cost, U, bg, V, bp, W, residual, weight)
 
 
@@ -273,6 +309,7 @@ def adjust_geometry(
     rest: np.ndarray,
     fixed: dict[str, float] | None = None,
     q0: np.ndarray | None = None,
+    corner_shifts: bool = False,
     huber_px: float = HUBER_PX,
     se_limit: float = SE_LIMIT,
 ) -> Adjustment:
@@ -291,6 +328,10 @@ def adjust_geometry(
         (the known length that fixes the scale).
     q0 : ndarray, shape (F, 3) or (F, 5), optional
         Starting poses (dz_mm, a_rad, b_rad, ...); default zero.
+    corner_shifts : bool
+        Fit each tracked corner's in-plane position in the plate too, with the
+        prior ``CORNER_SHIFT_MM``: a corner detected off the true one at rest is
+        then tracked as the plate point it lies on, not read as geometry.
     huber_px, se_limit : float
         See ``HUBER_PX`` and ``SE_LIMIT``.
 
@@ -316,19 +357,23 @@ def adjust_geometry(
         g[GEOMETRY_NAMES.index(name)] = value
     start = with_geometry(sensor, g)
     nominal = geometry_vector(sensor)
+    n_geo = len(g)
+    g = np.concatenate([g, np.zeros(2 * TIP)])  # then the corners' shifts (mm)
     q = np.zeros((len(points_uv), 3)) if q0 is None else np.array(q0, dtype=float)[:, :3]
     q[rest | ~used] = 0.0
     moving = used & ~rest
-    tol = tolerances(sensor)
+    tol = np.concatenate([tolerances(sensor), np.full(2 * TIP, CORNER_SHIFT_MM)])
     held = {name: "held at the given value" for name in fixed}
     p = _Problem(points_uv, valid, rest, start, tol, np.zeros(0, dtype=int), huber_px)
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
-    p.free = np.array([i for i, n in enumerate(GEOMETRY_NAMES) if n not in held], dtype=int)
+    free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
+    p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
     while True:
         g, q, ne, it = _solve(p, g, q, moving)
         n_iter += it
         se_free, sigma = _standard_errors(ne, p, moving)
-        ratio = se_free / tol[p.free]
+        n_free_geo = int(np.count_nonzero(p.free < n_geo))
+        ratio = se_free[:n_free_geo] / tol[p.free[:n_free_geo]]
         if not len(ratio) or ratio.max() <= se_limit:
             break
         worst = int(np.argmax(ratio))
@@ -341,12 +386,13 @@ def adjust_geometry(
         p.free = np.delete(p.free, worst)
     se = np.full(len(g), np.nan)
     se[p.free] = se_free
+    g, shifts, se = g[:n_geo], g[n_geo:].reshape(TIP, 2), se[:n_geo]
     q5 = np.zeros((len(q), 5))
     q5[:, :3] = q
     q5[~used] = np.nan
     return Adjustment(
         with_geometry(sensor, g), nominal, g, se, held, q5, ne.residual, used, sigma, n_iter,
-        _warnings(q5, held, fixed),
+        shifts, _warnings(q5, held, fixed),
     )  # fmt: skip
 
 
