@@ -69,6 +69,10 @@ _TOLERANCE = {
     "plate.cross_offset_mm": 0.2, "plate.rod_diameter_mm": 0.1,
 }  # fmt: skip
 _FOCAL_TOLERANCE = 0.04
+#: Parameters no sweep determines, always held at nominal, and why.
+ALWAYS_HELD = {
+    "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
+}
 #: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
 #: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
 _RIDGE = 1e-10
@@ -364,6 +368,7 @@ def adjust_geometry(
     moving = used & ~rest
     tol = np.concatenate([tolerances(sensor), np.full(2 * TIP, CORNER_SHIFT_MM)])
     held = {name: "held at the given value" for name in fixed}
+    held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
     p = _Problem(points_uv, valid, rest, start, tol, np.zeros(0, dtype=int), huber_px)
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]

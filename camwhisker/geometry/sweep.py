@@ -180,9 +180,9 @@ def calibrate_sensor(
     for k in range(rounds):
         tracked = track_sweep(videos, current, on_frame)
         ok_fraction.append(float(tracked.ok.mean()))
-        adj = adjust_geometry(
-            tracked.points_uv, start, tracked.rest, fixed, tracked.q, corner_shifts=True
-        )
+        # Only the rows the front end trusted: a lost track's points are no measurement.
+        pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
+        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q)
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
