@@ -19,9 +19,10 @@ Gauges, and what holds them:
 
 Determinability: the standard error (SE) of every fitted parameter comes from
 the Gauss-Newton covariance at the solution, scaled by the robust residual
-variance. A parameter whose SE exceeds ``SE_LIMIT`` times its build tolerance
-(``tolerances``) is not determined by the sweep: it is held at its nominal
-value, the worst first, and the rest fitted again.
+variance and by the frame-to-frame correlation of the residuals. A parameter
+whose SE exceeds ``SE_LIMIT`` times its build tolerance (``tolerances``) is not
+determined by the sweep: it is held at its nominal value, the worst first, and
+the rest fitted again.
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ PHI_MIN_SWEEP_DEG = 15.0
 #: Prior SD of a tracked corner's in-plane shift from the true corner (mm):
 #: rest detection places corners to 1-2 px, ~0.03 mm on the plate.
 CORNER_SHIFT_MM = 0.05
+#: The frame-to-frame residual correlation used for the SE is capped here.
+MAX_FRAME_CORRELATION = 0.95
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
 #: Build tolerances (SENSOR.md section 8) of the plate dimensions and the
@@ -303,8 +306,22 @@ def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[np.n
     if not len(p.free):
         return np.zeros(0), sigma
     S, _, _ = _reduced(ne, 0.0, moving)
-    cov = np.linalg.inv(S) * sigma**2
+    cov = np.linalg.inv(S) * sigma**2 * _correlation_inflation(ne.residual)
     return np.sqrt(np.clip(np.diag(cov), 0.0, None)) * p.tol[p.free], sigma
+
+
+def _correlation_inflation(residual: np.ndarray) -> float:
+    """Variance factor (1 + rho) / (1 - rho) for residuals correlated from one frame
+    to the next with lag-1 correlation rho (AR(1)): tracking errors drift smoothly,
+    so consecutive frames are not independent measurements."""
+    a, b = residual[:-1], residual[1:]
+    both = np.isfinite(a) & np.isfinite(b)
+    if both.sum() < 10:
+        return 1.0
+    a, b = a[both], b[both]
+    rho = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = min(max(rho, 0.0), MAX_FRAME_CORRELATION)
+    return (1 + rho) / (1 - rho)
 
 
 def adjust_geometry(

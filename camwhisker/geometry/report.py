@@ -46,6 +46,12 @@ def _num(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _why_held(cal: Calibration, name: str) -> str:
+    if name == "plate.rod_diameter_mm" and math.isfinite(cal.tip_radius_px):
+        return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
+    return cal.adjustment.held.get(name, "")
+
+
 def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command: str) -> dict:
     """The report's content (see the module notes)."""
     adj = cal.adjustment
@@ -53,7 +59,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
     params = [
         {"name": name, "nominal": _num(nominal_g[i]), "fitted": _num(adj.value[i]),
          "se": _num(adj.se[i]), "tolerance": _num(tol[i]), "held": name in adj.held,
-         "why_held": adj.held.get(name, "")}
+         "why_held": _why_held(cal, name)}
         for i, name in enumerate(GEOMETRY_NAMES)
     ]  # fmt: skip
     tracked = cal.tracked
@@ -79,6 +85,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
             "ok_fraction_per_round": cal.ok_fraction,
         },
         "phi_max_deg": _num(adj.phi_max_deg),
+        "tip_radius_at_rest_px": _num(cal.tip_radius_px),
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
     }

@@ -9,7 +9,9 @@ of its standard errors.
 
 Each video starts at rest: its first frame is the front end's rest frame, and
 the frames before the plate first moves are held at pose zero. The square's
-side, measured with calipers, fixes the scale. Intrinsics from chessboard
+side, measured with calipers, fixes the scale. The rod's diameter is measured
+from the tip's radius at rest (the adjustment cannot see it, the front end's
+tip measurement can). Intrinsics from chessboard
 images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
 """
 
@@ -24,10 +26,13 @@ import numpy as np
 
 from camwhisker.camera import INTRINSIC_NAMES
 from camwhisker.geometry.adjust import Adjustment, adjust_geometry
-from camwhisker.model import TIP
+from camwhisker.model import TIP, PlateModel
+from camwhisker.polygon import polygon_centroid
 from camwhisker.sensor import Sensor
 from camwhisker.sources import open_source
 from camwhisker.stream import track
+from camwhisker.vision.tip import ellipse_centre, tip_edge_points
+from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd
 
 __all__ = [
     "REST_PX",
@@ -36,6 +41,8 @@ __all__ = [
     "Calibration",
     "track_sweep",
     "rest_frames",
+    "rest_tip_radius_px",
+    "rod_diameter_mm",
     "calibrate_sensor",
     "intrinsics_from_chessboard",
 ]
@@ -48,6 +55,7 @@ MAX_ROUNDS = 3
 #: The fit is stable when no parameter moved by more than this many SE in a round.
 STABLE_SE = 0.5
 SQUARE_SIDE = "plate.square_side_mm"
+ROD_DIAMETER = "plate.rod_diameter_mm"
 
 
 @dataclass(frozen=True)
@@ -80,7 +88,8 @@ class Calibration:
     adjustment: Adjustment
     tracked: TrackedSweep
     ok_fraction: list = field(default_factory=list)
-    start: Sensor | None = None
+    #: The tip's radius at rest (px), mean over the videos: it gives the rod's diameter.
+    tip_radius_px: float = float("nan")
 
     @property
     def sensor(self) -> Sensor:
@@ -96,6 +105,38 @@ def rest_frames(points_uv: np.ndarray) -> np.ndarray:
     out = np.zeros(len(points_uv), dtype=bool)
     out[: max(run, 1)] = True
     return out
+
+
+def rest_tip_radius_px(video: str | Path, sensor: Sensor) -> float:
+    """The end face's mean radius (px) in the video's first frame, from an ellipse
+    fitted to its whole edge: at rest the rod hides none of it.
+
+    Raises
+    ------
+    camwhisker.vision.FeaturesNotFound
+        The first frame lacks a feature.
+    """
+    image = next(iter(open_source(video))).image
+    fe = FrontEnd(sensor)
+    fe.start(image)
+    edges, _, why = tip_edge_points(image, fe.rest.gains, fe.rest.uv[TIP],
+                                    _rim_radius_px(sensor), TIP_SEARCH_PX)  # fmt: skip
+    tip = ellipse_centre(edges) if edges is not None else None
+    if tip is None or not tip.ok:
+        raise ValueError(f"{video}: the tip's edge at rest: {why or tip.reason}")
+    return float(tip.radius_px)
+
+
+def _rim_radius_px(sensor: Sensor) -> float:
+    """The model's end-face rim at rest: its mean radius about its centroid (px)."""
+    rim = PlateModel(sensor).outlines(np.zeros(5))[0]
+    return float(np.mean(np.linalg.norm(rim - polygon_centroid(rim), axis=1)))
+
+
+def rod_diameter_mm(sensor: Sensor, tip_radius_px: float) -> float:
+    """The rod's diameter that makes the model's rim at rest as large as measured:
+    the tip's measurement fits the model's rim to a partial edge, so its size matters."""
+    return sensor.plate.rod_diameter_mm * tip_radius_px / _rim_radius_px(sensor)
 
 
 def _q_from_results(results) -> np.ndarray:
@@ -176,20 +217,23 @@ def calibrate_sensor(
         cam = start.camera
         values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
         fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
+    radius_px = float(np.mean([rest_tip_radius_px(v, start) for v in videos]))
     current, previous, ok_fraction = start, None, []
     for k in range(rounds):
+        fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
+        current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
         tracked = track_sweep(videos, current, on_frame)
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
-        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q)
+        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q, corner_shifts=True)
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
         if previous is not None and _stable(previous, adj):
             break
         previous = adj
-    return Calibration(adj, tracked, ok_fraction, start)
+    return Calibration(adj, tracked, ok_fraction, radius_px)
 
 
 def _stable(before: Adjustment, after: Adjustment) -> bool:
