@@ -234,3 +234,52 @@ def test_the_fitted_file_reaches_1_5x_of_the_true_files_phi(calibrated, build):
     out, clip = calibrated
     fitted, true = _clip_errors(clip, load_sensor(out)), _clip_errors(clip, build)
     assert fitted[0] <= 1.5 * true[0] and fitted[1] <= 1.5 * true[1]
+
+
+# ---------------------------------------------------------------- chessboard
+def _board_views(tmp_path, camera, n_views=6):
+    """Pinhole views of a 9x6-inner-corner board (30 mm squares) at known poses."""
+    import cv2
+
+    sq_px, cols, rows = 40, 10, 7  # squares: inner corners 9 x 6
+    board = np.kron((np.indices((rows, cols)).sum(0) % 2) * 255, np.ones((sq_px, sq_px)))
+    board = np.pad(board, sq_px, constant_values=255).astype(np.uint8)
+    mm_per_px = 30.0 / sq_px
+    paths = []
+    for k in range(n_views):
+        rvec = np.array([0.25 * np.cos(k), 0.25 * np.sin(k), 0.05 * k])
+        tvec = np.array([-150.0, -100.0, 600.0 + 40 * k])
+        corners_px = np.array([[0, 0], [board.shape[1], 0], [board.shape[1], board.shape[0]],
+                               [0, board.shape[0]]], float)  # fmt: skip
+        obj = np.column_stack([corners_px * mm_per_px - sq_px * mm_per_px, np.zeros(4)])
+        img_pts, _ = cv2.projectPoints(obj, rvec, tvec, camera.matrix, np.zeros(5))
+        h = cv2.getPerspectiveTransform(corners_px.astype(np.float32),
+                                        img_pts.reshape(4, 2).astype(np.float32))  # fmt: skip
+        view = cv2.warpPerspective(board, h, (camera.width_px, camera.height_px),
+                                   flags=cv2.INTER_AREA, borderValue=128)  # fmt: skip
+        paths.append(tmp_path / f"board{k}.png")
+        cv2.imwrite(str(paths[-1]), view)
+    return paths
+
+
+def test_intrinsics_from_chessboard_images(tmp_path):
+    from camwhisker.geometry.sweep import intrinsics_from_chessboard
+
+    camera = Sensor().camera
+    paths = _board_views(tmp_path, camera)
+    intr, rms = intrinsics_from_chessboard(paths, (9, 6), 30.0, (1280, 720))
+    assert rms < 0.5
+    assert intr["fx_px"] == pytest.approx(camera.fx_px, rel=0.01)
+    assert intr["cx_px"] == pytest.approx(camera.cx_px, abs=10)
+    with pytest.raises(ValueError, match="found in 0 of"):
+        intrinsics_from_chessboard(paths[:3], (7, 7), 30.0)
+
+
+def test_calibrate_sensor_cli_names_bad_input(tmp_path, capsys):
+    from camwhisker.cli import main
+
+    rc = main(["calibrate-sensor", str(tmp_path / "none.avi"), "--square-side-mm", "5",
+               "--out", str(tmp_path / "b.toml"), "--chessboard", str(tmp_path),
+               "--pattern", "9by6"])  # fmt: skip
+    assert rc == 2
+    assert "--pattern must be like 9x6" in capsys.readouterr().err
