@@ -324,6 +324,30 @@ def _correlation_inflation(residual: np.ndarray) -> float:
     return (1 + rho) / (1 - rho)
 
 
+def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float):
+    """Fit, then hold the free geometry parameter worst determined (SE above
+    se_limit tolerances) at nominal and fit again, until none is; ``held`` and
+    ``p.free`` are updated. Returns g, q, the normal equations, the free SEs,
+    sigma and the iterations."""
+    n_geo, n_iter = len(nominal), 0
+    while True:
+        g, q, ne, it = _solve(p, g, q, moving)
+        n_iter += it
+        se_free, sigma = _standard_errors(ne, p, moving)
+        n_free_geo = int(np.count_nonzero(p.free < n_geo))
+        ratio = se_free[:n_free_geo] / p.tol[p.free[:n_free_geo]]
+        if not len(ratio) or ratio.max() <= se_limit:
+            return g, q, ne, se_free, sigma, n_iter
+        worst = int(np.argmax(ratio))
+        i = int(p.free[worst])
+        held[GEOMETRY_NAMES[i]] = (
+            f"not determined by the sweep (SE {se_free[worst]:.3g} > {se_limit} x tolerance "
+            f"{p.tol[i]:.3g}): held at nominal"
+        )
+        g[i] = nominal[i]
+        p.free = np.delete(p.free, worst)
+
+
 def adjust_geometry(
     points_uv: np.ndarray,
     sensor: Sensor,
@@ -390,22 +414,8 @@ def adjust_geometry(
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
-    while True:
-        g, q, ne, it = _solve(p, g, q, moving)
-        n_iter += it
-        se_free, sigma = _standard_errors(ne, p, moving)
-        n_free_geo = int(np.count_nonzero(p.free < n_geo))
-        ratio = se_free[:n_free_geo] / tol[p.free[:n_free_geo]]
-        if not len(ratio) or ratio.max() <= se_limit:
-            break
-        worst = int(np.argmax(ratio))
-        i = int(p.free[worst])
-        held[GEOMETRY_NAMES[i]] = (
-            f"not determined by the sweep (SE {se_free[worst]:.3g} > {se_limit} x tolerance "
-            f"{tol[i]:.3g}): held at nominal"
-        )
-        g[i] = nominal[i]
-        p.free = np.delete(p.free, worst)
+    g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
+    n_iter += it
     se = np.full(len(g), np.nan)
     se[p.free] = se_free
     g, shifts, se = g[:n_geo], g[n_geo:].reshape(TIP, 2), se[:n_geo]
