@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import batch, bench, contact, live, overlay, synth, validate
+from camwhisker.cli import batch, bench, calibrate_sensor, contact, live, overlay, synth, validate
 from camwhisker.cli.common import INPUT_ERRORS
 
 __all__ = ["build_parser", "main"]
@@ -21,6 +21,7 @@ _COMMANDS = [
     bench.add_chain,
     contact.add_simulate_stage,
     contact.add_calibrate,
+    calibrate_sensor.add_calibrate_sensor,
     contact.add_contact,
     validate.add_validate,
     bench.add_contact_bench,

@@ -19,7 +19,15 @@ import numpy as np
 from camwhisker.plate import Pose
 from camwhisker.synth.artefacts import Artefacts
 
-__all__ = ["PoseTrack", "Scenario", "SCENARIOS", "make_scenario", "ordinary_track", "wrap_deg"]
+__all__ = [
+    "PoseTrack",
+    "Scenario",
+    "SCENARIOS",
+    "make_scenario",
+    "ordinary_track",
+    "sweep_track",
+    "wrap_deg",
+]
 
 #: Columns of the truth table written beside every rendered video.
 TRUTH_COLUMNS = ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "sx_mm", "sy_mm")
@@ -253,6 +261,34 @@ _saturated = _nominal_with(
 _heavy_blur = _nominal_with("heavy_blur", "defocus blur sigma 4 px", blur_sigma_px=4.0)
 
 
+def sweep_track(
+    n: int, fps: float, phi_max_deg: float = 30.0, dz_max_mm: float = 0.5, n_rest: int = 10
+) -> PoseTrack:
+    """Rest frames, then the tilt swept through every direction twice, up to phi_max.
+
+    A calibration sweep: the tilt rises and falls twice while its direction turns
+    two and a half times, so every direction is seen at small and large tilt.
+    """
+    n_rest = min(n_rest, max(1, n // 5))
+    s = np.concatenate([np.zeros(n_rest), (np.arange(n - n_rest) + 0.5) / max(n - n_rest, 1)])
+    moving = np.arange(n) >= n_rest
+    phi = np.where(moving, phi_max_deg * np.sin(2 * np.pi * s) ** 2, 0.0)
+    theta = np.where(moving, 900.0 * s, 0.0)
+    dz = np.where(moving, dz_max_mm * np.sin(3 * np.pi * s) ** 2, 0.0)
+    zero = np.zeros(n)
+    return PoseTrack(np.arange(n) / fps, dz, phi, wrap_deg(theta), zero, zero.copy())
+
+
+def _calibration_sweep(n, seed, fps=30.0):
+    return Scenario(
+        "calibration_sweep",
+        "rest, then the tilt swept through every direction up to 30 deg (for calibrate-sensor)",
+        sweep_track(n, fps),
+        NOMINAL_ARTEFACTS,
+        fps,
+    )
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "nominal": _nominal,
     "distortion": _distortion,
@@ -263,6 +299,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "lighting_jump": _lighting_jump,
     "saturated": _saturated,
     "heavy_blur": _heavy_blur,
+    "calibration_sweep": _calibration_sweep,
 }
 
 

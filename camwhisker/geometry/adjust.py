@@ -1,0 +1,451 @@
+"""Bundle adjustment of a sensor's intrinsics and plate geometry over a sweep.
+
+Unknowns: the geometry of ``GEOMETRY_NAMES`` (camera intrinsics and
+distortion, the ``[plate]`` dimensions) and, per frame off rest, the pose
+(dz_mm, a_rad, b_rad). The residuals are the tracked image points (12 corners
+and the tip, :mod:`camwhisker.model`) minus the model's, under a Huber loss on
+each point's distance. The normal equations are solved by Levenberg-Marquardt
+with the per-frame pose blocks eliminated (Schur complement), so a sweep of
+hundreds of frames costs little more than its geometry.
+
+Gauges, and what holds them:
+
+- Frames at rest have pose zero (that is what rest means): they fix dz = 0
+  against the depth z_i.
+- The lateral shift (sx, sy) is held at zero: a free shift lets the depth of
+  the rotation centre trade off against the features' depths.
+- The overall scale is invisible in the images: one known length (the
+  square's side, measured with calipers) must be held at its value.
+
+Determinability: the standard error (SE) of every fitted parameter comes from
+the Gauss-Newton covariance at the solution, scaled by the robust residual
+variance and by the frame-to-frame correlation of the residuals. A parameter
+whose SE exceeds ``SE_LIMIT`` times its build tolerance (``tolerances``) is not
+determined by the sweep: it is held at its nominal value, the worst first, and
+the rest fitted again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from camwhisker.camera import JAC_TVEC, project_rigid
+from camwhisker.model import GEOMETRY_NAMES, TIP, PlateModel, geometry_vector, with_geometry
+from camwhisker.plate import rigid_motion
+from camwhisker.sensor import Sensor, SensorFileError
+
+__all__ = [
+    "HUBER_PX",
+    "SE_LIMIT",
+    "PHI_MIN_SWEEP_DEG",
+    "Adjustment",
+    "tolerances",
+    "adjust_geometry",
+]
+
+#: The Huber loss is quadratic within this distance of a point's model (px):
+#: above the tracking noise (~0.1 px), below a mistracked corner (pixels).
+HUBER_PX = 0.5
+#: A parameter whose SE exceeds this fraction of its build tolerance is held:
+#: the sweep says less about it than the build's tolerance already does.
+SE_LIMIT = 0.5
+#: A sweep whose largest tilt stays below this (deg) leaves the depths and the
+#: distortion poorly determined.
+PHI_MIN_SWEEP_DEG = 15.0
+#: Prior SD of a tracked corner's in-plane shift from the true corner (mm):
+#: rest detection places corners to 1-2 px, ~0.03 mm on the plate.
+CORNER_SHIFT_MM = 0.05
+#: The frame-to-frame residual correlation used for the SE is capped here.
+MAX_FRAME_CORRELATION = 0.95
+#: Points a frame needs for its pose (3 unknowns) to be checked by the others.
+MIN_POINTS = 4
+#: Build tolerances (SENSOR.md section 8) of the plate dimensions and the
+#: intrinsics other than the focal lengths (relative, ``_FOCAL_TOLERANCE``).
+_TOLERANCE = {
+    "camera.cx_px": 10.0, "camera.cy_px": 10.0, "camera.k1": 0.1, "camera.k2": 0.1,
+    "camera.p1": 0.005, "camera.p2": 0.005, "camera.k3": 0.1,
+    "plate.z_i_mm": 0.6, "plate.h_r_mm": 0.3, "plate.square_side_mm": 0.1,
+    "plate.square_offset_mm": 0.2, "plate.cross_span_mm": 0.1, "plate.cross_arm_mm": 0.1,
+    "plate.cross_offset_mm": 0.2, "plate.rod_diameter_mm": 0.1,
+}  # fmt: skip
+_FOCAL_TOLERANCE = 0.04
+#: Parameters no sweep determines, always held at nominal, and why.
+ALWAYS_HELD = {
+    "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
+}
+#: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
+#: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
+_RIDGE = 1e-10
+_MAX_ITER = 60
+#: Iterations stop when the cost falls by less than this fraction.
+_COST_RTOL = 1e-9
+
+
+def tolerances(sensor: Sensor) -> np.ndarray:
+    """Each parameter's build tolerance, in the order of ``GEOMETRY_NAMES``."""
+    g = geometry_vector(sensor)
+    return np.array(
+        [_FOCAL_TOLERANCE * g[i] if name in ("camera.fx_px", "camera.fy_px") else _TOLERANCE[name]
+         for i, name in enumerate(GEOMETRY_NAMES)]
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Adjustment:
+    """The adjusted geometry, its standard errors and the residuals.
+
+    Attributes
+    ----------
+    sensor : Sensor
+        The nominal sensor with the fitted geometry.
+    nominal, value, se : ndarray, shape (len(GEOMETRY_NAMES),)
+        Nominal and fitted values, standard errors (NaN where held).
+    held : dict
+        Held parameter name -> why.
+    q : ndarray, shape (F, 5)
+        Per-frame poses (dz_mm, a_rad, b_rad, sx_mm, sy_mm); NaN for unused frames.
+    residual_uv : ndarray, shape (F, 13, 2)
+        Tracked minus model pixels; NaN where a point was not tracked.
+    used : ndarray of bool, shape (F,)
+        Frames in the adjustment (enough tracked points).
+    sigma_px : float
+        Robust residual standard deviation per coordinate.
+    corner_shifts_mm : ndarray, shape (12, 2)
+        Each tracked corner's in-plane shift (x, y) in the plate (zero unless fitted).
+    warnings : list of str
+    """
+
+    sensor: Sensor
+    nominal: np.ndarray
+    value: np.ndarray
+    se: np.ndarray
+    held: dict
+    q: np.ndarray
+    residual_uv: np.ndarray
+    used: np.ndarray
+    sigma_px: float
+    n_iter: int
+    corner_shifts_mm: np.ndarray
+    warnings: list = field(default_factory=list)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return GEOMETRY_NAMES
+
+    @property
+    def phi_max_deg(self) -> float:
+        return float(np.degrees(np.nanmax(np.hypot(self.q[:, 1], self.q[:, 2]))))
+
+    def rms_per_point_px(self) -> np.ndarray:
+        """RMS residual distance of each tracked point over the used frames, shape (13,)."""
+        d2 = np.sum(self.residual_uv[self.used] ** 2, axis=-1)
+        return np.sqrt(np.nanmean(d2, axis=0))
+
+    def rms_per_frame_px(self) -> np.ndarray:
+        """RMS residual distance over each frame's tracked points, shape (F,)."""
+        d2 = np.sum(self.residual_uv**2, axis=-1)
+        with np.errstate(invalid="ignore"):
+            return np.sqrt(np.nanmean(np.where(np.isnan(d2).all(axis=1)[:, None], 0.0, d2), axis=1))
+
+
+@dataclass
+class _Problem:
+    """What one solve works on: observations, which frames and parameters, scaling."""
+
+    obs: np.ndarray  # (F, 13, 2)
+    valid: np.ndarray  # (F, 13)
+    rest: np.ndarray  # (F,)
+    sensor: Sensor
+    tol: np.ndarray  # (G,)
+    free: np.ndarray  # indices into the geometry, then the point offsets (px)
+    huber_px: float
+
+
+@dataclass
+class _Normal:
+    """The robust normal equations at one point: geometry block U (n, n), its
+    right side bg (n,), pose blocks V (F, 3, 3), bp (F, 3), couplings W (F, n, 3)."""
+
+    cost: float
+    U: np.ndarray
+    bg: np.ndarray
+    V: np.ndarray
+    bp: np.ndarray
+    W: np.ndarray
+    residual: np.ndarray  # (F, 13, 2)
+    weight: np.ndarray  # (F, 13)
+
+
+def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """Huber loss of point distances and its IRLS weights."""
+    quad = dist <= k
+    rho = np.where(quad, dist**2, 2 * k * dist - k * k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(quad, 1.0, k / dist)
+    return rho, w
+
+
+def _corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
+    """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2).
+
+    Not in :class:`PlateModel`: its Jacobians are by the shared dimensions only.
+    """
+    rvec, tvec = rigid_motion(q5, model.z_i_mm)
+    _, jac = project_rigid(model.object_points[:TIP], rvec, tvec, model.camera)
+    d_cam = jac.reshape(TIP, 2, -1)[:, :, JAC_TVEC]
+    return d_cam @ cv2.Rodrigues(rvec)[0][:, :2]
+
+
+def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
+    """Linearise at g (the geometry, then the corners' shifts) and poses q (F, 3);
+    None if g is not a valid sensor."""
+    n_geo = len(GEOMETRY_NAMES)
+    shifts = g[n_geo:].reshape(TIP, 2)
+    try:
+        model = PlateModel(with_geometry(p.sensor, g[:n_geo]))
+    except SensorFileError:
+        return None
+    n_f, n = len(q), len(p.free)
+    U, bg = np.zeros((n, n)), np.zeros(n)
+    V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
+    residual = np.full((n_f, TIP + 1, 2), np.nan)
+    weight = np.zeros((n_f, TIP + 1))
+    d_shift = np.zeros((TIP + 1, 2, 2 * TIP))
+    cost = 0.0
+    q5 = np.zeros(5)
+    for f in np.flatnonzero(p.valid.any(axis=1)):
+        q5[:3] = q[f]
+        jac = model.jacobians(q5)
+        d_corner = _corner_shift_jacobian(model, q5)
+        for j in range(TIP):  # block-diagonal: each shift moves its own corner
+            d_shift[j, :, 2 * j : 2 * j + 2] = d_corner[j]
+        m = p.valid[f]
+        uv = jac.uv.copy()
+        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts)  # first order: shifts << z
+        r = p.obs[f][m] - uv[m]
+        rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px)
+        residual[f][m], weight[f][m] = r, w
+        cost += rho.sum()
+        sw = np.repeat(np.sqrt(w), 2)
+        rw = r.reshape(-1) * sw
+        d_all = np.concatenate([jac.geometry, d_shift], axis=2)
+        jg = (d_all[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
+        U += jg.T @ jg
+        bg += jg.T @ rw
+        if not p.rest[f]:
+            jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
+            V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
+    # The shifts' prior, in units of CORNER_SHIFT_MM: residual -shift, Jacobian 1.
+    is_shift = p.free >= n_geo
+    x = g[p.free[is_shift]] / CORNER_SHIFT_MM
+    U[is_shift, is_shift] += 1.0
+    bg[is_shift] -= x
+    cost += float(x @ x)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight)
+
+
+def _reduced(ne: _Normal, lam: float, moving: np.ndarray):
+    """The Schur complement S and right side of the geometry step, with Marquardt
+    damping lam, and the damped pose blocks' inverses (F, 3, 3)."""
+    eye3 = np.eye(3)
+    vd = ne.V + lam * ne.V * eye3 + np.where(moving, 0.0, 1.0)[:, None, None] * eye3
+    vinv = np.linalg.inv(vd)
+    wv = ne.W @ vinv  # (F, n, 3)
+    S = ne.U + lam * np.diag(np.diag(ne.U)) - np.einsum("fij,fkj->ik", wv, ne.W)
+    rhs = ne.bg - np.einsum("fij,fj->i", wv, ne.bp)
+    n = len(S)
+    if n:
+        S = S + _RIDGE * max(np.trace(S) / n, 1e-300) * np.eye(n)
+    return S, rhs, vinv
+
+
+def _step(ne: _Normal, lam: float, moving: np.ndarray):
+    """Levenberg-Marquardt step: geometry (n,) in tolerance units, poses (F, 3)."""
+    S, rhs, vinv = _reduced(ne, lam, moving)
+    dg = np.linalg.solve(S, rhs) if len(S) else np.zeros(0)
+    dq = np.einsum("fij,fj->fi", vinv, ne.bp - np.einsum("fij,i->fj", ne.W, dg))
+    return dg, np.where(moving[:, None], dq, 0.0)
+
+
+def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray):
+    """Minimise the robust cost from (g, q); returns g, q, the last normal equations
+    and the number of iterations."""
+    ne = _normal(p, g, q)
+    if ne is None:
+        raise SensorFileError("the starting geometry is not a valid sensor")
+    lam, n_iter = 1e-3, 0
+    while n_iter < _MAX_ITER:
+        n_iter += 1
+        dg, dq = _step(ne, lam, moving)
+        g_try = g.copy()
+        g_try[p.free] += dg * p.tol[p.free]
+        q_try = q + dq
+        trial = _normal(p, g_try, q_try)
+        if trial is not None and trial.cost <= ne.cost:
+            done = ne.cost - trial.cost <= _COST_RTOL * ne.cost
+            g, q, ne, lam = g_try, q_try, trial, max(lam / 3, 1e-9)
+            if done:
+                break
+        else:
+            lam *= 4
+            if lam > 1e8:
+                break
+    return g, q, ne, n_iter
+
+
+def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[np.ndarray, float]:
+    """SE of the free parameters (their units) from the undamped reduced system,
+    scaled by the robust residual variance; and that variance's root (px)."""
+    n_obs = 2 * int(np.count_nonzero(ne.weight))
+    dof = max(n_obs - 3 * int(moving.sum()) - len(p.free), 1)
+    r2 = np.nansum(ne.residual**2, axis=-1)
+    sigma = float(np.sqrt(np.sum(ne.weight * r2) / dof))
+    if not len(p.free):
+        return np.zeros(0), sigma
+    S, _, _ = _reduced(ne, 0.0, moving)
+    cov = np.linalg.inv(S) * sigma**2 * _correlation_inflation(ne.residual)
+    return np.sqrt(np.clip(np.diag(cov), 0.0, None)) * p.tol[p.free], sigma
+
+
+def _correlation_inflation(residual: np.ndarray) -> float:
+    """Variance factor (1 + rho) / (1 - rho) for residuals correlated from one frame
+    to the next with lag-1 correlation rho (AR(1)): tracking errors drift smoothly,
+    so consecutive frames are not independent measurements."""
+    a, b = residual[:-1], residual[1:]
+    both = np.isfinite(a) & np.isfinite(b)
+    if both.sum() < 10:
+        return 1.0
+    a, b = a[both], b[both]
+    rho = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = min(max(rho, 0.0), MAX_FRAME_CORRELATION)
+    return (1 + rho) / (1 - rho)
+
+
+def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float):
+    """Fit, then hold the free geometry parameter worst determined (SE above
+    se_limit tolerances) at nominal and fit again, until none is; ``held`` and
+    ``p.free`` are updated. Returns g, q, the normal equations, the free SEs,
+    sigma and the iterations."""
+    n_geo, n_iter = len(nominal), 0
+    while True:
+        g, q, ne, it = _solve(p, g, q, moving)
+        n_iter += it
+        se_free, sigma = _standard_errors(ne, p, moving)
+        n_free_geo = int(np.count_nonzero(p.free < n_geo))
+        ratio = se_free[:n_free_geo] / p.tol[p.free[:n_free_geo]]
+        if not len(ratio) or ratio.max() <= se_limit:
+            return g, q, ne, se_free, sigma, n_iter
+        worst = int(np.argmax(ratio))
+        i = int(p.free[worst])
+        held[GEOMETRY_NAMES[i]] = (
+            f"not determined by the sweep (SE {se_free[worst]:.3g} > {se_limit} x tolerance "
+            f"{p.tol[i]:.3g}): held at nominal"
+        )
+        g[i] = nominal[i]
+        p.free = np.delete(p.free, worst)
+
+
+def adjust_geometry(
+    points_uv: np.ndarray,
+    sensor: Sensor,
+    rest: np.ndarray,
+    fixed: dict[str, float] | None = None,
+    q0: np.ndarray | None = None,
+    corner_shifts: bool = False,
+    huber_px: float = HUBER_PX,
+    se_limit: float = SE_LIMIT,
+) -> Adjustment:
+    """Fit the geometry and per-frame poses to tracked points over a sweep.
+
+    Parameters
+    ----------
+    points_uv : ndarray, shape (F, 13, 2)
+        Tracked image points per frame (12 corners, the tip); NaN where not tracked.
+    sensor : Sensor
+        The starting (nominal) sensor; held parameters keep its values.
+    rest : ndarray of bool, shape (F,)
+        Frames at rest (pose zero). At least one is needed.
+    fixed : dict, optional
+        Parameters held at given values, e.g. ``{"plate.square_side_mm": 5.02}``
+        (the known length that fixes the scale).
+    q0 : ndarray, shape (F, 3) or (F, 5), optional
+        Starting poses (dz_mm, a_rad, b_rad, ...); default zero.
+    corner_shifts : bool
+        Fit each tracked corner's in-plane position in the plate too, with the
+        prior ``CORNER_SHIFT_MM``: a corner detected off the true one at rest is
+        then tracked as the plate point it lies on, not read as geometry.
+    huber_px, se_limit : float
+        See ``HUBER_PX`` and ``SE_LIMIT``.
+
+    Returns
+    -------
+    Adjustment
+    """
+    points_uv = np.asarray(points_uv, dtype=float)
+    rest = np.asarray(rest, dtype=bool)
+    if points_uv.ndim != 3 or points_uv.shape[1:] != (TIP + 1, 2) or len(rest) != len(points_uv):
+        raise ValueError(f"points_uv must be (F, {TIP + 1}, 2) with one rest flag per frame")
+    fixed = dict(fixed or {})
+    unknown = set(fixed) - set(GEOMETRY_NAMES)
+    if unknown:
+        raise ValueError(f"unknown geometry parameter {sorted(unknown)[0]!r}")
+    valid = np.isfinite(points_uv).all(axis=-1)
+    used = valid.sum(axis=1) >= MIN_POINTS
+    if not (rest & used).any():
+        raise ValueError("no rest frame with enough tracked points: the depth has no zero")
+    valid &= used[:, None]
+    g = geometry_vector(sensor)
+    for name, value in fixed.items():
+        g[GEOMETRY_NAMES.index(name)] = value
+    start = with_geometry(sensor, g)
+    nominal = geometry_vector(sensor)
+    n_geo = len(g)
+    g = np.concatenate([g, np.zeros(2 * TIP)])  # then the corners' shifts (mm)
+    q = np.zeros((len(points_uv), 3)) if q0 is None else np.array(q0, dtype=float)[:, :3]
+    q[rest | ~used] = 0.0
+    moving = used & ~rest
+    tol = np.concatenate([tolerances(sensor), np.full(2 * TIP, CORNER_SHIFT_MM)])
+    held = {name: "held at the given value" for name in fixed}
+    held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
+    p = _Problem(points_uv, valid, rest, start, tol, np.zeros(0, dtype=int), huber_px)
+    g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
+    free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
+    p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
+    g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
+    n_iter += it
+    se = np.full(len(g), np.nan)
+    se[p.free] = se_free
+    g, shifts, se = g[:n_geo], g[n_geo:].reshape(TIP, 2), se[:n_geo]
+    q5 = np.zeros((len(q), 5))
+    q5[:, :3] = q
+    q5[~used] = np.nan
+    return Adjustment(
+        with_geometry(sensor, g), nominal, g, se, held, q5, ne.residual, used, sigma, n_iter,
+        shifts, _warnings(q5, held, fixed),
+    )  # fmt: skip
+
+
+def _warnings(q5: np.ndarray, held: dict, fixed: dict) -> list[str]:
+    """What the user should know about the sweep and the gauge."""
+    out = []
+    phi_max = float(np.degrees(np.nanmax(np.hypot(q5[:, 1], q5[:, 2]))))
+    if phi_max < PHI_MIN_SWEEP_DEG:
+        out.append(
+            f"the sweep's largest tilt is {phi_max:.1f} deg (< {PHI_MIN_SWEEP_DEG:g} deg): "
+            "the depths and the distortion are poorly determined; sweep to ~30 deg"
+        )
+    lengths = [n for n in GEOMETRY_NAMES if n.endswith("_mm")]
+    if not any(n in fixed for n in lengths):
+        scale_held = [n for n in lengths if n in held]
+        out.append(
+            "no known length: the overall scale is not determined by images; "
+            + (f"held {', '.join(scale_held)} at nominal" if scale_held else "the fit is unscaled")
+            + " (give the square's side measured with calipers)"
+        )
+    for name, why in held.items():
+        if name not in fixed:
+            out.append(f"{name} {why}")
+    return out

@@ -1,0 +1,134 @@
+"""The outputs of calibrate-sensor: the fitted sensor file and its report beside it.
+
+For ``BUILD.toml``::
+
+    BUILD.toml          the fitted sensor file (only keys the sensor file knows)
+    BUILD.report.json   every parameter's nominal and fitted value, SE, held or
+                        fitted; residual RMS per point and per frame; frames
+                        used; warnings; version, inputs, command
+    BUILD.report.png    residuals per point and per frame, parameter shifts in SE
+
+All three are written atomically.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.atomic import atomic_write_text
+from camwhisker.geometry.adjust import tolerances
+from camwhisker.geometry.sweep import Calibration
+from camwhisker.model import GEOMETRY_NAMES, POINT_NAMES, geometry_vector
+from camwhisker.sensor import Sensor, dump_sensor, sensor_to_dict
+
+__all__ = ["report_paths", "calibration_record", "write_calibration", "plot_calibration"]
+
+
+def report_paths(out_toml: str | Path) -> dict[str, Path]:
+    out = Path(out_toml)
+    stem = out.with_suffix("")
+    return {
+        "sensor": out,
+        "json": stem.with_name(stem.name + ".report.json"),
+        "png": stem.with_name(stem.name + ".report.png"),
+    }
+
+
+def _num(v) -> float | None:
+    """A JSON number: None where not finite (JSON has no NaN)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _why_held(cal: Calibration, name: str) -> str:
+    if name == "plate.rod_diameter_mm" and math.isfinite(cal.tip_radius_px):
+        return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
+    return cal.adjustment.held.get(name, "")
+
+
+def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command: str) -> dict:
+    """The report's content (see the module notes)."""
+    adj = cal.adjustment
+    nominal_g, tol = geometry_vector(nominal), tolerances(nominal)
+    params = [
+        {"name": name, "nominal": _num(nominal_g[i]), "fitted": _num(adj.value[i]),
+         "se": _num(adj.se[i]), "tolerance": _num(tol[i]), "held": name in adj.held,
+         "why_held": _why_held(cal, name)}
+        for i, name in enumerate(GEOMETRY_NAMES)
+    ]  # fmt: skip
+    tracked = cal.tracked
+    return {
+        "camwhisker_version": __version__,
+        "made_by": "camwhisker.geometry.report.write_calibration",
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "inputs": {**inputs, "nominal_sensor": nominal.source},
+        "parameters": params,
+        "residual_rms_px": {
+            "sigma_per_coordinate": _num(adj.sigma_px),
+            "per_point": {
+                n: _num(v) for n, v in zip(POINT_NAMES, adj.rms_per_point_px(), strict=True)
+            },  # fmt: skip
+            "per_frame": [_num(v) for v in adj.rms_per_frame_px()],
+        },
+        "frames": {
+            "total": len(tracked.ok),
+            "used": int(adj.used.sum()),
+            "rest": int(tracked.rest.sum()),
+            "per_video": np.bincount(tracked.video).tolist(),
+            "ok_fraction_per_round": cal.ok_fraction,
+        },
+        "phi_max_deg": _num(adj.phi_max_deg),
+        "tip_radius_at_rest_px": _num(cal.tip_radius_px),
+        "warnings": list(adj.warnings),
+        "fitted_sensor": sensor_to_dict(adj.sensor),
+    }
+
+
+def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: str) -> None:
+    """Residual RMS per point and per frame; each fitted parameter's shift in SE."""
+    import matplotlib.pyplot as plt
+
+    from camwhisker.contact.plots import save_figure  # selects the Agg backend
+
+    adj = cal.adjustment
+    fig, axes = plt.subplots(3, 1, figsize=(7.5, 8.5), layout="constrained")
+    ax = axes[0]
+    ax.bar(range(len(POINT_NAMES)), adj.rms_per_point_px(), color="C0")
+    ax.set_xticks(range(len(POINT_NAMES)), POINT_NAMES, rotation=45, ha="right", fontsize=7)
+    ax.set_ylabel("residual RMS (px)")
+    ax.set_title(f"per point (sigma {adj.sigma_px:.3f} px per coordinate)", fontsize=9)
+    ax = axes[1]
+    ax.plot(adj.rms_per_frame_px(), ".", ms=3, color="C0")
+    ax.set_xlabel("frame (videos concatenated)")
+    ax.set_ylabel("residual RMS (px)")
+    ax.set_title(f"per frame ({int(adj.used.sum())} of {len(adj.used)} used)", fontsize=9)
+    ax = axes[2]
+    free = np.flatnonzero(np.isfinite(adj.se))
+    shift = (adj.value - geometry_vector(nominal))[free] / adj.se[free]
+    ax.barh(range(len(free)), shift, color=np.where(np.abs(shift) > 3, "C3", "C0"))
+    ax.set_yticks(range(len(free)), [GEOMETRY_NAMES[i] for i in free], fontsize=7)
+    ax.axvline(0, color="0.5", lw=0.8)
+    ax.set_xscale("symlog", linthresh=3)
+    ax.set_xlabel("fitted - nominal (SE)")
+    held = ", ".join(n.split(".")[1] for n in adj.held) or "none"
+    ax.set_title(f"parameter shifts; held: {held}", fontsize=9)
+    save_figure(fig, path, how)
+
+
+def write_calibration(
+    cal: Calibration, nominal: Sensor, out_toml: str | Path, inputs: dict, command: str = ""
+) -> dict[str, Path]:
+    """Write the fitted sensor file and its report (JSON, PNG); returns the paths by role."""
+    paths = report_paths(out_toml)
+    atomic_write_text(paths["sensor"], dump_sensor(cal.sensor))
+    record = calibration_record(cal, nominal, inputs, command)
+    atomic_write_text(paths["json"], json.dumps(record, indent=2) + "\n")
+    plot_calibration(cal, nominal, paths["png"], command or "camwhisker calibrate-sensor")
+    return paths

@@ -1,0 +1,274 @@
+"""calibrate-sensor: the bundle adjustment of a build's geometry.
+
+The build is the nominal sensor off by a fixed deviation of SENSOR.md
+section 8's size (fx +3 %, cx/cy 8 px, k1 -0.06, z_i +0.6 mm, h_r -0.2 mm,
+feature sizes +2 %). On exact model points with 0.05 px noise the fit must
+land within 3 SE of the truth, and each SE must be well inside the build's
+tolerance (else the fit would tell nothing).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camwhisker.geometry.adjust import SE_LIMIT, adjust_geometry, tolerances
+from camwhisker.model import GEOMETRY_NAMES, PlateModel, geometry_vector
+from camwhisker.sensor import Sensor
+
+NOISE_PX = 0.05
+N_REST = 10
+
+
+def deviated_build(nominal: Sensor) -> Sensor:
+    """The issue's example build: a fixed deviation, no random drawing."""
+    cam, plate = nominal.camera, nominal.plate
+    return nominal.replace(
+        camera={"fx_px": cam.fx_px * 1.03, "cx_px": cam.cx_px + 8.0, "cy_px": cam.cy_px - 8.0,
+                "distortion": [-0.06, 0.0, 0.0, 0.0, 0.0]},
+        plate={"z_i_mm": plate.z_i_mm + 0.6, "h_r_mm": plate.h_r_mm - 0.2,
+               **{k: getattr(plate, k) * 1.02 for k in
+                  ("square_side_mm", "cross_span_mm", "cross_arm_mm", "rod_diameter_mm")}},
+    )  # fmt: skip
+
+
+def sweep_poses(n: int, phi_max_deg: float = 30.0) -> np.ndarray:
+    """Rest frames, then a tilt sweeping all directions up to phi_max, shape (n, 5)."""
+    s = np.linspace(0.0, 1.0, n - N_REST)
+    phi = np.radians(phi_max_deg) * np.sin(np.pi * s) ** 2
+    theta = np.radians(540.0) * s
+    dz = 0.8 * np.sin(3.0 * s) ** 2
+    q = np.zeros((n, 5))
+    q[N_REST:, 0], q[N_REST:, 1], q[N_REST:, 2] = dz, phi * np.cos(theta), phi * np.sin(theta)
+    return q
+
+
+def model_points(sensor: Sensor, q: np.ndarray, seed: int) -> np.ndarray:
+    model = PlateModel(sensor)
+    pts = np.array([model.project(qq, jacobian=False)[0] for qq in q])
+    return pts + np.random.default_rng(seed).normal(0.0, NOISE_PX, pts.shape)
+
+
+@pytest.fixture(scope="module")
+def build():
+    return deviated_build(Sensor())
+
+
+@pytest.fixture(scope="module")
+def fitted(build):
+    q = sweep_poses(90)
+    pts = model_points(build, q, seed=3)
+    pts[30:34, 5] = np.nan  # an occluded corner
+    pts[50, 2] += 6.0  # a mistracked one: the robust loss must shrug it off
+    rest = np.arange(len(q)) < N_REST
+    side = {"plate.square_side_mm": build.plate.square_side_mm}
+    return adjust_geometry(pts, Sensor(), rest, fixed=side), q
+
+
+def test_adjustment_recovers_the_build_within_3_se(build, fitted):
+    adj, _ = fitted
+    truth = geometry_vector(build)
+    free = np.isfinite(adj.se)
+    assert free.sum() >= 10
+    for name in ("camera.fx_px", "camera.cx_px", "camera.k1", "plate.z_i_mm", "plate.h_r_mm",
+                 "plate.cross_span_mm"):  # fmt: skip
+        assert name not in adj.held, name
+    z = (adj.value[free] - truth[free]) / adj.se[free]
+    assert np.all(np.abs(z) < 3.0), dict(
+        zip(np.array(GEOMETRY_NAMES)[free], z.round(2), strict=True)
+    )
+    tol = tolerances(Sensor())
+    assert np.all(adj.se[free] < SE_LIMIT * tol[free])
+    assert adj.se[GEOMETRY_NAMES.index("plate.z_i_mm")] < 0.1
+    # What is held is held at nominal, and the known length at its value.
+    assert adj.held["plate.square_side_mm"] == "held at the given value"
+    assert adj.value[GEOMETRY_NAMES.index("plate.square_side_mm")] == build.plate.square_side_mm
+    for name in adj.held:
+        if name != "plate.square_side_mm":
+            i = GEOMETRY_NAMES.index(name)
+            assert adj.value[i] == adj.nominal[i]
+
+
+def test_adjustment_recovers_poses_and_residuals(fitted):
+    adj, q = fitted
+    phi_err = np.degrees(np.hypot(adj.q[:, 1], adj.q[:, 2]) - np.hypot(q[:, 1], q[:, 2]))
+    assert np.abs(phi_err).max() < 0.02
+    assert np.abs(adj.q[:, 0] - q[:, 0]).max() < 0.01
+    assert np.all(adj.q[:N_REST] == 0.0)
+    # The mistracked corner still adds its Huber share to the robust variance.
+    assert adj.sigma_px == pytest.approx(NOISE_PX, rel=0.5)
+    per_point = adj.rms_per_point_px()
+    assert per_point.shape == (13,) and np.all(per_point[[0, 1, 3, 4]] < 2 * NOISE_PX)
+    assert adj.rms_per_frame_px()[50] > 1.0  # the mistracked corner shows in its frame
+    assert adj.phi_max_deg == pytest.approx(30.0, abs=0.1)
+    assert not any("tilt" in w for w in adj.warnings)
+
+
+def test_without_a_known_length_the_scale_is_held_and_flagged(build):
+    q = sweep_poses(60)
+    adj = adjust_geometry(model_points(build, q, seed=4), Sensor(), np.arange(60) < N_REST)
+    lengths = [n for n in GEOMETRY_NAMES if n.endswith("_mm")]
+    assert any(n in adj.held and "not determined" in adj.held[n] for n in lengths)
+    assert any("no known length" in w for w in adj.warnings)
+
+
+def test_a_small_sweep_is_warned_about(build):
+    q = sweep_poses(40, phi_max_deg=8.0)
+    adj = adjust_geometry(
+        model_points(build, q, seed=5),
+        Sensor(),
+        np.arange(40) < N_REST,
+        fixed={"plate.square_side_mm": build.plate.square_side_mm},
+    )
+    assert any("largest tilt" in w for w in adj.warnings)
+
+
+def test_bad_inputs_are_named():
+    pts = np.zeros((5, 13, 2))
+    with pytest.raises(ValueError, match="rest"):
+        adjust_geometry(pts, Sensor(), np.zeros(5, bool))
+    with pytest.raises(ValueError, match="unknown geometry"):
+        adjust_geometry(pts, Sensor(), np.ones(5, bool), fixed={"plate.nope": 1.0})
+    with pytest.raises(ValueError, match="points_uv"):
+        adjust_geometry(pts[:, :12], Sensor(), np.ones(5, bool))
+
+
+# ---------------------------------------------------------------- on video
+# The build's sweep (calibration_sweep: 10 frames at rest, then phi to 30 deg in
+# every direction) and a separate clip of the same build (the nominal scene's
+# poses), both drawn by the package's renderer with the build's true file.
+SWEEP_FRAMES = 60
+CLIP_FRAMES = 24
+#: The front end's cross corners lie ~0.02 mm inside the true ones on every file
+#: (its rest detection), so the fitted cross is smaller by about that much:
+#: the geometry the front end sees, which tracks better than the true one.
+CROSS_BIAS_MM = 0.06
+#: The image centre's SE (~0.01 px) is below the systematic error of the tracked
+#: points (~0.04 px): there the check is against that floor.
+CENTRE_FLOOR_PX = 0.1
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory, build):
+    from camwhisker.cli import main
+    from camwhisker.synth.scenarios import make_scenario
+    from camwhisker.synth.video import render_scenario
+
+    d = tmp_path_factory.mktemp("calsensor")
+    sweep = render_scenario(make_scenario("calibration_sweep", SWEEP_FRAMES, 1), build,
+                            d / "sweep.avi", 1)  # fmt: skip
+    clip = render_scenario(make_scenario("nominal", CLIP_FRAMES, 2), build, d / "clip.avi", 2)
+    out = d / "build.toml"
+    rc = main(["calibrate-sensor", str(sweep["video"]), "--square-side-mm",
+               str(build.plate.square_side_mm), "--out", str(out), "--rounds", "2",
+               "--quiet"])  # fmt: skip
+    assert rc == 0
+    return out, clip
+
+
+def _clip_errors(clip, sensor):
+    from camwhisker.sources import open_source
+    from camwhisker.stream import track
+    from camwhisker.synth.scenarios import PoseTrack
+
+    truth = PoseTrack.read_csv(clip["truth"])
+    rows = list(track((f.image for f in open_source(clip["video"])), sensor))
+    phi = np.array([r.phi_deg for r in rows]) - truth.phi_deg
+    dz = np.array([r.dz_mm for r in rows]) - truth.dz_mm
+    ok = np.mean([r.ok for r in rows])
+    return float(np.sqrt(np.nanmean(phi**2))), float(np.sqrt(np.nanmean(dz**2))), ok
+
+
+def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
+    import json
+
+    from camwhisker.sensor import load_sensor
+
+    out, _ = calibrated
+    report = json.loads(out.with_name("build.report.json").read_text())
+    assert out.with_name("build.report.png").stat().st_size > 0
+    params = {p["name"]: p for p in report["parameters"]}
+    assert list(params) == list(GEOMETRY_NAMES)
+    assert "measured from the tip's radius" in params["plate.rod_diameter_mm"]["why_held"]
+    assert len(report["residual_rms_px"]["per_frame"]) == SWEEP_FRAMES
+    assert report["frames"]["rest"] >= 8 and report["frames"]["used"] == SWEEP_FRAMES
+    fitted = load_sensor(out)
+    truth = dict(zip(GEOMETRY_NAMES, geometry_vector(build), strict=True))
+    assert geometry_vector(fitted) == pytest.approx([params[n]["fitted"] for n in GEOMETRY_NAMES])
+    for name, p in params.items():
+        if name in ("plate.cross_span_mm", "plate.cross_arm_mm"):
+            assert abs(p["fitted"] - truth[name]) < CROSS_BIAS_MM, name
+        elif not p["held"]:
+            floor = CENTRE_FLOOR_PX if name in ("camera.cx_px", "camera.cy_px") else 0.0
+            assert abs(p["fitted"] - truth[name]) < max(3 * p["se"], floor), (name, p)
+            assert p["se"] < SE_LIMIT * p["tolerance"]
+    assert not params["camera.fx_px"]["held"] and not params["plate.z_i_mm"]["held"]
+    assert params["plate.rod_diameter_mm"]["fitted"] == pytest.approx(
+        build.plate.rod_diameter_mm, abs=0.01
+    )
+
+
+def test_the_fitted_file_tracks_a_separate_clip_like_the_true_one(calibrated, build):
+    from camwhisker.sensor import load_sensor
+
+    out, clip = calibrated
+    phi_fit, dz_fit, ok_fit = _clip_errors(clip, load_sensor(out))
+    phi_true, dz_true, _ = _clip_errors(clip, build)
+    phi_nom, _, _ = _clip_errors(clip, Sensor())
+    print(f"phi RMSE nominal {phi_nom:.4f} fitted {phi_fit:.4f} true {phi_true:.4f} deg; "
+          f"dz RMSE fitted {dz_fit:.4f} true {dz_true:.4f} mm")  # fmt: skip
+    assert ok_fit >= 0.99
+    # The test's 2 s sweep fixes z_i to ~0.03 mm, worth ~0.03 deg of phi: 3x the true
+    # file's error here (1.6x after a 12 s sweep; the goal is 1.5x).
+    assert phi_fit <= 4.0 * phi_true and phi_fit < 0.05
+    assert dz_fit <= 2.0 * dz_true
+    assert phi_nom > 4 * phi_fit
+
+
+# ---------------------------------------------------------------- chessboard
+def _board_views(tmp_path, camera, n_views=6):
+    """Pinhole views of a 9x6-inner-corner board (30 mm squares) at known poses."""
+    import cv2
+
+    sq_px, cols, rows = 40, 10, 7  # squares: inner corners 9 x 6
+    board = np.kron((np.indices((rows, cols)).sum(0) % 2) * 255, np.ones((sq_px, sq_px)))
+    board = np.pad(board, sq_px, constant_values=255).astype(np.uint8)
+    mm_per_px = 30.0 / sq_px
+    paths = []
+    for k in range(n_views):
+        rvec = np.array([0.25 * np.cos(k), 0.25 * np.sin(k), 0.05 * k])
+        tvec = np.array([-150.0, -100.0, 600.0 + 40 * k])
+        corners_px = np.array([[0, 0], [board.shape[1], 0], [board.shape[1], board.shape[0]],
+                               [0, board.shape[0]]], float)  # fmt: skip
+        obj = np.column_stack([corners_px * mm_per_px - sq_px * mm_per_px, np.zeros(4)])
+        img_pts, _ = cv2.projectPoints(obj, rvec, tvec, camera.matrix, np.zeros(5))
+        h = cv2.getPerspectiveTransform(corners_px.astype(np.float32),
+                                        img_pts.reshape(4, 2).astype(np.float32))  # fmt: skip
+        view = cv2.warpPerspective(board, h, (camera.width_px, camera.height_px),
+                                   flags=cv2.INTER_AREA, borderValue=128)  # fmt: skip
+        paths.append(tmp_path / f"board{k}.png")
+        cv2.imwrite(str(paths[-1]), view)
+    return paths
+
+
+def test_intrinsics_from_chessboard_images(tmp_path):
+    from camwhisker.geometry.sweep import intrinsics_from_chessboard
+
+    camera = Sensor().camera
+    paths = _board_views(tmp_path, camera)
+    intr, rms = intrinsics_from_chessboard(paths, (9, 6), 30.0, (1280, 720))
+    assert rms < 0.5
+    assert intr["fx_px"] == pytest.approx(camera.fx_px, rel=0.01)
+    assert intr["cx_px"] == pytest.approx(camera.cx_px, abs=10)
+    with pytest.raises(ValueError, match="found in 0 of"):
+        intrinsics_from_chessboard(paths[:3], (7, 7), 30.0)
+
+
+def test_calibrate_sensor_cli_names_bad_input(tmp_path, capsys):
+    from camwhisker.cli import main
+
+    rc = main(["calibrate-sensor", str(tmp_path / "none.avi"), "--square-side-mm", "5",
+               "--out", str(tmp_path / "b.toml"), "--chessboard", str(tmp_path),
+               "--pattern", "9by6"])  # fmt: skip
+    assert rc == 2
+    assert "--pattern must be like 9x6" in capsys.readouterr().err
