@@ -1,6 +1,6 @@
 """Pinhole camera with OpenCV lens distortion: project and unproject, vectorised.
 
-Conventions (SENSOR.md section 2): the camera frame has x to the right of the
+Conventions (docs/sensor.md section 2): the camera frame has x to the right of the
 image (+u), y down (+v) and z along the optical axis, away from the camera.
 Pixel (u, v) = (column, row), with (0, 0) the centre of the top-left pixel.
 

@@ -6,7 +6,7 @@ its end face's rim, from the sensor file's ``[plate]`` table) and the plate's
 rigid motion, projected by :mod:`camwhisker.camera`. :mod:`camwhisker.model`
 caches it for the tracked points, with its Jacobians.
 
-Plate frame (SENSOR.md sections 2-3): origin at the centre of rotation, axes
+Plate frame (docs/sensor.md sections 2-3): origin at the centre of rotation, axes
 parallel to the camera's at rest, z toward the whisker. A pose
 (dz, phi, theta, sx, sy) maps a plate point p to the camera frame as::
 
@@ -15,7 +15,7 @@ parallel to the camera's at rest, z toward the whisker. A pose
 where R tilts the plate by phi about the in-plane axis a = (sin theta,
 -cos theta, 0). This choice of axis moves the magnifier tip, p = (0, 0, -h_r),
 to (h_r sin phi cos theta, h_r sin phi sin theta, z_i - dz - h_r cos phi):
-theta is the image direction in which the tip moves, exactly as SENSOR.md
+theta is the image direction in which the tip moves, exactly as docs/sensor.md
 section 2 defines it.
 
 A real build's features may be glued off centre and rotated, and its rod

@@ -84,7 +84,7 @@ def format_cell(value, digits: int = 6) -> str:
 def write_csv(path: str | Path, columns: dict, digits: int = 6) -> None:
     """Write equal-length columns as CSV (atomically); NaN cells are empty.
 
-    No comment lines: readers of the SENSOR.md tables expect the header first,
+    No comment lines: readers of the docs/sensor.md tables expect the header first,
     so provenance goes into a sidecar file.
     """
     names = list(columns)

@@ -1,6 +1,6 @@
 """calibrate-sensor: the bundle adjustment of a build's geometry.
 
-The build is the nominal sensor off by a fixed deviation of SENSOR.md
+The build is the nominal sensor off by a fixed deviation of docs/sensor.md
 section 8's size (fx +3 %, cx/cy 8 px, k1 -0.06, z_i +0.6 mm, h_r -0.2 mm,
 feature sizes +2 %). On exact model points with 0.05 px noise the fit must
 land within 3 SE of the truth, and each SE must be well inside the build's

@@ -1,4 +1,4 @@
-"""Forward model: pose -> plate points -> pixels, against hand values and SENSOR.md."""
+"""Forward model: pose -> plate points -> pixels, against hand values and docs/sensor.md."""
 
 import math
 

@@ -7,7 +7,7 @@ the stage's clock, truth) and runs what a user runs, in order:
 1. ``batch``: the vision front end on every video (in parallel processes);
 2. ``calibrate``: C of eq. (8), sigma_GM(phi) and the MF table from the
    calibration runs, clock offsets estimated;
-3. ``contact``: per-frame contact tables (SENSOR.md section 7) for every run;
+3. ``contact``: per-frame contact tables (docs/sensor.md section 7) for every run;
 4. evaluation against the simulator's truth, and the Fig. 7A, 8 and 9 plots.
 
 Every number of the printed summary is in ``summary.json`` beside the CSVs

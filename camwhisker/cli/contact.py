@@ -1,4 +1,4 @@
-"""The contact back end: simulate-stage, calibrate, contact (SENSOR.md section 7)."""
+"""The contact back end: simulate-stage, calibrate, contact (docs/sensor.md section 7)."""
 
 from __future__ import annotations
 

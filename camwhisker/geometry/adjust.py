@@ -62,7 +62,7 @@ CORNER_SHIFT_MM = 0.05
 MAX_FRAME_CORRELATION = 0.95
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
-#: Build tolerances (SENSOR.md section 8) of the plate dimensions and the
+#: Build tolerances (docs/sensor.md section 8) of the plate dimensions and the
 #: intrinsics other than the focal lengths (relative, ``_FOCAL_TOLERANCE``).
 _TOLERANCE = {
     "camera.cx_px": 10.0, "camera.cy_px": 10.0, "camera.k1": 0.1, "camera.k2": 0.1,

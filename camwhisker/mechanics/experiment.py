@@ -5,7 +5,7 @@ jittered length (>= 1 s, like the paper), a rest. The run produces
 
 - a stage log on the stage's own clock (``t_s, x_mm`` and, for calibration
   runs, ``r_mm``),
-- a signal table on the camera's clock (SENSOR.md section 6), whose clock is
+- a signal table on the camera's clock (docs/sensor.md section 6), whose clock is
   offset from the stage's by several seconds (``t_camera = t_stage + offset_s``),
 - the truth per frame (contact point, r, slipping, ...).
 
@@ -65,7 +65,7 @@ PAPER_C = 132.0
 # makes eq.-(8)-style GM overestimate r by ~15-35 mm, like Table III (-23.5 mm).
 COMPLIANT_K_N_PER_MM = 6.0e-4
 
-# Direction (deg, SENSOR.md section 2) in which the magnifier tip moves when the
+# Direction (deg, docs/sensor.md section 2) in which the magnifier tip moves when the
 # whisker leans toward -x, with lab x along the image's u axis.
 THETA_TRUE_DEG = 0.0
 
@@ -80,7 +80,7 @@ BOX_MU = 0.5
 # The bottle: 90 mm across, its axis 55 mm from the base line.
 BOTTLE = CircleScene(0.0, 55.0, 45.0)
 
-# Per-frame noise levels of the simulated front end (SENSOR.md section 6 signals).
+# Per-frame noise levels of the simulated front end (docs/sensor.md section 6 signals).
 # PAPER_NOISE: the paper's measured RMSE (Sec. III-A: phi 0.22 deg, dz 0.04 mm).
 # FRONT_END_NOISE: what our vision front end is built to reach (its targets:
 # phi RMSE <= 0.05 deg, dz RMSE <= 0.02 mm); issue #4 allows "the paper's

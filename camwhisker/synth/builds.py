@@ -1,4 +1,4 @@
-"""Hand-made builds: a sensor's true geometry and look, drawn within SENSOR.md section 8.
+"""Hand-made builds: a sensor's true geometry and look, drawn within docs/sensor.md section 8.
 
 A :class:`Build` is what a user's sensor is: its true sensor file (the
 nominal file plus deviations of a hand build), its appearance (colours,

@@ -3,9 +3,9 @@
 Inputs are the tracked points of :mod:`camwhisker.vision.pose`: the cross's
 projected width b_u is the distance in u between the +x and -x arm ends
 (the mean of each arm's two end corners), and the tip position c is measured
-from the principal point (SENSOR.md section 2).
+from the principal point (docs/sensor.md section 2).
 
-Two readings to be aware of (SENSOR.md section 4):
+Two readings to be aware of (docs/sensor.md section 4):
 
 - The angles of view of Table I are half angles (tan(26.95 deg) * 1258.79 =
   640 px), so rho of eq. (6) is half the pinhole millimetres per pixel at the
