@@ -90,7 +90,8 @@ def run_batch(
                          f"(rest_index must be 0, got {rest_index})")  # fmt: skip
     report = BatchReport(Path(out_csv), sidecar_path(out_csv))
     # A recorded session is processed as live processed it: failures are rows.
-    rows = stream(source, sensor, options, rest_index, strict=not session)
+    rest: list = []
+    rows = stream(source, sensor, options, rest_index, strict=not session, rest_log=rest)
     report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress)
     if source.problem:
         report.problems.append(source.problem)
@@ -98,7 +99,7 @@ def run_batch(
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
     meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), source.time_source,
                    (report.frames, report.frames_ok), report.problems, options, sensor,
-                   rest_index, fps=source.fps)  # fmt: skip
+                   rest_index, rest, fps=source.fps)  # fmt: skip
     write_sidecar(report.out_csv, meta)
     return report
 

@@ -8,8 +8,9 @@ define it. Batch, live and replay write the table through
 :func:`read_signal_table`.
 
 Beside ``OUT.csv``, the sidecar ``OUT.json`` records how the table was made
-(version, input, clock, rest frame, counts, problems, options, thresholds,
-sensor, columns), built by :func:`sidecar` for every writer.
+(version, input, clock, rest frame and the rest references with their
+mismatch checks, counts, problems, options, thresholds, sensor, columns),
+built by :func:`sidecar` for every writer.
 """
 
 from __future__ import annotations
@@ -166,6 +167,7 @@ def sidecar(
     options: FrontEndOptions,
     sensor: Sensor,
     rest_frame: int = 0,
+    rest: list | None = None,
     **stage: object,
 ) -> dict:
     """How a signal table was made: the sidecar's record, the same keys for every writer.
@@ -185,6 +187,9 @@ def sidecar(
     options : FrontEndOptions
     sensor : Sensor
     rest_frame : int
+    rest : list of camwhisker.stream.RestRecord, optional
+        The rest references built (how many frames each used, the mismatch check);
+        ``rest_frames_used`` is the first one's count.
     **stage
         The writer's own fields (a frame rate, a live session's latencies), placed
         after ``time_source``.
@@ -199,6 +204,8 @@ def sidecar(
         "time_source": time_source,
         **stage,
         "rest_frame": rest_frame,
+        "rest_frames_used": rest[0].frames_used if rest else None,
+        "rest_references": [record.as_dict() for record in rest or []],
         "frames": counts[0],
         "frames_ok": counts[1],
         "problems": problems,

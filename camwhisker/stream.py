@@ -14,26 +14,64 @@ Events (a :class:`~camwhisker.sources.Frame`'s ``event``):
   use if the features are not found there);
 - ``"redetect"``: the features are found again before the update;
 - ``"gap"``: no frame came (no image); an untrusted row, the state stays.
+
+Each rest reference is checked against the sensor file
+(:func:`~camwhisker.vision.mismatch.check_mismatch`): a mismatch is logged as a
+warning, and every reference is recorded (:class:`RestRecord`) for the sidecar.
 """
 
 from __future__ import annotations
 
 import copy
+import logging
 import math
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from camwhisker.sensor import Sensor
 from camwhisker.sources import Frame
+from camwhisker.vision.mismatch import MismatchCheck, check_mismatch
 from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
 
-__all__ = ["EVENTS", "GAP_REASON", "stream", "track", "live_track"]
+__all__ = ["EVENTS", "GAP_REASON", "RestRecord", "stream", "track", "live_track"]
+
+log = logging.getLogger(__name__)
 
 #: Events a frame can carry (a session's timestamps file's ``event`` column).
 EVENTS = ("", "rezero", "redetect", "gap")
 #: Reason written in a row for which no frame came (the error is in the log and sidecar).
 GAP_REASON = "no frame: capture read failed"
+
+
+@dataclass(frozen=True)
+class RestRecord:
+    """One rest reference the stream built: its first frame, how many frames it
+    was built from, the mismatch check, and the warnings given."""
+
+    frame: int
+    frames_used: int
+    mismatch: MismatchCheck
+    warnings: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict:
+        return {
+            "frame": self.frame,
+            "frames_used": self.frames_used,
+            "mismatch_check": self.mismatch.as_dict(),
+            "warnings": list(self.warnings),
+        }
+
+
+def _record(fe: FrontEnd, index: int, rest_log: list | None) -> None:
+    """Check the new rest reference against the sensor file; log and record it."""
+    check = check_mismatch(fe.rest, fe.model)
+    warnings = (check.message,) if check.warned else ()
+    for text in warnings:
+        log.warning("frame %d: %s", index, text)
+    if rest_log is not None:
+        rest_log.append(RestRecord(index, 1, check, warnings))
 
 
 def _start(
@@ -55,6 +93,7 @@ def stream(
     rest_index: int = 0,
     strict: bool = True,
     warm_up: bool = False,
+    rest_log: list | None = None,
 ) -> Iterator[tuple[Frame, FrameResult]]:
     """Yield ``(frame, result)`` for each frame, in order.
 
@@ -72,6 +111,8 @@ def stream(
         stream goes on; a failed rest frame is tried again on the next frame.
     warm_up : bool
         Run the update once on a copy at each rest frame (live: no slow first frame).
+    rest_log : list, optional
+        Receives a :class:`RestRecord` for each rest reference built.
 
     Raises
     ------
@@ -93,6 +134,7 @@ def stream(
             what = "rest frame" if fe is None else "re-zero failed"
             try:
                 fe, r = _start(sensor, options, image, i, warm_up)
+                _record(fe, i, rest_log)
             except ValueError as exc:  # FeaturesNotFound is one
                 if strict:
                     raise
