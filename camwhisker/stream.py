@@ -23,7 +23,8 @@ is then rebuilt from their mean image (:func:`~camwhisker.vision.rest.mean_image
 With ``hold_rest`` (batch) their rows are held back and measured again with
 the rebuilt reference, so they come out once the rest segment ends; without it
 (live, replay: a row per frame as it comes) they are the first frame's
-reference's rows, and the rebuilt reference takes over after them. A stream
+reference's rows, and the rebuilt reference takes over after them (the frame
+that ends the segment pays for the rebuild: one slow live frame). A stream
 that moves at once keeps its first frame's reference, and says so.
 
 Each rest reference is checked against the sensor file
@@ -254,7 +255,10 @@ def stream(
         r, started = _step(fe, frame, sensor, options, rest_index, strict, warm_up)
         if started is not None:
             fe, segment = started, _RestSegment(started, frame, r)
-            if hold:
+            if started.options.rest_frames == 1:  # nothing to average: recorded at once
+                fe = yield from _close(segment, sensor, options, False, rest_log)
+                segment = None
+            elif hold:
                 continue
         yield frame, r
     if segment is not None:
