@@ -1,4 +1,4 @@
-"""Batch processing: a video in, the signal table (SENSOR.md section 6) out.
+"""Batch processing: a video in, the signal table (docs/sensor.md section 6) out.
 
 :func:`run_batch` drives the streaming core (:func:`camwhisker.stream.stream`)
 over a :mod:`camwhisker.sources` source and writes ``OUT.csv``, its sidecar
@@ -97,7 +97,8 @@ def run_batch(
                          f"(rest_index must be 0, got {rest_index})")  # fmt: skip
     report = BatchReport(Path(out_csv), sidecar_path(out_csv))
     # A recorded session is processed as live processed it: failures are rows.
-    rows = stream(source, sensor, options, rest_index, strict=not session)
+    rest: list = []
+    rows = stream(source, sensor, options, rest_index, strict=not session, rest_log=rest)
     rows = _checking_rest(rows, rest_check_path(report.out_csv), PlateModel(sensor), report)
     report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress)
     if source.problem:
@@ -106,7 +107,7 @@ def run_batch(
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
     meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), source.time_source,
                    (report.frames, report.frames_ok), report.problems, options, sensor,
-                   rest_index, fps=source.fps,
+                   rest_index, rest, fps=source.fps,
                    rest_check=report.rest_check.name if report.rest_check else None)  # fmt: skip
     write_sidecar(report.out_csv, meta)
     return report

@@ -51,6 +51,9 @@ __all__ = [
     "TIP",
     "N_RIM",
     "GEOMETRY_NAMES",
+    "BUILD_TOLERANCE",
+    "RELATIVE_TOLERANCE",
+    "build_tolerances",
     "PlateModel",
     "ModelJacobians",
     "tracked_object_points",
@@ -78,6 +81,22 @@ _PLATE_KEYS = tuple(f.name for f in dataclasses.fields(PlateConfig))
 GEOMETRY_NAMES = tuple(f"camera.{k}" for k in INTRINSIC_NAMES) + tuple(
     f"plate.{k}" for k in _PLATE_KEYS
 )
+#: docs/sensor.md section 8: how far a hand build's value of each geometry parameter
+#: may lie from the nominal file's (fx, fy relative; p1, p2 by analogy with k1; the
+#: rod glued 2 deg off perpendicular moves the tip by h_r tan(2 deg), ~0.26 mm).
+BUILD_TOLERANCE = {
+    "camera.fx_px": 0.04, "camera.fy_px": 0.04, "camera.cx_px": 10.0, "camera.cy_px": 10.0,
+    "camera.k1": 0.1, "camera.k2": 0.1, "camera.p1": 0.005, "camera.p2": 0.005,
+    "camera.k3": 0.1, "plate.z_i_mm": 0.6, "plate.h_r_mm": 0.3,
+    "plate.square_side_mm": 0.1, "plate.square_offset_mm": 0.2, "plate.cross_span_mm": 0.1,
+    "plate.cross_arm_mm": 0.1, "plate.cross_offset_mm": 0.2, "plate.rod_diameter_mm": 0.1,
+    "plate.tip_offset_x_mm": 0.26, "plate.tip_offset_y_mm": 0.26,
+    "plate.square_shift_x_mm": 0.3, "plate.square_shift_y_mm": 0.3,
+    "plate.square_rotation_deg": 3.0, "plate.cross_shift_x_mm": 0.3,
+    "plate.cross_shift_y_mm": 0.3, "plate.cross_rotation_deg": 3.0,
+}  # fmt: skip
+#: The parameters whose tolerance is relative to their value.
+RELATIVE_TOLERANCE = ("camera.fx_px", "camera.fy_px")
 #: Central-difference half-step (mm, or deg for a rotation) of the plate points'
 #: derivatives by the plate dimensions: the points are linear in all but the
 #: optional rotations and tip offset, where the error is O(step^2), ~1e-7 relative.
@@ -234,6 +253,14 @@ class PlateModel:
             with_tip(d_pose, polygon_centroid_jacobian(rim, d_pose[TIP + 1 :])),
             with_tip(d_geometry, polygon_centroid_jacobian(rim, d_geometry[TIP + 1 :])),
         )
+
+
+def build_tolerances(sensor: Sensor) -> np.ndarray:
+    """Each of ``GEOMETRY_NAMES``'s build tolerance (:data:`BUILD_TOLERANCE`) for this
+    sensor, in its units, shape (len(GEOMETRY_NAMES),)."""
+    g = geometry_vector(sensor)
+    return np.array([BUILD_TOLERANCE[name] * (g[i] if name in RELATIVE_TOLERANCE else 1.0)
+                     for i, name in enumerate(GEOMETRY_NAMES)])  # fmt: skip
 
 
 def geometry_vector(sensor: Sensor) -> np.ndarray:

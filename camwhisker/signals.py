@@ -1,4 +1,4 @@
-"""The signal table (SENSOR.md section 6): its columns, rows, writer, reader and sidecar.
+"""The signal table (docs/sensor.md section 6): its columns, rows, writer, reader and sidecar.
 
 One row per frame, in frame order: ``frame, t_s, dz_mm, phi_deg, theta_deg,
 ok`` (the columns every reader may rely on), then diagnostics. Untrusted
@@ -8,8 +8,9 @@ define it. Batch, live and replay write the table through
 :func:`read_signal_table`.
 
 Beside ``OUT.csv``, the sidecar ``OUT.json`` records how the table was made
-(version, input, clock, rest frame, counts, problems, options, thresholds,
-sensor, columns), built by :func:`sidecar` for every writer; its common part,
+(version, input, clock, rest frame and the rest references with their
+mismatch checks, counts, problems, options, thresholds, sensor, columns),
+built by :func:`sidecar` for every writer; its common part,
 :func:`provenance`, is every sidecar's (the overlay's too).
 """
 
@@ -39,12 +40,12 @@ __all__ = [
     "write_sidecar",
 ]  # fmt: skip
 
-#: Required columns first (SENSOR.md section 6), then diagnostics.
+#: Required columns first (docs/sensor.md section 6), then diagnostics.
 SIGNAL_COLUMNS = (
     "frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok",
     "sx_mm", "sy_mm", "phi_sigma_deg", "n_corners", "rms_px", "note",
 )  # fmt: skip
-#: The columns SENSOR.md section 6 promises; readers need no others.
+#: The columns docs/sensor.md section 6 promises; readers need no others.
 REQUIRED_COLUMNS = SIGNAL_COLUMNS[:6]
 
 
@@ -205,6 +206,7 @@ def sidecar(
     options: FrontEndOptions,
     sensor: Sensor,
     rest_frame: int = 0,
+    rest: list | None = None,
     **stage: object,
 ) -> dict:
     """How a signal table was made: the sidecar's record, the same keys for every writer
@@ -221,13 +223,18 @@ def sidecar(
     problems : list of str
         What went wrong without stopping the run (empty when nothing did).
     rest_frame : int
+    rest : list of camwhisker.stream.RestRecord, optional
+        The rest references built (how many frames each used, the mismatch check);
+        ``rest_frames_used`` is the first one's count.
     **stage
         The writer's own fields (a frame rate, a live session's latencies), placed
         after ``time_source``.
     """
     record = provenance(made_by, source, options, sensor, time_source=time_source, **stage,
-                        rest_frame=rest_frame, frames=counts[0], frames_ok=counts[1],
-                        problems=problems)  # fmt: skip
+                        rest_frame=rest_frame,
+                        rest_frames_used=rest[0].frames_used if rest else None,
+                        rest_references=[r.as_dict() for r in rest or []],
+                        frames=counts[0], frames_ok=counts[1], problems=problems)  # fmt: skip
     record["columns"] = list(SIGNAL_COLUMNS)
     return record
 

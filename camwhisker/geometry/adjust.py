@@ -33,9 +33,16 @@ import cv2
 import numpy as np
 
 from camwhisker.camera import JAC_TVEC, project_rigid
-from camwhisker.model import GEOMETRY_NAMES, TIP, PlateModel, geometry_vector, with_geometry
+from camwhisker.model import (
+    GEOMETRY_NAMES,
+    TIP,
+    PlateModel,
+    build_tolerances,
+    geometry_vector,
+    with_geometry,
+)
 from camwhisker.plate import rigid_motion
-from camwhisker.sensor import Sensor, SensorFileError
+from camwhisker.sensor import OPTIONAL_PLATE_KEYS, Sensor, SensorFileError
 
 __all__ = [
     "HUBER_PX",
@@ -62,20 +69,13 @@ CORNER_SHIFT_MM = 0.05
 MAX_FRAME_CORRELATION = 0.95
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
-#: Build tolerances (docs/sensor.md section 8) of the plate dimensions and the
-#: intrinsics other than the focal lengths (relative, ``_FOCAL_TOLERANCE``).
-_TOLERANCE = {
-    "camera.cx_px": 10.0, "camera.cy_px": 10.0, "camera.k1": 0.1, "camera.k2": 0.1,
-    "camera.p1": 0.005, "camera.p2": 0.005, "camera.k3": 0.1,
-    "plate.z_i_mm": 0.6, "plate.h_r_mm": 0.3, "plate.square_side_mm": 0.1,
-    "plate.square_offset_mm": 0.2, "plate.cross_span_mm": 0.1, "plate.cross_arm_mm": 0.1,
-    "plate.cross_offset_mm": 0.2, "plate.rod_diameter_mm": 0.1,
-}  # fmt: skip
-_FOCAL_TOLERANCE = 0.04
 #: Parameters no sweep determines, always held at nominal, and why.
 ALWAYS_HELD = {
     "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
-}
+    **{f"plate.{k}": "a build's misplacement: the corners' own in-plane shifts absorb the "
+       "features'; the tip's lateral offset is not fitted yet: held at nominal"
+       for k in OPTIONAL_PLATE_KEYS},
+}  # fmt: skip
 #: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
 #: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
 _RIDGE = 1e-10
@@ -86,11 +86,7 @@ _COST_RTOL = 1e-9
 
 def tolerances(sensor: Sensor) -> np.ndarray:
     """Each parameter's build tolerance, in the order of ``GEOMETRY_NAMES``."""
-    g = geometry_vector(sensor)
-    return np.array(
-        [_FOCAL_TOLERANCE * g[i] if name in ("camera.fx_px", "camera.fy_px") else _TOLERANCE[name]
-         for i, name in enumerate(GEOMETRY_NAMES)]
-    )  # fmt: skip
+    return build_tolerances(sensor)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ re-detect, a gap where no frame came), to :func:`camwhisker.stream.stream`
 and sends each row to the outputs. It runs the grabber thread, takes commands
 (``r`` re-zero, ``d`` re-detect, ``q`` quit) from the terminal or from
 :meth:`LiveSession.command`, stops cleanly on Ctrl-C and SIGTERM, and writes
-the sidecar (settings, grabber counts, latency).
+the sidecar (settings, grabber counts, latency, the rest references and their
+mismatch checks; a mismatch is logged as a warning).
 
 :func:`reprocess_session` drives the same generator over a recorded session
 (:class:`~camwhisker.sources.SessionSource`): the live table again, row for
@@ -180,6 +181,8 @@ class LiveSession:
         self._stdout_closed = False
         #: Sequence numbers of the rows, in order (for the drop check).
         self.seqs: list[int] = []
+        #: The rest references built (camwhisker.stream.RestRecord), for the sidecar.
+        self.rest_log: list = []
         self._input: dict = {}
         #: The grabbed item of the frame being processed, and when it went in (perf_counter s).
         self._grabbed: Grabbed | None = None
@@ -258,7 +261,9 @@ class LiveSession:
             print("camwhisker live: keys r = re-zero, d = re-detect, q = quit", file=sys.stderr)
         try:
             frames = self._frames(grabber, t_start)
-            for frame, r in stream(frames, self.sensor, cfg.options, strict=False, warm_up=True):
+            rows = stream(frames, self.sensor, cfg.options, strict=False, warm_up=True,
+                          rest_log=self.rest_log)  # fmt: skip
+            for frame, r in rows:
                 proc_s = time.perf_counter() - self._handed_at
                 self._row(frame, r, proc_s, writer, recorder, udp, proc_ms, e2e_ms)
         finally:
@@ -363,6 +368,7 @@ class LiveSession:
             "camwhisker.live.loop.LiveSession", source,
             "capture (monotonic clock, from the first frame)",
             (rep.rows, rep.rows_ok), rep.problems, cfg.options, self.sensor,
+            rest=self.rest_log,
             mode=cfg.mode,
             rows_without_frame=rep.gaps,
             stopped_by=rep.stopped_by,

@@ -5,7 +5,8 @@ offsets from the plate model, the rest points, the colour-share maps the
 corners' templates are warped from, the unmixing weights, the cloth level and
 the paper's rest widths. A rezero builds a new one.
 
-The helpers here place the corners' region and measure the rest colours.
+The helpers here average the rest frames, place the corners' region and
+measure the rest colours.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from camwhisker.vision.colour import cloth_level, unmixing_weights
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.paper import PaperRest
 
-__all__ = ["RestReference", "region_size", "region_origin", "rest_colours"]
+__all__ = ["RestReference", "mean_image", "region_size", "region_origin", "rest_colours"]
 
 #: Margin of the corners' region beyond their window (px): room for the
 #: templates' warps and for the rest colours' samples.
@@ -72,6 +73,15 @@ class RestReference:
     weights: np.ndarray
     cloth_level: float
     paper: PaperRest
+
+
+def mean_image(images: list[np.ndarray]) -> np.ndarray:
+    """The pixelwise mean of frames at rest, rounded to uint8 (same shape): the rest
+    frame whose noise is the frames' own over sqrt(len(images))."""
+    total = np.zeros(images[0].shape, np.float32)
+    for image in images:
+        total += image
+    return np.rint(total / len(images)).astype(np.uint8)
 
 
 def region_size(frame_shape, uv: np.ndarray, half_px: int) -> tuple[int, int]:

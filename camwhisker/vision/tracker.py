@@ -136,6 +136,10 @@ class FrontEndOptions:
     roi_margin_px : the region of interest around each corner's predicted
         position extends this far beyond its window (px), for the LK to
         converge in.
+    rest_frames : the rest reference is averaged over up to this many frames at
+        rest from the rest frame (and each re-zero) on (see
+        :mod:`camwhisker.stream`; ``REST_FRAMES`` = 30 is 1 s at 30 fps); 1: the
+        rest frame alone.
     """
 
     mode: str = "model"
@@ -143,11 +147,12 @@ class FrontEndOptions:
     lock_gains: bool = False
     lk_half_px: int = PATCH_HALF_PX
     roi_margin_px: int = REFINE_MARGIN_PX
+    rest_frames: int = 1
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
             raise ValueError(f"mode must be 'model' or 'paper', got {self.mode!r}")
-        for name, low in (("lk_half_px", 3), ("roi_margin_px", 1)):
+        for name, low in (("lk_half_px", 3), ("roi_margin_px", 1), ("rest_frames", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
@@ -766,4 +771,3 @@ def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
     """Whether the pose changed enough to reshape the tip's model rim."""
     dz, a, b, sx, sy = (abs(x - y) for x, y in zip(q1.tolist(), q0.tolist(), strict=True))
     return max(dz, sx, sy) > RIM_REFIT_MM or max(a, b) > RIM_REFIT_RAD
-
