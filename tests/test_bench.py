@@ -135,3 +135,28 @@ def test_library_imports_no_benchmark_command_line_or_renderer():
             found += [f"{rel}: {n}" for n in names if n.startswith(above)]
     assert len(list(root.rglob("*.py"))) > 50  # the package was found
     assert found == []
+
+
+def test_calibration_table_and_summary_on_made_up_rows():
+    from camwhisker.bench.calibration import CalibrationRow, summary, table, within_3se
+    from camwhisker.bench.reality import RealityRow
+
+    def row(label, ok, phi, dz):
+        return RealityRow(100, label, True, ok, phi, dz)
+
+    share, n = within_3se(np.array([1.0, 2.0, 3.0]), np.array([0.1, np.nan, 0.1]),
+                          np.array([1.2, 9.0, 3.5]))  # fmt: skip
+    assert (share, n) == (0.5, 2)
+    good = CalibrationRow(100, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.012),
+                          row("true", 1.0, 0.02, 0.01), 1.0, 20, 41.0)  # fmt: skip
+    nan = float("nan")
+    failed = CalibrationRow(101, row("nominal", 0.5, 0.3, 0.02), None,
+                            row("true", 1.0, 0.02, 0.01), nan, 0, 3.0, "no fit")  # fmt: skip
+    text = table([good, failed])
+    lines = text.splitlines()
+    assert len(lines) == 4 and all(line.count("|") == lines[0].count("|") for line in lines)
+    assert "| 1.50 | 1.20 | 100% of 20 | 41 |" in lines[2]
+    assert "| - | - | - |" in lines[3] and "no fit" in lines[3]
+    assert good.meets() == {"phi": True, "dz": True, "ok": True, "se": True}
+    assert not any(failed.meets().values())
+    assert summary([good, failed]).endswith("all four 1/2")

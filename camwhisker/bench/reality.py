@@ -23,12 +23,12 @@ from camwhisker.bench.vision import scene_errors
 from camwhisker.sensor import Sensor
 from camwhisker.sources import VideoSource
 from camwhisker.stream import track
-from camwhisker.synth.builds import REALITY_SUITE, draw_build
-from camwhisker.synth.scenarios import make_scenario
-from camwhisker.synth.video import render_scenario
+from camwhisker.synth.builds import REALITY_SUITE, Build, draw_build
+from camwhisker.synth.scenarios import Scenario, make_scenario
+from camwhisker.synth.video import render_scenario, sidecar_paths
 from camwhisker.vision.detect import FeaturesNotFound
 
-__all__ = ["RealityRow", "run_build", "table", "main"]
+__all__ = ["RealityRow", "render_build_clip", "clip_row", "run_build", "table", "seed_list", "main"]
 
 
 @dataclass(frozen=True)
@@ -42,29 +42,43 @@ class RealityRow:
     note: str = ""
 
 
+def render_build_clip(build: Build, scene: str, n_frames: int, render_seed: int,
+                      folder: Path) -> tuple[Scenario, Path]:  # fmt: skip
+    """Build ``build`` seeing ``scene`` rendered into ``folder``; a clip already there is reused.
+
+    ``render_seed`` seeds both the scene's poses and the render's noise.
+    """
+    scenario = build.scenario(make_scenario(scene, n_frames, render_seed))
+    video = Path(folder) / f"{scene}-build{build.seed}-n{n_frames}-r{render_seed}.avi"
+    if not (video.exists() and sidecar_paths(video)["meta"].exists()):
+        render_scenario(scenario, build.sensor, video, render_seed, build=build)
+    return scenario, video
+
+
+def clip_row(seed: int, label: str, frames: list, scenario: Scenario,
+             sensor: Sensor) -> RealityRow:  # fmt: skip
+    """Run the front end with ``sensor`` on a rendered clip and score it against its poses."""
+    try:
+        results = list(track(frames, sensor))
+    except FeaturesNotFound as exc:
+        return RealityRow(seed, label, False, 0.0, math.nan, math.nan, str(exc))
+    ok = np.array([r.ok for r in results])
+    vals = np.array([r.model for r in results], dtype=float)
+    dz, phi, theta = vals.T
+    trusted = ok & np.isfinite(phi)
+    phi_rmse, dz_rmse, _, _ = scene_errors(scenario.track, dz, phi, theta, trusted)
+    return RealityRow(seed, label, True, float(ok.mean()), phi_rmse, dz_rmse)
+
+
 def run_build(seed: int, scene: str, n_frames: int, folder: Path,
               nominal: Sensor | None = None) -> list[RealityRow]:  # fmt: skip
     """Render build ``seed`` seeing ``scene`` and run the front end with both files."""
     nominal = nominal or Sensor()
     build = draw_build(seed, nominal)
-    scenario = build.scenario(make_scenario(scene, n_frames, seed))
-    video = Path(folder) / f"{scene}-build{seed}-n{n_frames}.avi"
-    render_scenario(scenario, nominal, video, seed, build=build)
+    scenario, video = render_build_clip(build, scene, n_frames, seed, folder)
     frames = [f.image for f in VideoSource(video)]
-    rows = []
-    for label, sensor in (("true", build.sensor), ("nominal", nominal)):
-        try:
-            results = list(track(frames, sensor))
-        except FeaturesNotFound as exc:
-            rows.append(RealityRow(seed, label, False, 0.0, math.nan, math.nan, str(exc)))
-            continue
-        ok = np.array([r.ok for r in results])
-        vals = np.array([r.model for r in results], dtype=float)
-        dz, phi, theta = vals.T
-        trusted = ok & np.isfinite(phi)
-        phi_rmse, dz_rmse, _, _ = scene_errors(scenario.track, dz, phi, theta, trusted)
-        rows.append(RealityRow(seed, label, True, float(ok.mean()), phi_rmse, dz_rmse))
-    return rows
+    return [clip_row(seed, label, frames, scenario, sensor)
+            for label, sensor in (("true", build.sensor), ("nominal", nominal))]  # fmt: skip
 
 
 def table(rows: list[RealityRow]) -> str:
@@ -78,7 +92,7 @@ def table(rows: list[RealityRow]) -> str:
     return "\n".join(lines)
 
 
-def _seeds(text: str) -> list[int]:
+def seed_list(text: str) -> list[int]:
     """'100-104' or '100,101,107'."""
     if "-" in text:
         lo, hi = (int(x) for x in text.split("-"))
@@ -96,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="camwhisker-reality-") as tmp:
-        for seed in _seeds(args.seeds):
+        for seed in seed_list(args.seeds):
             rows += run_build(seed, args.scene, args.frames, Path(tmp))
     print(table(rows))
     print(f"\nscene {args.scene}, {args.frames} frames per build (MJPG), seeds {args.seeds}; "

@@ -1,0 +1,172 @@
+"""Calibration benchmark: ``calibrate-sensor`` on held-out builds of the reality suite.
+
+For each build: render a calibration sweep of the build and a separate clip
+of the nominal scene (another render seed), fit the build's sensor file to
+the sweep from the nominal file and the true square side, then run the front
+end on the clip with the nominal, the fitted and the true file. Prints one
+Markdown row per build (rows ok, phi and dz RMSE per file, fitted/true
+ratios, the share of fitted parameters within 3 SE of the truth, the
+calibration's seconds) and a summary against the acceptance limits.
+
+    python -m camwhisker.bench.calibration [--seeds 100-104] [--sweep-s 12] [--clip-frames 120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip, seed_list
+from camwhisker.geometry.sweep import calibrate_sensor
+from camwhisker.model import geometry_vector
+from camwhisker.sensor import Sensor
+from camwhisker.sources import VideoSource
+from camwhisker.synth.builds import REALITY_SUITE, draw_build
+from camwhisker.vision.detect import FeaturesNotFound
+
+__all__ = ["CalibrationRow", "run_build", "table", "summary", "main"]
+
+FPS = 30.0
+#: The clip's render seed is the build's plus this: its poses and noise differ from the sweep's.
+CLIP_SEED_OFFSET = 1000
+#: Acceptance limits: fitted/true RMSE ratio, share of ok rows, share within 3 SE.
+MAX_RATIO = 1.5
+MIN_OK = 0.99
+MIN_WITHIN_3SE = 0.95
+
+
+@dataclass(frozen=True)
+class CalibrationRow:
+    """One build: the clip with each file, and the fit against the truth."""
+
+    seed: int
+    nominal: RealityRow
+    fitted: RealityRow | None
+    true: RealityRow
+    within_3se: float  # share of fitted (not held) parameters within 3 SE of the truth
+    n_fitted: int
+    calibration_s: float
+    note: str = ""
+
+    def ratio(self, attr: str) -> float:
+        """Fitted over true of ``attr`` (a :class:`RealityRow` field); NaN without a fit."""
+        if self.fitted is None:
+            return math.nan
+        return getattr(self.fitted, attr) / getattr(self.true, attr)
+
+    def meets(self) -> dict[str, bool]:
+        """Each acceptance limit met or not."""
+        return {
+            "phi": self.ratio("phi_rmse_deg") <= MAX_RATIO,
+            "dz": self.ratio("dz_rmse_mm") <= MAX_RATIO,
+            "ok": self.fitted is not None and self.fitted.ok >= MIN_OK,
+            "se": self.within_3se >= MIN_WITHIN_3SE,
+        }
+
+
+def within_3se(value: np.ndarray, se: np.ndarray, truth: np.ndarray) -> tuple[float, int]:
+    """Share of the fitted parameters (finite SE) within 3 SE of the truth, and their count."""
+    fitted = np.isfinite(se)
+    if not fitted.any():
+        return math.nan, 0
+    inside = np.abs(value[fitted] - truth[fitted]) <= 3.0 * se[fitted]
+    return float(inside.mean()), int(fitted.sum())
+
+
+def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
+              nominal: Sensor | None = None) -> CalibrationRow:  # fmt: skip
+    """Calibrate build ``seed`` on its sweep and score the three files on a separate clip."""
+    nominal = nominal or Sensor()
+    build = draw_build(seed, nominal)
+    _, sweep = render_build_clip(build, "calibration_sweep", sweep_frames, seed, folder)
+    scenario, clip = render_build_clip(build, "nominal", clip_frames, seed + CLIP_SEED_OFFSET,
+                                       folder)  # fmt: skip
+    t0 = time.perf_counter()
+    try:
+        cal = calibrate_sensor([sweep], nominal, build.sensor.plate.square_side_mm)
+    except (FeaturesNotFound, ValueError) as exc:
+        cal, note = None, f"calibration failed: {exc}"
+    seconds = time.perf_counter() - t0
+    frames = [f.image for f in VideoSource(clip)]
+    rows = {label: clip_row(seed, label, frames, scenario, sensor)
+            for label, sensor in (("nominal", nominal), ("true", build.sensor))}  # fmt: skip
+    if cal is None:
+        return CalibrationRow(seed, rows["nominal"], None, rows["true"], math.nan, 0, seconds,
+                              note)  # fmt: skip
+    adj = cal.adjustment
+    share, n_fitted = within_3se(adj.value, adj.se, geometry_vector(build.sensor))
+    fitted = clip_row(seed, "fitted", frames, scenario, cal.sensor)
+    return CalibrationRow(seed, rows["nominal"], fitted, rows["true"], share, n_fitted, seconds,
+                          "; ".join(r.note for r in (fitted, rows["true"]) if r.note))  # fmt: skip
+
+
+def _cells(r: RealityRow | None) -> list[str]:
+    if r is None:
+        return ["-", "-", "-"]
+    return [f"{100 * r.ok:.1f}%", f"{r.phi_rmse_deg:.4f}", f"{r.dz_rmse_mm:.4f}"]
+
+
+def table(rows: list[CalibrationRow]) -> str:
+    """One Markdown row per build."""
+    head = ["build"]
+    for label in ("nominal", "fitted", "true"):
+        head += [f"ok {label}", f"phi RMSE {label} (deg)", f"dz RMSE {label} (mm)"]
+    head += ["phi fitted/true", "dz fitted/true", "within 3 SE", "calibration (s)", "note"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [str(r.seed), *_cells(r.nominal), *_cells(r.fitted), *_cells(r.true),
+                 f"{r.ratio('phi_rmse_deg'):.2f}", f"{r.ratio('dz_rmse_mm'):.2f}",
+                 f"{100 * r.within_3se:.0f}% of {r.n_fitted}", f"{r.calibration_s:.0f}",
+                 r.note]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def summary(rows: list[CalibrationRow]) -> str:
+    """How many builds meet each acceptance limit, and all of them."""
+    meets = [r.meets() for r in rows]
+    n = len(rows)
+    count = {k: sum(m[k] for m in meets) for k in ("phi", "dz", "ok", "se")}
+    detected = sum(r.true.detected and r.nominal.detected for r in rows)
+    return (f"{n} builds: detected {detected}/{n}; phi within {MAX_RATIO}x {count['phi']}/{n}, "
+            f"dz within {MAX_RATIO}x {count['dz']}/{n}, >= {100 * MIN_OK:.0f} % ok "
+            f"{count['ok']}/{n}, >= {100 * MIN_WITHIN_3SE:.0f} % within 3 SE {count['se']}/{n}; "
+            f"all four {sum(all(m.values()) for m in meets)}/{n}")  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.calibration", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    held = REALITY_SUITE.held_out_seeds
+    p.add_argument("--seeds", default=f"{held[0]}-{held[4]}", help="e.g. 100-104 or 100,107")
+    p.add_argument("--sweep-s", type=float, default=12.0, help="sweep length (s, at most 20)")
+    p.add_argument("--clip-frames", type=int, default=120, help="frames of the separate clip")
+    p.add_argument("--cache", metavar="DIR", help="folder for the renders, reused on a rerun")
+    args = p.parse_args(argv)
+    if not 0 < args.sweep_s <= 20:
+        p.error(f"--sweep-s must be in (0, 20], got {args.sweep_s}")
+    sweep_frames = round(args.sweep_s * FPS)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="camwhisker-calbench-") as tmp:
+        folder = Path(args.cache or tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for seed in seed_list(args.seeds):
+            rows.append(run_build(seed, sweep_frames, args.clip_frames, folder))
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    print()
+    print(table(rows))
+    print(f"\n{summary(rows)}")
+    print(f"sweep {args.sweep_s:g} s ({sweep_frames} frames), clip 'nominal' {args.clip_frames} "
+          f"frames (MJPG), seeds {args.seeds}; tune only on seeds "
+          f"{REALITY_SUITE.tuning_seeds}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
