@@ -42,7 +42,7 @@ from camwhisker.model import (
     with_geometry,
 )
 from camwhisker.plate import rigid_motion
-from camwhisker.sensor import OPTIONAL_PLATE_KEYS, Sensor, SensorFileError
+from camwhisker.sensor import Sensor, SensorFileError
 
 __all__ = [
     "HUBER_PX",
@@ -72,9 +72,7 @@ MIN_POINTS = 4
 #: Parameters no sweep determines, always held at nominal, and why.
 ALWAYS_HELD = {
     "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
-    **{f"plate.{k}": "the corners' own in-plane shifts span a feature's shift and rotation: "
-       "held at nominal" for k in OPTIONAL_PLATE_KEYS if not k.startswith("tip_")},
-}  # fmt: skip
+}
 #: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
 #: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
 _RIDGE = 1e-10
