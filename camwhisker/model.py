@@ -52,6 +52,7 @@ __all__ = [
     "N_RIM",
     "GEOMETRY_NAMES",
     "BUILD_TOLERANCE",
+    "ROD_TILT_TOLERANCE_DEG",
     "RELATIVE_TOLERANCE",
     "build_tolerances",
     "PlateModel",
@@ -81,9 +82,11 @@ _PLATE_KEYS = tuple(f.name for f in dataclasses.fields(PlateConfig))
 GEOMETRY_NAMES = tuple(f"camera.{k}" for k in INTRINSIC_NAMES) + tuple(
     f"plate.{k}" for k in _PLATE_KEYS
 )
+#: docs/sensor.md section 8: a hand build's rod may be glued this far off perpendicular.
+ROD_TILT_TOLERANCE_DEG = 2.0
 #: docs/sensor.md section 8: how far a hand build's value of each geometry parameter
 #: may lie from the nominal file's (fx, fy relative; p1, p2 by analogy with k1; the
-#: rod glued 2 deg off perpendicular moves the tip by h_r tan(2 deg), ~0.26 mm).
+#: rod's tilt moves the tip by h_r tan(ROD_TILT_TOLERANCE_DEG), ~0.26 mm).
 BUILD_TOLERANCE = {
     "camera.fx_px": 0.04, "camera.fy_px": 0.04, "camera.cx_px": 10.0, "camera.cy_px": 10.0,
     "camera.k1": 0.1, "camera.k2": 0.1, "camera.p1": 0.005, "camera.p2": 0.005,

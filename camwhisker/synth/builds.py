@@ -23,27 +23,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from camwhisker.model import BUILD_TOLERANCE, ROD_TILT_TOLERANCE_DEG
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.synth.render import Appearance
 from camwhisker.synth.scenarios import Scenario
 
 __all__ = ["Build", "RealitySuite", "REALITY_SUITE", "TOLERANCES", "draw_build"]
 
-#: Section 8's tolerances of a hand build: the largest deviation of each quantity
-#: from its nominal value (relative for fx, fy; absolute in the key's units else).
+#: Section 8's tolerances of a hand build, from the one table of them
+#: (:data:`camwhisker.model.BUILD_TOLERANCE`), grouped as they are drawn
+#: (relative for fx, fy; absolute in the key's units else).
 TOLERANCES = {
-    "fx_rel": 0.04,
-    "fy_rel": 0.04,
-    "cx_px": 10.0,
-    "cy_px": 10.0,
-    "k1": 0.1,
-    "z_i_mm": 0.6,
-    "h_r_mm": 0.3,
-    "rod_tilt_deg": 2.0,
-    "size_mm": 0.1,  # square_side, cross_span, cross_arm, rod_diameter
-    "depth_offset_mm": 0.2,  # square_offset, cross_offset
-    "feature_shift_mm": 0.3,  # off centre, square and cross
-    "feature_rotation_deg": 3.0,
+    "fx_rel": BUILD_TOLERANCE["camera.fx_px"],
+    "fy_rel": BUILD_TOLERANCE["camera.fy_px"],
+    "cx_px": BUILD_TOLERANCE["camera.cx_px"],
+    "cy_px": BUILD_TOLERANCE["camera.cy_px"],
+    "k1": BUILD_TOLERANCE["camera.k1"],
+    "z_i_mm": BUILD_TOLERANCE["plate.z_i_mm"],
+    "h_r_mm": BUILD_TOLERANCE["plate.h_r_mm"],
+    "rod_tilt_deg": ROD_TILT_TOLERANCE_DEG,
+    # square_side, cross_span, cross_arm, rod_diameter
+    "size_mm": BUILD_TOLERANCE["plate.square_side_mm"],
+    "depth_offset_mm": BUILD_TOLERANCE["plate.square_offset_mm"],  # square_offset, cross_offset
+    "feature_shift_mm": BUILD_TOLERANCE["plate.square_shift_x_mm"],  # square and cross
+    "feature_rotation_deg": BUILD_TOLERANCE["plate.square_rotation_deg"],
 }
 _SIZES = ("square_side_mm", "cross_span_mm", "cross_arm_mm", "rod_diameter_mm")
 _DEPTHS = ("square_offset_mm", "cross_offset_mm")
