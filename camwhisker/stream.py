@@ -46,9 +46,10 @@ from camwhisker.sensor import Sensor
 from camwhisker.sources import Frame
 from camwhisker.vision.mismatch import MismatchCheck, check_mismatch
 from camwhisker.vision.rest import mean_image
-from camwhisker.vision.tracker import FrameResult, FrontEnd, FrontEndOptions
+from camwhisker.vision.tracker import REST_FRAMES, FrameResult, FrontEnd, FrontEndOptions
 
-__all__ = ["EVENTS", "GAP_REASON", "RestRecord", "at_rest", "stream", "track", "live_track"]
+__all__ = ["REST_FRAMES", "EVENTS", "GAP_REASON", "RestRecord", "at_rest", "stream", "track",
+           "live_track"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -56,9 +57,6 @@ log = logging.getLogger(__name__)
 EVENTS = ("", "rezero", "redetect", "gap")
 #: Reason written in a row for which no frame came (the error is in the log and sidecar).
 GAP_REASON = "no frame: capture read failed"
-#: Frames to average a rest reference over (``FrontEndOptions.rest_frames``): 1 s at
-#: 30 fps, which brings its noise to ~0.18 of one frame's (under half, the target).
-REST_FRAMES = 30
 #: ... and the longest span it covers (s, where frames have times): the light drifts
 #: over seconds, and a reference averaged over a drift is no frame's.
 REST_SPAN_S = 1.0

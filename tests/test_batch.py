@@ -9,19 +9,19 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 
 import cv2
 import numpy as np
 import pytest
 
 from camwhisker.cli import main
+from camwhisker.model import PlateModel
 from camwhisker.overlay import rest_check_image
 from camwhisker.sensor import load_sensor
 from camwhisker.sources import open_source
+from camwhisker.stream import stream
 from camwhisker.synth.scenarios import PoseTrack, make_scenario
 from camwhisker.synth.video import render_scenario
-from camwhisker.vision.tracker import FrontEnd
 
 REQUIRED = ["frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok"]
 
@@ -148,7 +148,9 @@ def test_rest_frame_option_leaves_earlier_rows_untrusted(video, tmp_path):
     assert rc == 0
     rows = _read(out)
     assert rows[0]["ok"] == "0" and rows[0]["phi_deg"] == "" and rows[0]["dz_mm"] == ""
-    assert rows[1]["ok"] == "1" and math.isclose(float(rows[1]["phi_deg"]), 0.0, abs_tol=1e-9)
+    # The rest frame is measured against the reference averaged over the frames at rest
+    # from it on, so it reads its own noise (~0.005 deg here) instead of exactly 0.
+    assert rows[1]["ok"] == "1" and abs(float(rows[1]["phi_deg"])) < 0.02
 
 
 def test_tracker_knobs_from_the_command_line(video, tmp_path, capsys):
@@ -190,6 +192,7 @@ def test_batch_writes_the_rest_check_image(video, tmp_path):
     frame = _frame(video["video"], 1)
     assert image is not None and image.shape == frame.shape == (720, 1280, 3)
     assert json.loads((tmp_path / "sig.json").read_text())["rest_check"] == "sig.rest.png"
-    fe = FrontEnd(load_sensor(video["sensor"]))
-    rest = fe.start(frame, 1)
-    assert np.array_equal(image, rest_check_image(frame, rest, fe.model))  # PNG: lossless
+    sensor = load_sensor(video["sensor"])
+    rest = next(r for _, r in stream(open_source(video["video"]), sensor, rest_index=1) if r.ok)
+    assert rest.frame == 1
+    assert np.array_equal(image, rest_check_image(frame, rest, PlateModel(sensor)))  # PNG: lossless

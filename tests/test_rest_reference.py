@@ -27,7 +27,7 @@ from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS
 from camwhisker.vision import FrontEnd, FrontEndOptions
 
 SENSOR = Sensor()
-AVERAGED = FrontEndOptions(rest_frames=REST_FRAMES)
+AVERAGED = FrontEndOptions()  # the default: averaged over up to REST_FRAMES
 #: The rest noise of a poor webcam: the reference's own noise matters most there.
 NOISY = dataclasses.replace(NOMINAL_ARTEFACTS, noise_dn=5.0)
 
@@ -94,10 +94,10 @@ def test_averaged_reference_removes_frame_zeros_bias(renderer):
     assert rms(averaged) < 0.5 * float(np.mean(noise)), (averaged, noise)
 
 
-def test_rest_frame_alone_by_default(renderer):
+def test_rest_frame_alone_on_request(renderer):
     frames = _frames(renderer, [Pose()] * 3, seed=43)
     log: list = []
-    rows = list(stream(frames, SENSOR, rest_log=log))
+    rows = list(stream(frames, SENSOR, FrontEndOptions(rest_frames=1), rest_log=log))
     assert rows[0][1].dz_mm == 0.0 and log[0].frames_used == 1 and log[0].warnings == ()
 
 

@@ -46,7 +46,7 @@ from camwhisker.vision.tracker import FrontEndOptions
 __all__ = ["RealityRow", "render_build_clip", "clip_row", "deviation_phi_deg", "run_build",
            "table", "summary", "seed_list", "main"]  # fmt: skip
 
-#: The scene: 1 s at rest, tilts up to 36 deg, 1 s at rest again.
+#: The scene: 1 s at rest, tilts up to 35 deg, 1 s at rest again.
 SCENE = "rest_bracketed"
 #: The issue's limits: |mean phi error| above 15 and 30 deg (deg), the zero's
 #: error as a share of the per-frame dz noise.
@@ -127,7 +127,9 @@ def clip_row(seed: int, label: str, frames: list, scenario: Scenario, sensor: Se
     bias_30 = float(np.mean(phi[steep] - track.phi_deg[steep])) if steep.any() else math.nan
     closing = trusted & closing_rest(track)
     e_dz = dz[closing] - track.dz_mm[closing]
-    zero, noise = (float(e_dz.mean()), float(e_dz.std(ddof=1))) if len(e_dz) > 2 else (math.nan,) * 2
+    zero = noise = math.nan
+    if len(e_dz) > 2:
+        zero, noise = float(e_dz.mean()), float(e_dz.std(ddof=1))
     first = rest_log[0]
     return RealityRow(seed, label, True, float(ok.mean()), phi_rmse, dz_rmse, "",
                       bias_15, bias_30, zero, noise, first.frames_used,
@@ -230,8 +232,9 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m camwhisker.bench.reality", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
-    p.add_argument("--seeds", default=f"{held[0]}-{held[19]}", help="builds, e.g. 100-119 or 100,107")
-    p.add_argument("--frames", type=int, default=150, help="frames per clip (>= 90)")
+    p.add_argument("--seeds", default=f"{held[0]}-{held[19]}",
+                   help="builds, e.g. 100-119 or 100,107")  # fmt: skip
+    p.add_argument("--frames", type=int, default=150, help="frames per clip (default: 150)")
     p.add_argument("--nominal-renders", type=int, default=5,
                    help="clips of the nominal sensor and look (default: 5)")  # fmt: skip
     p.add_argument("--cache", type=Path, help="keep the renders here (reused when present)")

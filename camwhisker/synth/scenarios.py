@@ -220,18 +220,17 @@ def _large_tilt(n, seed, fps=30.0):
 
 
 def _rest_bracketed(n, seed, fps=30.0):
-    """1 s at rest, the nominal scene's holds and sweeps up to phi 36 deg, 1 s at rest."""
-    n_rest = int(round(fps))
-    if n < 3 * n_rest:
-        raise ValueError(f"rest_bracketed needs >= {3 * n_rest} frames, got {n}")
-    middle = ordinary_track(n - 2 * n_rest, fps, np.random.default_rng(seed), phi_max_deg=36.0)
+    """1 s at rest (a quarter of a short scene), the nominal scene's holds and sweeps
+    up to phi 35 deg, then at rest again."""
+    n_rest = min(int(round(fps)), n // 4)
+    middle = ordinary_track(n - 2 * n_rest, fps, np.random.default_rng(seed), phi_max_deg=35.0)
     keep = middle.phi_deg > 0  # its own rest frames go: the brackets are the rest
     pad = np.zeros(n_rest)
     cols = [np.concatenate([pad, getattr(middle, c)[keep], pad, np.zeros(n)])[:n]
             for c in ("dz_mm", "phi_deg", "theta_deg", "sx_mm", "sy_mm")]  # fmt: skip
     return Scenario(
         "rest_bracketed",
-        "1 s at rest, holds and sweeps up to phi 36 deg and dz 1 mm, then at rest again",
+        "1 s at rest, holds and sweeps up to phi 35 deg and dz 1 mm, then at rest again",
         PoseTrack(np.arange(n) / fps, *cols),
         NOMINAL_ARTEFACTS,
         fps,

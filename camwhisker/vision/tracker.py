@@ -65,8 +65,11 @@ from camwhisker.vision.tip import (
     tip_edge_points,
 )
 
-__all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "PHI_MIN_FOR_THETA_DEG"]
+__all__ = ["FrontEndOptions", "FrameResult", "FrontEnd", "PHI_MIN_FOR_THETA_DEG", "REST_FRAMES"]
 
+#: Frames a rest reference is averaged over (``FrontEndOptions.rest_frames``): 1 s at
+#: 30 fps, which brings its noise to ~0.18 of one frame's (under half, the target).
+REST_FRAMES = 30
 #: theta is reported only where phi exceeds this: theta's error is the tilt
 #: vector's noise over phi, ~1 deg at this tilt and unbounded below.
 PHI_MIN_FOR_THETA_DEG = 0.6
@@ -138,8 +141,7 @@ class FrontEndOptions:
         converge in.
     rest_frames : the rest reference is averaged over up to this many frames at
         rest from the rest frame (and each re-zero) on (see
-        :mod:`camwhisker.stream`; ``REST_FRAMES`` = 30 is 1 s at 30 fps); 1: the
-        rest frame alone.
+        :mod:`camwhisker.stream`); 1: the rest frame alone.
     """
 
     mode: str = "model"
@@ -147,7 +149,7 @@ class FrontEndOptions:
     lock_gains: bool = False
     lk_half_px: int = PATCH_HALF_PX
     roi_margin_px: int = REFINE_MARGIN_PX
-    rest_frames: int = 1
+    rest_frames: int = REST_FRAMES
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -226,15 +228,25 @@ class _TipFind:
         return self.edges is not None and self.measurement is None
 
 
+@dataclass(frozen=True)
+class _Warped:
+    """The rest templates warped to a pose, and the rest offsets (13, 2) at that pose."""
+
+    templates: np.ndarray
+    offsets: np.ndarray
+
+
 @dataclass
 class _Corners:
     """The corners' step: the pose their templates were warped for, which are
-    occluded, and where each locked (uv (12, 2), quality (12,), NaN where not)."""
+    occluded, where each locked (uv (12, 2), quality (12,), NaN where not), and the
+    rest offsets at that pose."""
 
     q: np.ndarray
     occluded: np.ndarray
     uv: np.ndarray
     quality: np.ndarray
+    offsets: np.ndarray  # the rest offsets at q (:class:`_Warped`)
 
     @property
     def retry(self) -> np.ndarray:
@@ -316,7 +328,8 @@ class FrontEnd:
         # The corners' step once at rest: its compiled kernels load now,
         # not on the first tracked frame, and the rest templates are ready.
         look = _Look(frame, self.rest.gains, self.rest.cloth_level)
-        self._refine(look, self._templates(self.q), self.rest.uv[:TIP], np.ones(TIP, bool))
+        templates = self._templates(self.q).templates
+        self._refine(look, templates, self.rest.uv[:TIP], np.ones(TIP, bool))
         return FrameResult(
             index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
             0.0, 0.0, 0.0, 0.0, TIP, "", self.rest.uv.copy(), np.ones(TIP + 1), np.zeros(5),
@@ -364,7 +377,7 @@ class FrontEnd:
             return self._fail("pose prediction failed")
         measured, fit, tip_now, placed_q = self._fit_step(corners, tip)
         quality = np.append(corners.quality, 1.0 if tip_now.ok else np.nan)
-        fit, tip_now = self._refine_tip(fit, measured, tip, tip_now, placed_q)
+        fit, tip_now = self._refine_tip(fit, measured, tip, tip_now, placed_q, corners.offsets)
         return self._conclude(fit, measured, quality, tip_now)
 
     # ------------------------------------------------------------------ steps
@@ -433,10 +446,11 @@ class FrontEnd:
     def _lock_corners(self, look: _Look, tip: _TipFind) -> _Corners | None:
         """Drift correction of the corners from where the tip's guess puts them, and
         the recoveries after a big jump; None if the guess puts them nowhere."""
-        uv_guess = self._corners_at(tip.q_guess)
+        warped = self._templates(tip.q_guess)
+        uv_guess = self._corners_at(tip.q_guess, warped)
         if not np.isfinite(uv_guess).all():
             return None
-        corners = self._lock_at(look, tip.q_guess, uv_guess, self._templates(tip.q_guess))
+        corners = self._lock_at(look, tip.q_guess, uv_guess, warped)
         if not tip.found:
             return corners
         if corners.n_locked < MIN_CORNERS:
@@ -447,11 +461,11 @@ class FrontEnd:
             self._repredict_missing(look, tip, corners)
         return corners
 
-    def _lock_at(self, look: _Look, q: np.ndarray, uv: np.ndarray, templates) -> _Corners:
+    def _lock_at(self, look: _Look, q: np.ndarray, uv: np.ndarray, warped: _Warped) -> _Corners:
         """The visible corners at pose q, started from ``uv`` (12, 2)."""
         occluded = self._occluded(q, uv)
-        uv_ref, quality = self._refine(look, templates, uv, ~occluded)
-        return _Corners(q, occluded, uv_ref, quality)
+        uv_ref, quality = self._refine(look, warped.templates, uv, ~occluded)
+        return _Corners(q, occluded, uv_ref, quality, warped.offsets)
 
     def _try_other_depths(self, look: _Look, tip: _TipFind, corners: _Corners) -> _Corners:
         """Recovery from a jump in dz: the corners where the tip would put them at
@@ -461,7 +475,8 @@ class FrontEnd:
             q = best.q.copy()
             q[0] = dz_mm
             q = self._tilt_from_tip(q, tip.uv)
-            trial = self._lock_at(look, q, self._corners_at(q), self._warp_templates(q))
+            warped = self._warp_templates(q)
+            trial = self._lock_at(look, q, self._corners_at(q, warped), warped)
             if trial.n_locked > best.n_locked:
                 best = trial
         return best
@@ -472,7 +487,8 @@ class FrontEnd:
         fit = self._detected_pose(look.image, look.gains, tip.uv)
         if fit is None:
             return corners
-        trial = self._lock_at(look, fit.q, self._corners_at(fit.q), self._warp_templates(fit.q))
+        warped = self._warp_templates(fit.q)
+        trial = self._lock_at(look, fit.q, self._corners_at(fit.q, warped), warped)
         return trial if trial.n_locked > corners.n_locked else corners
 
     def _repredict_missing(self, look: _Look, tip: _TipFind, corners: _Corners) -> None:
@@ -482,11 +498,11 @@ class FrontEnd:
         pre = np.full((TIP + 1, 2), np.nan)
         pre[:TIP][locked] = corners.uv[locked]
         pre[TIP] = tip.uv
-        fit = self._fit(pre, corners.q)
+        fit = self._fit(pre, corners.q, corners.offsets)
         if not fit.converged:
             return
-        again = self._corners_at(fit.q)
-        uv_r, q_r = self._refine(look, self._templates(fit.q), again, retry)
+        warped = self._templates(fit.q)
+        uv_r, q_r = self._refine(look, warped.templates, self._corners_at(fit.q, warped), retry)
         better = retry & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(corners.quality, nan=-1))
         corners.uv[better], corners.quality[better] = uv_r[better], q_r[better]
 
@@ -503,7 +519,7 @@ class FrontEnd:
         if tip_now is None:
             tip_now = TipMeasurement(np.full(2, np.nan), math.nan, False, tip.why)
         measured[TIP] = tip_now.centre_uv if tip_now.ok else np.nan
-        fit = self._fit(measured, corners.q)
+        fit = self._fit(measured, corners.q, corners.offsets)
         if not tip.deferred:
             return measured, fit, tip_now, tip.placed_q
         # The rim placed at the corners' fit where they fix the pose, else at the guess.
@@ -512,13 +528,14 @@ class FrontEnd:
         tip_now = self._tip_at(tip.edges, placed_q)
         if tip_now.ok:
             measured[TIP] = tip_now.centre_uv
-            fit = (refit_pose(self.model, fit, measured, self.rest.offsets, self._weights,
+            fit = (refit_pose(self.model, fit, measured, corners.offsets, self._weights,
                               self.options.fit_shift, add=TIP)
-                   if corners_fit else self._fit(measured, corners.q))  # fmt: skip
+                   if corners_fit else self._fit(measured, corners.q, corners.offsets))  # fmt: skip
         return measured, fit, tip_now, placed_q
 
     def _refine_tip(self, fit: PoseFit, measured: np.ndarray, tip: _TipFind,
-                    tip_now: TipMeasurement, placed_q: np.ndarray | None):  # fmt: skip
+                    tip_now: TipMeasurement, placed_q: np.ndarray | None,
+                    offsets: np.ndarray):  # fmt: skip
         """The tip measured again with its rim at the fit, each time refitted by one
         step, until the fit stays within RIM_REFIT of where the rim was placed.
 
@@ -528,7 +545,7 @@ class FrontEnd:
                 break
             tip_now, placed_q = self._tip_at(tip.edges, fit.q), fit.q
             measured[TIP] = tip_now.centre_uv if tip_now.ok else np.nan
-            fit = refit_pose(self.model, fit, measured, self.rest.offsets, self._weights,
+            fit = refit_pose(self.model, fit, measured, offsets, self._weights,
                              self.options.fit_shift)  # fmt: skip
         return fit, tip_now
 
@@ -610,9 +627,9 @@ class FrontEnd:
                        self.options.fit_shift)  # fmt: skip
         return fit if fit.converged else None
 
-    def _corners_at(self, q) -> np.ndarray:
+    def _corners_at(self, q, warped: _Warped) -> np.ndarray:
         """Where the 12 corners should be seen at pose q (model plus rest offsets)."""
-        return self.model.corners(q) + self.rest.offsets[:TIP]
+        return self.model.corners(q) + warped.offsets[:TIP]
 
     def _tip_at(self, edges, q) -> TipMeasurement:
         """The tip's centroid from its edge points, with the model's rim at pose q."""
@@ -674,9 +691,9 @@ class FrontEnd:
         patches = share_patches(look.image, tl, n, wgt[self._is_square.astype(int)])
         return patches, tl.astype(float), inside
 
-    def _templates(self, q):
-        """Rest patches warped to pose q, shape (12, n, n); reused while q stays
-        within TEMPLATE_REUSE of the pose they were warped for."""
+    def _templates(self, q) -> _Warped:
+        """:meth:`_warp_templates`, reused while q stays within TEMPLATE_REUSE of
+        the pose they were warped for."""
         cached = self._template_cache
         if cached is not None and np.all(np.abs(cached[0] - q) <= TEMPLATE_REUSE):
             return cached[1]
@@ -684,7 +701,8 @@ class FrontEnd:
         self._template_cache = (np.array(q, float), out)
         return out
 
-    def _warp_templates(self, q):
+    def _warp_templates(self, q) -> _Warped:
+        """Rest patches warped to pose q, shape (12, n, n), and the rest offsets at q."""
         d1 = self.model.edge_directions(q, step_mm=0.05)
         # A maps rest-image directions to current-image directions: A d0 = d1.
         a = np.swapaxes(d1, 1, 2) @ self._rest_dirs_inv
@@ -692,7 +710,11 @@ class FrontEnd:
         rest = self.rest
         sq = warp_templates(rest.blue, rest.origin, rest.uv[:N_SQUARE], a[:N_SQUARE], half)
         cr = warp_templates(rest.red, rest.origin, rest.uv[N_SQUARE:TIP], a[N_SQUARE:TIP], half)
-        return np.concatenate([sq, cr])
+        # A corner's offset is where its detected point sits in the corner's
+        # neighbourhood (blur pulls it inward), which moves with that neighbourhood.
+        offsets = rest.offsets.copy()
+        offsets[:TIP] = np.einsum("kij,kj->ki", a, rest.offsets[:TIP])
+        return _Warped(np.concatenate([sq, cr]), offsets)
 
     def _occluded(self, q, uv):
         """Corners whose window something nearer covers (or nearly) at pose q, shape (12,).
@@ -711,9 +733,8 @@ class FrontEnd:
                 out[k] |= cv2.pointPolygonTest(cross, pt, True) > -reach
         return out
 
-    def _fit(self, measured, q0) -> PoseFit:
-        return fit_pose(self.model, measured, self.rest.offsets, q0, self._weights,
-                        self.options.fit_shift)  # fmt: skip
+    def _fit(self, measured, q0, offsets) -> PoseFit:
+        return fit_pose(self.model, measured, offsets, q0, self._weights, self.options.fit_shift)
 
     def _result(self, fit, measured, quality, n_corners, ok, reason) -> FrameResult:
         paper = self.paper.pose_from_points(self.rest.paper, measured)
