@@ -6,9 +6,11 @@ The pose vector is q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) of
 :class:`camwhisker.model.PlateModel`.
 
 The fit is Gauss-Newton on the pixel residuals
-``measured - rest_offset - model(q)``, with OpenCV's analytic projection
-Jacobian (lens distortion included). The rest offsets are the residuals at
-the rest frame (q = 0), so a constant detector or model bias cancels.
+``measured - offset - model(q)``, with OpenCV's analytic projection
+Jacobian (lens distortion included). The offsets are the residuals at the
+rest frame (q = 0), so a detector or model bias cancels; the tracker moves a
+corner's offset with its neighbourhood's affine map at q (a blurred corner's
+detected point sits inside it, and turns with it).
 """
 
 from __future__ import annotations
