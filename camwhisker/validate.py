@@ -1,6 +1,6 @@
 """The paper's accuracy tests (Sec. III-A, Fig. 6 A/B): applied against measured phi or dz.
 
-From one trial's signal table (docs/sensor.md section 6) and stage log
+From each trial's signal table (docs/sensor.md section 6) and stage log
 (section 7):
 
 - **Test 1** steps a rigid whisker along x past a rigid contact at a known
@@ -17,7 +17,9 @@ median over the pause and the measured value the median of the trusted frames
 in it (the paper: "all data were collected during pauses"), their standard
 deviation the error bar. The RMSE is that of every trusted frame against its
 pause's applied value, as the paper's 0.22 deg and 0.04 mm; the slope and
-intercept are a least-squares line through the pause medians.
+intercept are a least-squares line through the pause medians. Several trials
+of one test pool their frames for the RMSE and bias and their pause medians for
+the line (:func:`pooled`); each trial keeps its own clock offset.
 
 References
 ----------
@@ -53,7 +55,7 @@ from camwhisker.stage import (
 )
 from camwhisker.tables import write_csv
 
-__all__ = ["TESTS", "ValidationError", "Validation", "validate", "write_validation",
+__all__ = ["TESTS", "ValidationError", "Validation", "validate", "pooled", "write_validation",
            "plot_validation"]
 
 
@@ -239,11 +241,35 @@ def validate(signals: dict, log: StageLog, test: int, offset_s: float | None = N
     )
 
 
-def _pause_columns(result: Validation) -> dict:
+def pooled(results: list[Validation]) -> dict:
+    """The statistics of several trials of one test, named as
+    :meth:`Validation.statistics`: RMSE and bias over every trial's frames, the
+    line through every trial's pause medians, and each trial's RMSE."""
+    if len({r.test for r in results}) != 1:
+        raise ValidationError("trials of different tests cannot be pooled")
+    first = results[0]
+    if len(results) == 1:
+        return first.statistics()
+    u = first.spec.unit
+    n = np.array([r.n_frames for r in results], float)
+    rmse = np.array([r.rmse for r in results])
+    applied = np.concatenate([r.pauses["applied"][r.pauses["used"]] for r in results])
+    median = np.concatenate([r.pauses["measured"][r.pauses["used"]] for r in results])
+    slope, intercept = _line(applied, median)
+    return {f"rmse_{u}": float(np.sqrt(np.sum(n * rmse**2) / n.sum())),
+            f"bias_{u}": float(np.sum(n * [r.bias for r in results]) / n.sum()),
+            f"rmse_medians_{u}": float(np.sqrt(np.mean((median - applied) ** 2))),
+            "slope": slope, f"intercept_{u}": intercept, "pauses_used": int(applied.size),
+            "pauses_found": sum(int(r.pauses["used"].size) for r in results),
+            "frames_used": int(n.sum()), "trials": len(results),
+            f"rmse_per_trial_{u}": rmse.tolist()}  # fmt: skip
+
+
+def _pause_columns(result: Validation, trial: int) -> dict:
     """The per-pause CSV's columns, named with the tested quantity and its unit."""
     p, s = result.pauses, result.spec
-    cols = {"pause": np.arange(p["x_mm"].size), "t_start_s": p["t_start_s"],
-            "t_end_s": p["t_end_s"], "x_mm": p["x_mm"]}
+    cols = {"trial": np.full(p["x_mm"].size, trial), "pause": np.arange(p["x_mm"].size),
+            "t_start_s": p["t_start_s"], "t_end_s": p["t_end_s"], "x_mm": p["x_mm"]}
     cols.update({k: p[k] for k in ("r_mm", "dx_mm") if k in p})
     cols[f"{s.symbol}_applied_{s.unit}"] = p["applied"]
     cols[f"{s.symbol}_measured_{s.unit}"] = p["measured"]
@@ -262,67 +288,87 @@ def _no_nan(value):
     return value
 
 
-def write_validation(result: Validation, out_dir: str | Path, sensor: Sensor | None = None,
-                     command: str = "") -> dict:
-    """Write ``test<N>_pauses.csv``, ``test<N>.json`` and the figure ``fig<6A|6B>.png``.
-
-    The JSON says how the result was made: package version, command, time,
-    inputs, sensor file, clock offset, contact position, how the applied values
-    were found, the constants of the pause detection, and the statistics.
-    Returns the written paths by role (``pauses``, ``summary``, ``plot``).
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    spec = result.spec
-    paths = {"pauses": out / f"test{result.test}_pauses.csv",
-             "summary": out / f"test{result.test}.json",
-             "plot": out / f"fig{spec.figure.lower()}.png"}
-    write_csv(paths["pauses"], _pause_columns(result))
-    plot_validation(result, paths["plot"], command or f"camwhisker.validate, test {result.test}")
-    record = {
-        "camwhisker_version": __version__,
-        "made_by": "camwhisker.validate.write_validation",
-        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "command": command,
-        "test": result.test,
-        "quantity": spec.quantity,
-        "applied_from": spec.applied_from,
+def _trial_record(result: Validation) -> dict:
+    """One trial's inputs, clock and contact position, and statistics."""
+    return {
         "inputs": {"signals": result.signals_source, "stage": result.stage_source},
-        "sensor_file": None if sensor is None else sensor.source,
-        "sensor": None if sensor is None else sensor_to_dict(sensor),
         "clock_offset_s": result.offset_s,
         "clock_offset_estimated": result.offset_estimated,
         "clock_offset_score": result.offset_score,
         "x_contact_mm": result.x_contact_mm,
         "x_contact_estimated": result.x_contact_estimated,
+        "statistics": result.statistics(),
+    }
+
+
+def write_validation(results: list[Validation], out_dir: str | Path,
+                     sensor: Sensor | None = None, command: str = "") -> dict:  # fmt: skip
+    """Write ``test<N>_pauses.csv`` (every trial's pauses, numbered from 1),
+    ``test<N>.json`` and the figure ``fig<6A|6B>.png``.
+
+    The JSON says how the result was made: package version, command, time,
+    sensor file, how the applied values were found, the constants of the pause
+    detection, each trial's inputs, clock offset, contact position and
+    statistics, and the statistics pooled over the trials (:func:`pooled`).
+    Returns the written paths by role (``pauses``, ``summary``, ``plot``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stats = pooled(results)
+    test, spec = results[0].test, results[0].spec
+    paths = {"pauses": out / f"test{test}_pauses.csv",
+             "summary": out / f"test{test}.json",
+             "plot": out / f"fig{spec.figure.lower()}.png"}
+    parts = [_pause_columns(r, k) for k, r in enumerate(results, start=1)]
+    write_csv(paths["pauses"], {c: np.concatenate([p[c] for p in parts]) for c in parts[0]})
+    plot_validation(results, paths["plot"], command or f"camwhisker.validate, test {test}")
+    record = {
+        "camwhisker_version": __version__,
+        "made_by": "camwhisker.validate.write_validation",
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "test": test,
+        "quantity": spec.quantity,
+        "applied_from": spec.applied_from,
+        "sensor_file": None if sensor is None else sensor.source,
+        "sensor": None if sensor is None else sensor_to_dict(sensor),
         "constants": {"MIN_PAUSE_S": MIN_PAUSE_S, "PAUSE_TRIM_S": PAUSE_TRIM_S,
                       "MIN_PAUSE_FRAMES": MIN_PAUSE_FRAMES},
-        "statistics": result.statistics(),
+        "statistics": stats,
+        "trials": [_trial_record(r) for r in results],
         "files": {k: p.name for k, p in paths.items()},
     }
     atomic_write_text(paths["summary"], json.dumps(_no_nan(record), indent=2, default=str) + "\n")
     return paths
 
 
-def plot_validation(result: Validation, path: str | Path, how: str = "") -> None:
-    """Fig. 6 A/B: measured against applied per pause, sd error bars, identity line, RMSE."""
+def plot_validation(results: list[Validation], path: str | Path, how: str = "") -> None:
+    """Fig. 6 A/B: measured against applied per pause, sd error bars, one colour per
+    trial, identity line, the pooled RMSE."""
     import matplotlib.pyplot as plt
 
     from camwhisker.contact.plots import save_figure  # selects the Agg backend
 
-    spec, p = result.spec, result.pauses
-    used = p["used"]
+    spec, stats = results[0].spec, pooled(results)
     fig, ax = plt.subplots(figsize=(5.2, 5.0), layout="constrained")
-    lo = float(min(p["applied"][used].min(), p["measured"][used].min()))
-    hi = float(max(p["applied"][used].max(), p["measured"][used].max()))
+    used = [r.pauses["used"] for r in results]
+    values = np.concatenate([np.r_[r.pauses["applied"][u], r.pauses["measured"][u]]
+                             for r, u in zip(results, used, strict=True)])  # fmt: skip
+    lo, hi = float(values.min()), float(values.max())
     ax.plot([lo, hi], [lo, hi], "-", color="0.6", lw=1, label="measured = applied")
-    ax.errorbar(p["applied"][used], p["measured"][used], yerr=p["sd"][used], fmt="o", ms=4,
-                capsize=3, color="C0", label="pause median, ±1 sd of its frames")
+    for k, (r, u) in enumerate(zip(results, used, strict=True), start=1):
+        label = "pause median, ±1 sd of its frames"
+        if len(results) > 1:
+            label = f"trial {k}: " + label
+        ax.errorbar(r.pauses["applied"][u], r.pauses["measured"][u], yerr=r.pauses["sd"][u],
+                    fmt="o", ms=4, capsize=3, color=f"C{(k - 1) % 10}", label=label)  # fmt: skip
     ax.set_xlabel(f"applied {spec.symbol} ({spec.unit})")
     ax.set_ylabel(f"measured {spec.symbol} ({spec.unit})")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"Fig. {spec.figure}: test {result.test}, RMSE {result.rmse:.3g} {spec.unit}\n"
-                 f"slope {result.slope:.4f}, {int(used.sum())} pauses, {result.n_frames} frames",
-                 fontsize=10)
+    trials = f"{len(results)} trials, " if len(results) > 1 else ""
+    ax.set_title(f"Fig. {spec.figure}: test {results[0].test}, RMSE "
+                 f"{stats[f'rmse_{spec.unit}']:.3g} {spec.unit}\nslope {stats['slope']:.4f}, "
+                 f"{trials}{stats['pauses_used']} pauses, {stats['frames_used']} frames",
+                 fontsize=10)  # fmt: skip
     ax.legend(loc="upper left", fontsize=8)
-    save_figure(fig, path, how or f"Fig. {spec.figure} (test {result.test})")
+    save_figure(fig, path, how or f"Fig. {spec.figure} (test {results[0].test})")

@@ -2,6 +2,7 @@
 
 import json
 import math
+import tomllib
 
 import numpy as np
 import pytest
@@ -157,9 +158,45 @@ def test_cli_writes_table_summary_and_plot(tmp_path, capsys):
     assert "RMSE" in capsys.readouterr().out
     assert (out / "fig6b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((out / "test2.json").read_text())
-    assert summary["inputs"]["stage"] == str(sim / "trial1_stage.csv")
+    assert summary["trials"][0]["inputs"]["stage"] == str(sim / "trial1_stage.csv")
     assert summary["sensor_file"] == "<defaults>"
-    assert summary["clock_offset_estimated"] is True
+    assert summary["trials"][0]["clock_offset_estimated"] is True
     assert summary["statistics"]["rmse_mm"] == pytest.approx(PAPER.dz_mm, rel=RMSE_REL_TOL)
     header = (out / "test2_pauses.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "trial"
     assert header[-5:] == ["dz_applied_mm", "dz_measured_mm", "dz_sd_mm", "n_frames", "used"]
+
+
+def test_trials_pool_their_frames(tmp_path, capsys):
+    """Two trials of test 2: the pooled RMSE is that of all their frames together (to
+    rounding), each trial keeps its own clock offset (the simulator's, -5.7 and +3.4 s),
+    the table numbers the trials."""
+    sim = tmp_path / "sim"
+    assert main(["simulate-stage", "--kind", "test2", "--out", str(sim), "--seed", "7"]) == 0
+    runs = [(sim / f"trial{k}_signals.csv", sim / f"trial{k}_stage.csv") for k in (1, 2)]
+    out = tmp_path / "v"
+    argv = ["validate", "--test", "2", "--out", str(out)]
+    for s, g in runs:
+        argv += ["--signals", str(s), "--stage", str(g)]
+    assert main(argv) == 0
+    assert "2 trials pooled" in capsys.readouterr().out
+    summary = json.loads((out / "test2.json").read_text())
+    trials = [t["statistics"] for t in summary["trials"]]
+    n = np.array([t["frames_used"] for t in trials])
+    rmse = np.array([t["rmse_mm"] for t in trials])
+    pooled = summary["statistics"]
+    assert pooled["frames_used"] == n.sum() and pooled["trials"] == 2
+    assert pooled["rmse_mm"] == pytest.approx(np.sqrt(np.sum(n * rmse**2) / n.sum()), rel=EXACT)
+    assert pooled["rmse_mm"] == pytest.approx(PAPER.dz_mm, rel=RMSE_REL_TOL)
+    offsets = [t["clock_offset_s"] for t in summary["trials"]]
+    truth = [r["offset_s"] for r in tomllib.loads((sim / "experiment.toml").read_text())["runs"]]
+    assert offsets == pytest.approx(truth, abs=OFFSET_TOL_S)  # each trial's own clock
+    table = (out / "test2_pauses.csv").read_text().splitlines()[1:]
+    assert {row.split(",")[0] for row in table} == {"1", "2"}
+
+
+def test_trials_need_a_stage_log_each(tmp_path, capsys):
+    argv = ["validate", "--test", "2", "--out", str(tmp_path / "v"), "--signals", "a.csv",
+            "--signals", "b.csv", "--stage", "a_stage.csv"]  # fmt: skip
+    assert main(argv) == 2
+    assert "give one --stage per --signals (2 signals, 1 stage logs)" in capsys.readouterr().err

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import shlex
 
-__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "command_line"]
+__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "mode_arg", "runs_arg", "paired_runs",
+           "command_line"]
 
 
 class CommandError(RuntimeError):
@@ -33,6 +34,32 @@ def mode_arg(p: argparse.ArgumentParser) -> None:
         default="model",
         help="exact camera model (default) or the paper's eqs. 2-7",
     )
+
+
+def runs_arg(p: argparse.ArgumentParser, per_run: str) -> None:
+    """``--signals S.csv --stage L.csv``, once per run, in the same order."""
+    p.add_argument("--signals", action="append", required=True, metavar="S.csv",
+                   help=f"signal table of one {per_run}; repeat once per {per_run}")
+    p.add_argument("--stage", action="append", required=True, metavar="L.csv",
+                   help=f"stage log of the {per_run} given by the --signals in the same place")
+
+
+def paired_runs(args: argparse.Namespace, *optional: str) -> list[tuple]:
+    """(signals, stage, *optional values) per run; each ``optional`` option (a dest,
+    such as ``offset_s``) is given for every run or for none (None)."""
+    n = len(args.signals)
+    if len(args.stage) != n:
+        raise CommandError(f"give one --stage per --signals ({n} signals, "
+                           f"{len(args.stage)} stage logs)")
+    columns = [args.signals, args.stage]
+    for dest in optional:
+        values = getattr(args, dest) or [None] * n
+        if len(values) != n:
+            flag = "--" + dest.replace("_", "-")
+            raise CommandError(f"give {flag} for every run or for none ({n} runs, "
+                               f"{len(values)} given)")
+        columns.append(values)
+    return list(zip(*columns, strict=True))
 
 
 def command_line(args: argparse.Namespace) -> str:

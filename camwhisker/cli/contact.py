@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, command_line, sensor_arg
+from camwhisker.cli.common import command_line, paired_runs, runs_arg, sensor_arg
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
@@ -54,8 +54,7 @@ def _run_simulate(args) -> int:
 
 def add_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="fit GM (eq. 8), sigma_GM and the MF table")
-    p.add_argument("--signals", action="append", required=True, metavar="S.csv")
-    p.add_argument("--stage", action="append", required=True, metavar="L.csv")
+    runs_arg(p, "calibration run")
     p.add_argument("--offset-s", action="append", type=float,
                    help="known clock offset per run (t_camera = t_stage + offset); "
                         "default: estimated")
@@ -75,15 +74,10 @@ def _run_calibrate(args) -> int:
     from camwhisker.signals import read_signal_table
     from camwhisker.stage import read_stage_log
 
-    if len(args.signals) != len(args.stage):
-        raise CommandError(f"give one --stage per --signals ({len(args.signals)} signals, "
-                           f"{len(args.stage)} stage logs)")
-    offsets = args.offset_s or [None] * len(args.signals)
-    if len(offsets) != len(args.signals):
-        raise CommandError("give --offset-s for every run or for none")
+    pairs = paired_runs(args, "offset_s")
     sensor = load_sensor(args.sensor)
     runs = [CalibrationRun(read_signal_table(s), read_stage_log(g), str(s), o)
-            for s, g, o in zip(args.signals, args.stage, offsets, strict=True)]
+            for s, g, o in pairs]
     calib, analyses, data = calibrate(runs, sensor.whisker.length_mm, sensor.source,
                                       command_line(args))
     write_calibration(args.out, calib)
