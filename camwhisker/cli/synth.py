@@ -84,7 +84,7 @@ def _run_bound(args) -> int:
 
 
 def add_samples(sub) -> None:
-    p = sub.add_parser("make-samples", help="regenerate the bundled sample videos")
+    p = sub.add_parser("make-samples", help="regenerate the bundled sample videos and build")
     p.add_argument("--dest", default="sample_frames", metavar="DIR")
     p.set_defaults(func=_run_samples)
 
@@ -100,13 +100,18 @@ def _run_samples(args) -> int:
 def add_describe(sub) -> None:
     p = sub.add_parser("describe", help="decode a video and summarise it and its truth")
     p.add_argument("video")
+    p.add_argument(
+        "--signals",
+        metavar="S.csv",
+        help="its signal table (batch): ok rows, phi and dz RMSE against the truth",
+    )
     p.set_defaults(func=_run_describe)
 
 
 def _run_describe(args) -> int:
     from camwhisker.synth.samples import describe_video
 
-    info = describe_video(args.video)
+    info = describe_video(args.video, args.signals)
     for key, value in info.items():
         print(f"{key:>16}: {value}")
     return 0
