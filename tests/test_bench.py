@@ -160,3 +160,30 @@ def test_calibration_table_and_summary_on_made_up_rows():
     assert good.meets() == {"phi": True, "dz": True, "ok": True, "se": True}
     assert not any(failed.meets().values())
     assert summary([good, failed]).endswith("all four 1/2")
+
+
+def test_reality_summary_counts_each_limit_on_made_up_rows():
+    """The reality bench's summary: each limit counted over the rows it concerns."""
+    from camwhisker.bench.reality import RealityRow, closing_rest, summary, table
+    from camwhisker.synth.scenarios import make_scenario
+
+    def row(seed, label, bias15=0.0, bias30=0.0, zero=0.0, warned=False):
+        return RealityRow(seed, label, True, 1.0, 0.02, 0.005, "", bias15, bias30, zero, 0.002,
+                          30, warned, 0.1)  # fmt: skip
+
+    rows = [row(100, "true", bias15=0.019, bias30=-0.041, zero=0.0009),  # 30 deg over, zero ok
+            row(100, "true, 1 rest frame", zero=0.0011),  # the zero over half the noise
+            row(100, "nominal", warned=True),
+            row(101, "true"), row(101, "true, 1 rest frame"), row(101, "nominal"),
+            row(5000, "nominal render", warned=True)]  # fmt: skip
+    effects = {100: 0.3, 101: 0.02}  # 101's deviation moves phi at 20 deg too little to warn
+    text = summary(rows, effects)
+    assert "<= 0.02: 2/2; |phi bias > 30 deg| <= 0.04: 1/2" in text
+    assert "rest averaged 2/2, one rest frame 1/2" in text
+    assert "by > 0.05 deg 1/1, where it does not 0/1; true file 0/2; nominal renders 1/1" in text
+    lines = table(rows, effects).splitlines()
+    assert len(lines) == 9 and all(line.count("|") == lines[0].count("|") for line in lines)
+    track = make_scenario("rest_bracketed", 150, 3).track
+    closing = closing_rest(track)
+    assert closing.sum() >= 30 and closing[-1] and not closing[:30].any()
+    assert (track.phi_deg[closing] == 0).all() and (track.phi_deg[:30] == 0).all()
