@@ -463,7 +463,7 @@ class FrontEnd:
 
     def _lock_at(self, look: _Look, q: np.ndarray, uv: np.ndarray, warped: _Warped) -> _Corners:
         """The visible corners at pose q, started from ``uv`` (12, 2)."""
-        occluded = self._occluded(q, uv)
+        occluded = self._occluded(q, uv, warped.offsets)
         uv_ref, quality = self._refine(look, warped.templates, uv, ~occluded)
         return _Corners(q, occluded, uv_ref, quality, warped.offsets)
 
@@ -716,14 +716,16 @@ class FrontEnd:
         offsets[:TIP] = np.einsum("kij,kj->ki", a, rest.offsets[:TIP])
         return _Warped(np.concatenate([sq, cr]), offsets)
 
-    def _occluded(self, q, uv):
+    def _occluded(self, q, uv, offsets):
         """Corners whose window something nearer covers (or nearly) at pose q, shape (12,).
 
         The rod can cover any corner; the cross can cover the square's corners
-        (at large tilts its arm ends pass over them)."""
+        (at large tilts its arm ends pass over them). Both are placed where the
+        points are seen: the rod with the tip's rest offset (as the tip's rim), the
+        cross with its corners' mean offset (``offsets`` (13, 2), at q)."""
         _, rod, cross = self.model.outlines(q)
-        hull = cv2.convexHull(rod.astype(np.float32))
-        cross = cross.astype(np.float32)
+        hull = cv2.convexHull((rod + offsets[TIP]).astype(np.float32))
+        cross = (cross + offsets[N_SQUARE:TIP].mean(axis=0)).astype(np.float32)
         reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
         for k in range(TIP):
