@@ -5,7 +5,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, mode_arg, sensor_arg
+from camwhisker.cli.common import (
+    CommandError,
+    feature_hints,
+    features_arg,
+    mode_arg,
+    sensor_arg,
+)
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_batch", "tracker_args"]
@@ -48,6 +54,7 @@ def add_batch(sub) -> None:
     p.add_argument("--fps", type=float, help="frame rate of an image folder")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     sensor_arg(p)
+    features_arg(p)
     p.set_defaults(func=_run_batch)
 
 
@@ -67,14 +74,15 @@ def _run_batch(args) -> int:
 
     if args.rest_frame < 0:
         raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
+    sensor = load_sensor(args.sensor)
     options = FrontEndOptions(
         mode=args.mode,
         fit_shift=not args.no_shift,
         lock_gains=args.lock_gains,
         lk_half_px=args.lk_half_px,
         roi_margin_px=args.roi_margin_px,
+        features=feature_hints(args, sensor),
     )
-    sensor = load_sensor(args.sensor)
     if args.out is None:
         return _run_batch_many(args, sensor, options)
     if len(args.video) != 1 or args.dest:

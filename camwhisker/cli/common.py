@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import shlex
 
-__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "mode_arg", "runs_arg", "paired_runs",
-           "command_line"]
+__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "features_arg", "feature_hints",
+           "mode_arg", "runs_arg", "paired_runs", "command_line"]
 
 
 class CommandError(RuntimeError):
@@ -24,6 +24,22 @@ SENSOR_HELP = "sensor file (TOML); default: Table I values"
 def sensor_arg(p: argparse.ArgumentParser, help_text: str = SENSOR_HELP) -> None:
     """The ``--sensor FILE`` option, read with :func:`camwhisker.sensor.load_sensor`."""
     p.add_argument("--sensor", metavar="FILE", help=help_text)
+
+
+def features_arg(p: argparse.ArgumentParser) -> None:
+    """``--features FILE``: rough positions of the features in the rest frame."""
+    p.add_argument("--features", metavar="FILE",
+                   help="rough pixel positions of the features in the rest frame (TOML, "
+                   "docs/sensor.md section 5.2), where detection does not find them")  # fmt: skip
+
+
+def feature_hints(args: argparse.Namespace, sensor):
+    """The ``--features`` file read for frames of ``sensor``'s size, or None."""
+    if args.features is None:
+        return None
+    from camwhisker.vision.hints import load_feature_hints
+
+    return load_feature_hints(args.features, (sensor.camera.width_px, sensor.camera.height_px))
 
 
 def mode_arg(p: argparse.ArgumentParser) -> None:

@@ -5,7 +5,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, mode_arg, sensor_arg
+from camwhisker.cli.common import (
+    CommandError,
+    feature_hints,
+    features_arg,
+    mode_arg,
+    sensor_arg,
+)
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_list_cameras", "add_live", "add_replay"]
@@ -65,6 +71,7 @@ def add_live(sub) -> None:
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
     mode_arg(p)
     sensor_arg(p)
+    features_arg(p)
     p.set_defaults(func=_run_live)
 
 
@@ -91,12 +98,13 @@ def _run_live(args) -> int:
     if args.exposure is not None:
         profile = replace(profile, exposure=args.exposure)
     sensor = load_sensor(args.sensor)
+    options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
     capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
     if args.loop and hasattr(capture, "loop"):
         capture.loop = True
     config = LiveConfig(
         mode=args.keep,
-        options=FrontEndOptions(mode=args.mode),
+        options=options,
         record=Path(args.record) if args.record else None,
         record_rate_fps=args.playback_fps or profile.fps,
         udp_port=args.udp,
@@ -119,6 +127,7 @@ def add_replay(sub) -> None:
     p.add_argument("--out", required=True, metavar="OUT.csv")
     mode_arg(p)
     sensor_arg(p)
+    features_arg(p)
     p.set_defaults(func=_run_replay)
 
 
@@ -126,8 +135,8 @@ def _run_replay(args) -> int:
     from camwhisker.live.loop import reprocess_session
     from camwhisker.vision import FrontEndOptions
 
-    out = reprocess_session(
-        args.session, load_sensor(args.sensor), args.out, FrontEndOptions(mode=args.mode)
-    )
+    sensor = load_sensor(args.sensor)
+    options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
+    out = reprocess_session(args.session, sensor, args.out, options)
     print(out)
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from camwhisker.cli.common import CommandError, sensor_arg
+from camwhisker.cli.common import CommandError, feature_hints, features_arg, sensor_arg
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_overlay"]
@@ -30,17 +30,21 @@ def add_overlay(sub) -> None:
                    help=f"motion arrows' scale (default {ARROW_SCALE:g})")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     sensor_arg(p)
+    features_arg(p)
     p.set_defaults(func=_run_overlay)
 
 
 def _run_overlay(args) -> int:
     from camwhisker.overlay import annotate_video
+    from camwhisker.vision import FrontEndOptions
 
     if args.rest_frame < 0:
         raise CommandError(f"--rest-frame must be >= 0, got {args.rest_frame}")
     if args.frames is not None and args.frames < 1:
         raise CommandError(f"--frames must be >= 1, got {args.frames}")
-    report = annotate_video(args.video, load_sensor(args.sensor), args.out,
+    sensor = load_sensor(args.sensor)
+    options = FrontEndOptions(features=feature_hints(args, sensor))
+    report = annotate_video(args.video, sensor, args.out, options,
                             rest_index=args.rest_frame, max_frames=args.frames,
                             scale=args.scale, progress=not args.quiet)  # fmt: skip
     print(f"{report.frames} frames, {report.frames_ok} ok -> {report.out}, {report.sidecar}, "

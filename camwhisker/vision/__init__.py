@@ -4,6 +4,7 @@ Modules, in the order the data flows:
 
 - :mod:`~camwhisker.vision.colour`  white balance from the cloth, eq. (1), colour unmixing
 - :mod:`~camwhisker.vision.detect`  finding the features without help
+- :mod:`~camwhisker.vision.hints`   the user's rough positions, where detection needs help
 - :mod:`~camwhisker.vision.blobs`   connected components and their statistics
 - :mod:`~camwhisker.vision.lk`      Lucas-Kanade with template update and drift correction
 - :mod:`~camwhisker.vision.tip`     the magnifier tip by colour and edge

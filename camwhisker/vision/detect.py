@@ -8,7 +8,9 @@ component's centre, and are refined to sub-pixel with ``cv2.cornerSubPix``
 on the one-signed contrast map of their own feature.
 
 :func:`detect_features` raises :class:`FeaturesNotFound`, naming every
-feature it could not find.
+feature it could not find. Given the user's rough positions
+(:class:`~camwhisker.vision.hints.FeatureHints`), it searches each hinted
+feature around its hint instead of where the model puts it at rest.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from camwhisker.model import N_SQUARE, TIP, PlateModel
 from camwhisker.polygon import polygon_area
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
+from camwhisker.vision.hints import FeatureHints
 from camwhisker.vision.tip import ellipse_centre, rim_centre, tip_edge_points
 
 __all__ = [
@@ -32,6 +35,7 @@ __all__ = [
     "refine_corners",
     "BLUE_MIN",
     "RED_MIN",
+    "WAY_OUT",
 ]
 
 #: Contrast-map levels that separate the features from the cloth (G ~ 0): the
@@ -69,6 +73,8 @@ CENTRE_GAP_ARMS = 1.8
 #: Refinement passes (the second starts from the first's corner, so the edge
 #: samples sit where the edges really are).
 REFINE_PASSES = 2
+#: The way out that every detection failure ends with.
+WAY_OUT = "pass rough positions with --features FILE (see docs/sensor.md section 5.2)"
 
 
 class FeaturesNotFound(ValueError):
@@ -77,7 +83,7 @@ class FeaturesNotFound(ValueError):
     def __init__(self, missing: list[str], detail: str = ""):
         self.missing = list(missing)
         msg = "features not found: " + ", ".join(self.missing)
-        super().__init__(msg + (f" ({detail})" if detail else ""))
+        super().__init__(msg + (f" ({detail})" if detail else "") + "; " + WAY_OUT)
 
 
 @dataclass(frozen=True)
@@ -197,6 +203,7 @@ def detect_features(
     model: PlateModel,
     q: np.ndarray | None = None,
     require: tuple[str, ...] = ("square corners", "cross arm ends", "magnifier tip"),
+    hints: FeatureHints | None = None,
 ) -> Detection:
     """Detect the square's corners, the cross's arm-end corners and the tip.
 
@@ -214,6 +221,10 @@ def detect_features(
         Features whose absence raises. A required feature found in pieces (cut
         by a spring or the other feature, or a cross split by a light centre)
         is pieced together.
+    hints : FeatureHints, optional
+        The user's rough rest positions: a hinted feature's expected outline is
+        moved so that its centre sits at the hint (the tip's search centre is
+        the hint); the others are searched where the model puts them.
 
     Returns
     -------
@@ -233,7 +244,8 @@ def detect_features(
     missing = []
 
     details = []
-    sq_model = uv_model[:N_SQUARE]
+    hints = hints or FeatureHints()
+    sq_model = _centred(uv_model[:N_SQUARE], hints.square_centre_px)
     blue = (g > BLUE_MIN).astype(np.uint8)
     found_uv[:N_SQUARE] = _feature_corners(
         blue, np.maximum(g, 0.0), sq_model, polygon_area(sq_model), 4, corner_dirs[:N_SQUARE],
@@ -243,7 +255,7 @@ def detect_features(
         missing.append("square corners")
         details.append(_found_where("square", "blue", blue, sq_model, found_uv[:N_SQUARE]))
 
-    cr_model = uv_model[N_SQUARE:TIP]
+    cr_model = _centred(uv_model[N_SQUARE:TIP], hints.cross_centre_px)
     red = (g < -RED_MIN).astype(np.uint8)
     found_uv[N_SQUARE:TIP] = _feature_corners(
         red, np.maximum(-g, 0.0), cr_model, polygon_area(cross_uv) * 0.85, 12,
@@ -253,26 +265,38 @@ def detect_features(
         missing.append("cross arm ends")
         details.append(_found_where("cross", "red", red, cr_model, found_uv[N_SQUARE:TIP]))
 
-    radius = math.sqrt(polygon_area(rim) / math.pi)
-    h, w = frame.shape[:2]
-    edges, _, _ = tip_edge_points(frame, gains, uv_model[TIP], radius, search_px=0.25 * max(h, w))
-    tip = None if edges is None else ellipse_centre(edges)
-    if tip is not None and tip.ok:
-        # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).
-        shift = tip.centre_uv - uv_model[TIP]
-        tip = rim_centre(edges, rim + shift, rod_rims_uv + shift)
-    if tip is not None and tip.ok:
-        found_uv[TIP] = tip.centre_uv
-    else:
+    tip_near = uv_model[TIP] if hints.tip_px is None else np.asarray(hints.tip_px)
+    found_uv[TIP] = _tip(frame, gains, uv_model[TIP], rim, rod_rims_uv, tip_near)
+    if not np.isfinite(found_uv[TIP]).all():
         missing.append("magnifier tip")
-        details.append(f"tip: no dark end face near ({uv_model[TIP][0]:.0f}, "
-                       f"{uv_model[TIP][1]:.0f}) px")  # fmt: skip
+        details.append(f"tip: no dark end face near ({tip_near[0]:.0f}, {tip_near[1]:.0f}) px")
 
     need = [m for m in missing if m in require]
     if need:
         detail = "; ".join(d for d, m in zip(details, missing, strict=True) if m in need)
         raise FeaturesNotFound(need, detail)
     return Detection(found_uv, np.isfinite(found_uv).all(axis=1))
+
+
+def _centred(model_uv: np.ndarray, centre_uv) -> np.ndarray:
+    """The model's points (K, 2) moved so that their mean sits at ``centre_uv`` (a
+    user's hint), or as they are where it is None."""
+    if centre_uv is None:
+        return model_uv
+    return model_uv + (np.asarray(centre_uv, float) - model_uv.mean(axis=0))
+
+
+def _tip(frame, gains, model_tip_uv, rim, rod_rims_uv, near_uv) -> np.ndarray:
+    """The tip's centre (2,) searched around ``near_uv``, NaN where not found."""
+    radius = math.sqrt(polygon_area(rim) / math.pi)
+    h, w = frame.shape[:2]
+    edges, _, _ = tip_edge_points(frame, gains, near_uv, radius, search_px=0.25 * max(h, w))
+    tip = None if edges is None else ellipse_centre(edges)
+    if tip is not None and tip.ok:
+        # The model's rim, placed at the rough centre, refines it (see tip.rim_centre).
+        shift = tip.centre_uv - model_tip_uv
+        tip = rim_centre(edges, rim + shift, rod_rims_uv + shift)
+    return tip.centre_uv if tip is not None and tip.ok else np.full(2, np.nan)
 
 
 def _feature_corners(mask, gmap, model_uv, area_exp, n_vertices, edge_dirs, merge=True,

@@ -1,7 +1,8 @@
 """The front end: frames in, plate pose out. A tracker object and a generator.
 
 :class:`FrontEnd` holds the state. :meth:`FrontEnd.start` takes the rest
-frame: it white-balances it, detects every feature (no clicking) and builds
+frame: it white-balances it, detects every feature (no clicking; the user's
+rough positions, ``FrontEndOptions.features``, where detection needs them) and builds
 the :class:`~camwhisker.vision.rest.RestReference` (the rest patches, the
 first templates, and the rest offsets of the points against the model).
 :meth:`FrontEnd.update` then runs, per frame, the steps named in it:
@@ -54,6 +55,7 @@ from camwhisker.vision.colour import (
     white_balance_gains,
 )
 from camwhisker.vision.detect import FeaturesNotFound, detect_features
+from camwhisker.vision.hints import FeatureHints
 from camwhisker.vision.lk import PATCH_HALF_PX, refine_first_template, warp_templates
 from camwhisker.vision.paper import PaperGeometry, PaperRest
 from camwhisker.vision.pose import PoseFit, fit_pose, refit_pose
@@ -142,6 +144,9 @@ class FrontEndOptions:
     rest_frames : the rest reference is averaged over up to this many frames at
         rest from the rest frame (and each re-zero) on (see
         :mod:`camwhisker.stream`); 1: the rest frame alone.
+    features : the user's rough positions of the features in the rest frame
+        (:func:`~camwhisker.vision.hints.load_feature_hints`): detection searches
+        each hinted feature around its hint; None: where the model puts them.
     """
 
     mode: str = "model"
@@ -150,6 +155,7 @@ class FrontEndOptions:
     lk_half_px: int = PATCH_HALF_PX
     roi_margin_px: int = REFINE_MARGIN_PX
     rest_frames: int = REST_FRAMES
+    features: FeatureHints | None = None
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -158,6 +164,8 @@ class FrontEndOptions:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if self.features is not None and not isinstance(self.features, FeatureHints):
+            raise ValueError(f"features must be FeatureHints or None, got {self.features!r}")
 
 
 @dataclass(frozen=True)
@@ -585,7 +593,7 @@ class FrontEnd:
     def _measure_rest(self, frame: np.ndarray) -> RestReference:
         """Detect the features at the rest frame and measure what the steps compare against."""
         gains = white_balance_gains(frame, *self._cloth)
-        det = detect_features(frame, gains, self.model)
+        det = detect_features(frame, gains, self.model, hints=self.options.features)
         model_uv, _, rest_rim = self.model.project(np.zeros(5), jacobian=False)
         uv = det.uv.copy()
         offsets = uv - model_uv
@@ -614,7 +622,8 @@ class FrontEnd:
         """A pose fitted to the features :func:`detect_features` finds (searching
         from the rest pose); ``tip_uv`` replaces its tip. None if too little."""
         try:
-            det = detect_features(frame, gains, self.model, require=())
+            det = detect_features(frame, gains, self.model, require=(),
+                                  hints=self.options.features)  # fmt: skip
         except FeaturesNotFound:  # pragma: no cover - nothing is required
             return None
         uv = det.uv.copy()
