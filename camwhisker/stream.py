@@ -19,7 +19,8 @@ The rest reference is not one frame's noise. From the rest frame (and from
 each re-zero) on, the frames are tracked against that frame's reference while
 they stay at rest (:func:`at_rest`), up to ``options.rest_frames`` frames
 within ``REST_SPAN_S``; the reference
-is then rebuilt from their mean image (:func:`~camwhisker.vision.rest.mean_image`).
+is then rebuilt from their mean image (:func:`~camwhisker.vision.rest.mean_image`),
+its points where the first frame's detection found them (no detection to fail).
 With ``hold_rest`` (batch) their rows are held back and measured again with
 the rebuilt reference, so they come out once the rest segment ends; without it
 (live, replay: a row per frame as it comes) they are the first frame's
@@ -167,7 +168,7 @@ class _RestSegment:
             return self.fe, 1, [ONE_FRAME_WARNING] if self.fe.options.rest_frames > 1 else []
         fe = FrontEnd(sensor, options)
         try:
-            fe.start(mean_image([f.image for f in self.frames]), first)
+            fe.start(mean_image([f.image for f in self.frames]), first, self.fe.rest.uv)
         except ValueError as exc:  # FeaturesNotFound is one
             last = self.frames[-1].index
             return self.fe, 1, [f"rest frames {first}-{last}: their mean failed ({exc}); "

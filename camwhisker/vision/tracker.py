@@ -318,8 +318,14 @@ class FrontEnd:
         self._template_cache: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ start
-    def start(self, frame: np.ndarray, index: int = 0) -> FrameResult:
+    def start(self, frame: np.ndarray, index: int = 0,
+              rest_uv: np.ndarray | None = None) -> FrameResult:  # fmt: skip
         """Take ``frame`` as the rest reference (pose zero) and detect the features.
+
+        ``rest_uv`` (13, 2): the points where an earlier rest frame's detection
+        found them, used instead of detecting them again, the tip measured anew
+        from there (a reference rebuilt from the mean of the rest frames: its zero
+        lies in its templates, not in where they are centred).
 
         Raises
         ------
@@ -327,7 +333,7 @@ class FrontEnd:
             Naming what was not found.
         """
         self._check_frame(frame)
-        self.rest = self._measure_rest(frame)
+        self.rest = self._measure_rest(frame, rest_uv)
         self.q = np.zeros(5)
         self._q_hist = [np.zeros(5)]
         self._lost = False
@@ -590,12 +596,15 @@ class FrontEnd:
                 f"{cam.width_px}x{cam.height_px}"
             )
 
-    def _measure_rest(self, frame: np.ndarray) -> RestReference:
-        """Detect the features at the rest frame and measure what the steps compare against."""
+    def _measure_rest(self, frame: np.ndarray, rest_uv=None) -> RestReference:
+        """Detect the features at the rest frame (unless ``rest_uv`` gives them) and
+        measure what the steps compare against."""
         gains = white_balance_gains(frame, *self._cloth)
-        det = detect_features(frame, gains, self.model, hints=self.options.features)
         model_uv, _, rest_rim = self.model.project(np.zeros(5), jacobian=False)
-        uv = det.uv.copy()
+        if rest_uv is None:
+            uv = detect_features(frame, gains, self.model, hints=self.options.features).uv.copy()
+        else:
+            uv = np.array(rest_uv, float)
         offsets = uv - model_uv
         # Measure the tip exactly as update() will, until its window stops moving.
         radius = math.sqrt(polygon_area(rest_rim) / math.pi)
