@@ -315,7 +315,7 @@ class FrontEnd:
         self._q_hist = [np.zeros(5)]
         self._lost = False
         self._index = -1
-        self._template_cache: tuple[np.ndarray, np.ndarray] | None = None
+        self._template_cache: tuple[np.ndarray, _Warped] | None = None
 
     # ------------------------------------------------------------------ start
     def start(self, frame: np.ndarray, index: int = 0,
