@@ -16,6 +16,7 @@ point is off by OFF_PX puts it there wrongly, and only a hint finds it.
 | bad files | FeatureHintsError naming file and key | the sensor file's rules |
 | batch with / without --features | 4 ok rows, phi < 0.05 deg / exit 2, no file | the way out |
 | overlay --features; live, replay | 4 ok frames, hints in the sidecar / parsed | every rest start |
+| calibrate-sensor's rest tip radius, wrong file | fails / hints: within 0.01 px | its first start |
 
 (A principal point only translates the model's image, so with the same gains
 the same edges give the same corners.)
@@ -234,3 +235,19 @@ def test_batch_names_a_bad_features_file(clip, tmp_path, capsys):
     assert main(argv) == 2
     assert capsys.readouterr().err.startswith(f"camwhisker batch: error: {bad}: [features] tip_px")
     assert not out.exists()
+
+
+def test_calibrate_sensor_starts_its_sweep_with_the_hints(clip):
+    """calibrate-sensor's first step, the tip's radius at rest, starts the front end on the
+    sweep's first frame: with the wrong file it fails without hints and, with them, measures
+    the radius the correct file gives (the same edge points; 0.01 px covers the gains)."""
+    from camwhisker.geometry.sweep import rest_tip_radius_px
+
+    video = clip / "rest.avi"
+    with pytest.raises(FeaturesNotFound, match="cross arm ends"):
+        rest_tip_radius_px(video, OFF)
+    hints = load_feature_hints(clip / "hints.toml", FRAME_SIZE)
+    radius = rest_tip_radius_px(video, OFF, FrontEndOptions(features=hints))
+    assert radius == pytest.approx(rest_tip_radius_px(video, SENSOR), abs=0.01)
+    argv = ["calibrate-sensor", str(video), "--square-side-mm", "5", "--out", "b.toml"]
+    assert build_parser().parse_args(argv + ["--features", "h.toml"]).features == "h.toml"

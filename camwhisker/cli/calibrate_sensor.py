@@ -5,7 +5,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import CommandError, command_line, sensor_arg
+from camwhisker.cli.common import (
+    CommandError,
+    command_line,
+    feature_hints,
+    features_arg,
+    sensor_arg,
+)
 
 __all__ = ["add_calibrate_sensor"]
 
@@ -39,6 +45,7 @@ def add_calibrate_sensor(sub) -> None:
         help="chessboard square size (mm; does not enter the intrinsics)",
     )
     p.add_argument("--rounds", type=int, default=3, help="rounds of tracking and adjustment")
+    features_arg(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run_calibrate_sensor)
 
@@ -74,11 +81,13 @@ def _run_calibrate_sensor(args) -> int:
     from camwhisker.geometry.sweep import calibrate_sensor
     from camwhisker.sensor import load_sensor
     from camwhisker.sources import open_source
+    from camwhisker.vision.tracker import FrontEndOptions
 
     if args.rounds < 1:
         raise CommandError(f"--rounds must be >= 1, got {args.rounds}")
     sensor = load_sensor(args.sensor)
     intrinsics = _chessboard(args, sensor) if args.chessboard else None
+    options = FrontEndOptions(features=feature_hints(args, sensor))
     n_frames = sum(len(open_source(v)) for v in args.videos)
     bar = tqdm(total=n_frames * args.rounds, unit="frame", desc="calibrate-sensor round 1",
                disable=args.quiet)  # fmt: skip
@@ -91,11 +100,12 @@ def _run_calibrate_sensor(args) -> int:
 
     try:
         cal = calibrate_sensor(args.videos, sensor, args.square_side_mm, intrinsics,
-                               args.rounds, bar.update, on_round)  # fmt: skip
+                               args.rounds, bar.update, on_round, options)  # fmt: skip
     finally:
         bar.close()
     inputs = {"videos": [str(v) for v in args.videos], "square_side_mm": args.square_side_mm,
-              "chessboard": args.chessboard, "intrinsics_from_chessboard": intrinsics}  # fmt: skip
+              "chessboard": args.chessboard, "intrinsics_from_chessboard": intrinsics,
+              "features": args.features}  # fmt: skip
     paths = write_calibration(cal, sensor, args.out, inputs, command_line(args))
     adj = cal.adjustment
     print(f"{len(cal.ok_fraction)} rounds; ok rows {100 * cal.ok_fraction[0]:.1f} % with the "

@@ -32,7 +32,7 @@ from camwhisker.sensor import Sensor
 from camwhisker.sources import open_source
 from camwhisker.stream import track
 from camwhisker.vision.tip import ellipse_centre, tip_edge_points
-from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd
+from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd, FrontEndOptions
 
 __all__ = [
     "REST_PX",
@@ -107,7 +107,8 @@ def rest_frames(points_uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def rest_tip_radius_px(video: str | Path, sensor: Sensor) -> float:
+def rest_tip_radius_px(video: str | Path, sensor: Sensor,
+                       options: FrontEndOptions | None = None) -> float:  # fmt: skip
     """The end face's mean radius (px) in the video's first frame, from an ellipse
     fitted to its whole edge: at rest the rod hides none of it.
 
@@ -117,7 +118,7 @@ def rest_tip_radius_px(video: str | Path, sensor: Sensor) -> float:
         The first frame lacks a feature.
     """
     image = next(iter(open_source(video))).image
-    fe = FrontEnd(sensor)
+    fe = FrontEnd(sensor, options)
     fe.start(image)
     edges, _, why = tip_edge_points(image, fe.rest.gains, fe.rest.uv[TIP],
                                     _rim_radius_px(sensor), TIP_SEARCH_PX)  # fmt: skip
@@ -150,9 +151,13 @@ def _q_from_results(results) -> np.ndarray:
 
 
 def track_sweep(
-    videos: Sequence[str | Path], sensor: Sensor, on_frame: Callable[[], None] | None = None
+    videos: Sequence[str | Path],
+    sensor: Sensor,
+    on_frame: Callable[[], None] | None = None,
+    options: FrontEndOptions | None = None,
 ) -> TrackedSweep:
-    """Track every video of the sweep with ``sensor``; ``on_frame`` is called per frame.
+    """Track every video of the sweep with ``sensor`` (and ``options``, such as the
+    user's rough feature positions); ``on_frame`` is called per frame.
 
     Raises
     ------
@@ -163,7 +168,7 @@ def track_sweep(
     for k, video in enumerate(videos):
         images = (f.image for f in open_source(video))
         results = []
-        for r in track(images, sensor):
+        for r in track(images, sensor, options):
             results.append(r)
             if on_frame is not None:
                 on_frame()
@@ -183,6 +188,7 @@ def calibrate_sensor(
     rounds: int = MAX_ROUNDS,
     on_frame: Callable[[], None] | None = None,
     on_round: Callable[[int, Adjustment], None] | None = None,
+    options: FrontEndOptions | None = None,
 ) -> Calibration:
     """Fit a build's geometry to its sweep videos, starting from the nominal ``sensor``.
 
@@ -201,6 +207,8 @@ def calibrate_sensor(
         Rounds of tracking and adjustment at most.
     on_frame, on_round : callable, optional
         Progress: called per tracked frame, and after each round with its index and fit.
+    options : FrontEndOptions, optional
+        How the front end tracks the sweep (``features``: rough rest positions).
 
     Returns
     -------
@@ -217,12 +225,12 @@ def calibrate_sensor(
         cam = start.camera
         values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
         fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
-    radius_px = float(np.mean([rest_tip_radius_px(v, start) for v in videos]))
+    radius_px = float(np.mean([rest_tip_radius_px(v, start, options) for v in videos]))
     current, previous, ok_fraction = start, None, []
     for k in range(rounds):
         fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
-        tracked = track_sweep(videos, current, on_frame)
+        tracked = track_sweep(videos, current, on_frame, options)
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
