@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -35,6 +34,7 @@ from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
 from camwhisker.tables import write_csv
+from camwhisker.tomlfile import read_toml
 
 __all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
            "format_calibration", "mf_phi_floor", "write_calibration", "read_calibration",
@@ -311,12 +311,7 @@ def read_calibration(path: str | Path) -> Calibration:
         Unreadable file, bad TOML, a missing key (named), or a bad MF table.
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read calibration ({exc.strerror})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"{path}: not valid TOML ({exc})") from exc
+    doc = read_toml(path, "calibration", CalibrationError)
     l_w = float(_get(_get(doc, "whisker", str(path)), "length_mm", f"{path}: [whisker]"))
     gm_doc = _get(doc, "gm", str(path))
     kind = _get(gm_doc, "model", f"{path}: [gm]")

@@ -14,12 +14,13 @@ fx / fy = 1.02, the paper's v/u corrector mu (eq. 5).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+
+from camwhisker.tomlfile import read_toml
 
 __all__ = [
     "CameraConfig",
@@ -155,15 +156,7 @@ def load_sensor(path: str | Path | None = None) -> Sensor:
     """
     if path is None:
         return Sensor()
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise SensorFileError(f"{path}: cannot read sensor file ({exc.strerror})") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SensorFileError(f"{path}: not valid TOML ({exc})") from exc
+    data = read_toml(path, "sensor file", SensorFileError)
     return sensor_from_dict(data, source=str(path))
 
 

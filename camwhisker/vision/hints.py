@@ -15,9 +15,10 @@ raises :class:`FeatureHintsError` naming the file and the key.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
+
+from camwhisker.tomlfile import read_toml
 
 __all__ = ["FeatureHints", "FeatureHintsError", "load_feature_hints", "feature_hints_from_dict"]
 
@@ -64,15 +65,7 @@ def load_feature_hints(path: str | Path, frame_size_px: tuple[int, int]) -> Feat
     FeatureHintsError
         The file is missing, is not TOML, or has an unknown or bad key.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FeatureHintsError(f"{path}: cannot read features file ({exc.strerror})") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FeatureHintsError(f"{path}: not valid TOML ({exc})") from exc
+    data = read_toml(path, "features file", FeatureHintsError)
     return feature_hints_from_dict(data, frame_size_px, source=str(path))
 
 
