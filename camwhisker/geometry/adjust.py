@@ -11,22 +11,44 @@ hundreds of frames costs little more than its geometry.
 Gauges, and what holds them:
 
 - Frames at rest have pose zero (that is what rest means): they fix dz = 0
-  against the depth z_i.
+  against the depth z_i. Their tip does not count: the front end reads the tip
+  at rest up to 0.3 px off where it reads it once tilted, a constant the
+  moving frames do not share.
 - The lateral shift (sx, sy) is held at zero: a free shift lets the depth of
   the rotation centre trade off against the features' depths.
 - The overall scale is invisible in the images: one known length (the
   square's side, measured with calipers) must be held at its value.
 
-Determinability: the standard error (SE) of every fitted parameter comes from
-the Gauss-Newton covariance at the solution, scaled by the robust residual
-variance and by the frame-to-frame correlation of the residuals. A parameter
-whose SE exceeds ``SE_LIMIT`` times its build tolerance (``tolerances``) is not
-determined by the sweep: it is held at its nominal value, the worst first, and
-the rest fitted again.
+The tracked corners: a tracked corner is the plate point that its rest
+template is centred on, the detected corner, which lies off the true corner
+by a constant (blur rounds a corner, compression moves an edge). With
+``corner_shifts`` each video's corners carry that offset as an in-plane shift
+in the plate, fitted under a prior: centred where an independent measurement
+of the true corner at rest puts it (``corner_offsets_uv``, the crossing of
+its edges' lines), with that measurement's error as its SD. A constant
+per-point error is then a parameter, not geometry, and its uncertainty enters
+every SE.
+
+Weights: each point's residuals are weighted by its own noise SD, its robust
+residual SD (its degrees of freedom less the share of the poses it absorbs)
+inflated for the frame-to-frame correlation of its residuals, measured at the
+solution and the fit repeated until they agree. A point measured worse (the
+tip, whose rim and rod the front end places by the sensor file being fitted,
+or a corner a spring disturbs) then weighs less. The shifts' prior keeps its
+own SD.
+
+Determinability: the standard error (SE) of every fitted parameter is the
+larger of two: the Gauss-Newton covariance at the solution, and the sandwich
+covariance with the residuals' scores summed over blocks of ``BLOCK_FRAMES``
+(tracking errors drift: within a block they may correlate in any way). A
+parameter whose SE exceeds ``SE_LIMIT`` times its build tolerance
+(``tolerances``) is not determined by the sweep: it is held at its nominal
+value, the worst first, and the rest fitted again.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -62,11 +84,24 @@ SE_LIMIT = 0.5
 #: A sweep whose largest tilt stays below this (deg) leaves the depths and the
 #: distortion poorly determined.
 PHI_MIN_SWEEP_DEG = 15.0
-#: Prior SD of a tracked corner's in-plane shift from the true corner (mm):
-#: rest detection places corners to 1-2 px, ~0.03 mm on the plate.
-CORNER_SHIFT_MM = 0.05
-#: The frame-to-frame residual correlation used for the SE is capped here.
+#: Prior SD of a tracked corner's in-plane shift about the one its measured rest
+#: offset gives (mm): the edges' crossings' error on builds; and where none was
+#: measured (the detected corner taken as the true one): the detection's error.
+CORNER_SHIFT_MM = 0.012
+CORNER_SHIFT_UNMEASURED_MM = 0.03
+#: Frames whose residuals the sandwich SE lets correlate freely: 1 s at 30 fps, longer
+#: than the tracking errors take to drift.
+BLOCK_FRAMES = 30
+#: The frame-to-frame residual correlation used for the noise SD is capped here.
 MAX_FRAME_CORRELATION = 0.95
+#: The residuals' SD (px) assumed before the first fit measures it, and the
+#: relative change of the measured one below which the fit is not repeated.
+NOISE_START_PX = 0.1
+NOISE_RTOL = 0.1
+#: Fewest degrees of freedom a point's own noise SD is measured from.
+MIN_NOISE_DOF = 20
+#: Fits with the noise SDs updated, at most.
+_NOISE_PASSES = 4
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
 #: Parameters no sweep determines, always held at nominal, and why.
@@ -106,8 +141,12 @@ class Adjustment:
         Frames in the adjustment (enough tracked points).
     sigma_px : float
         Robust residual standard deviation per coordinate.
-    corner_shifts_mm : ndarray, shape (12, 2)
-        Each tracked corner's in-plane shift (x, y) in the plate (zero unless fitted).
+    n_iter : int
+    corner_shifts_mm : ndarray, shape (V, 12, 2)
+        Each video's tracked corners' in-plane shifts (x, y) in the plate.
+    noise_px : ndarray, shape (13,)
+        Each point's noise SD per coordinate, which weights its residuals: their
+        robust SD inflated for their frame-to-frame correlation.
     warnings : list of str
     """
 
@@ -122,6 +161,7 @@ class Adjustment:
     sigma_px: float
     n_iter: int
     corner_shifts_mm: np.ndarray
+    noise_px: np.ndarray
     warnings: list = field(default_factory=list)
 
     @property
@@ -151,10 +191,13 @@ class _Problem:
     obs: np.ndarray  # (F, 13, 2)
     valid: np.ndarray  # (F, 13)
     rest: np.ndarray  # (F,)
+    video: np.ndarray  # (F,) each frame's video
     sensor: Sensor
-    tol: np.ndarray  # (G,)
-    free: np.ndarray  # indices into the geometry, then the point offsets (px)
+    tol: np.ndarray  # (G + 2 TIP V,): the geometry's, then the shifts' prior SDs (mm)
+    shift_prior: np.ndarray  # (2 TIP V,): the shifts' prior centres (mm)
+    free: np.ndarray  # indices into the geometry, then the shifts
     huber_px: float
+    noise_px: np.ndarray  # (13,) each point's residuals' SD per coordinate: their weight
 
 
 @dataclass
@@ -170,6 +213,8 @@ class _Normal:
     W: np.ndarray
     residual: np.ndarray  # (F, 13, 2)
     weight: np.ndarray  # (F, 13)
+    bg_frame: np.ndarray  # (F, n): each frame's share of bg
+    leverage: np.ndarray  # (F, 13): each point's share of its frame's pose (two coordinates)
 
 
 def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +241,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     """Linearise at g (the geometry, then the corners' shifts) and poses q (F, 3);
     None if g is not a valid sensor."""
     n_geo = len(GEOMETRY_NAMES)
-    shifts = g[n_geo:].reshape(TIP, 2)
+    shifts = g[n_geo:].reshape(-1, TIP, 2)
     try:
         model = PlateModel(with_geometry(p.sensor, g[:n_geo]))
     except SensorFileError:
@@ -204,40 +249,49 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     n_f, n = len(q), len(p.free)
     U, bg = np.zeros((n, n)), np.zeros(n)
     V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
+    bg_frame = np.zeros((n_f, n))
     residual = np.full((n_f, TIP + 1, 2), np.nan)
     weight = np.zeros((n_f, TIP + 1))
-    d_shift = np.zeros((TIP + 1, 2, 2 * TIP))
+    leverage = np.zeros((n_f, TIP + 1))
+    d_shift = np.zeros((TIP + 1, 2, shifts.size))
     cost = 0.0
     q5 = np.zeros(5)
     for f in np.flatnonzero(p.valid.any(axis=1)):
         q5[:3] = q[f]
         jac = model.jacobians(q5)
         d_corner = _corner_shift_jacobian(model, q5)
+        d_shift[:] = 0.0
+        first = 2 * TIP * p.video[f]
         for j in range(TIP):  # block-diagonal: each shift moves its own corner
-            d_shift[j, :, 2 * j : 2 * j + 2] = d_corner[j]
+            d_shift[j, :, first + 2 * j : first + 2 * j + 2] = d_corner[j]
         m = p.valid[f]
         uv = jac.uv.copy()
-        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts)  # first order: shifts << z
+        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts[p.video[f]])  # first order
         r = p.obs[f][m] - uv[m]
         rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px)
         residual[f][m], weight[f][m] = r, w
-        cost += rho.sum()
-        sw = np.repeat(np.sqrt(w), 2)
+        cost += float(np.sum(rho / p.noise_px[m] ** 2))
+        sw = np.repeat(np.sqrt(w) / p.noise_px[m], 2)  # residuals in units of their SD
         rw = r.reshape(-1) * sw
         d_all = np.concatenate([jac.geometry, d_shift], axis=2)
         jg = (d_all[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
         U += jg.T @ jg
-        bg += jg.T @ rw
+        bg_frame[f] = jg.T @ rw
+        bg += bg_frame[f]
         if not p.rest[f]:
             jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
             V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
-    # The shifts' prior, in units of CORNER_SHIFT_MM: residual -shift, Jacobian 1.
+            # The hat matrix's diagonal: how much of each residual the pose absorbs.
+            hat = np.einsum("ij,jk,ik->i", jp, np.linalg.pinv(V[f]), jp)
+            leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
+    # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
     is_shift = p.free >= n_geo
-    x = g[p.free[is_shift]] / CORNER_SHIFT_MM
+    k = p.free[is_shift] - n_geo
+    x = (g[n_geo:][k] - p.shift_prior[k]) / p.tol[p.free[is_shift]]
     U[is_shift, is_shift] += 1.0
     bg[is_shift] -= x
     cost += float(x @ x)
-    return _Normal(cost, U, bg, V, bp, W, residual, weight)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage)
 
 
 def _reduced(ne: _Normal, lam: float, moving: np.ndarray):
@@ -289,18 +343,47 @@ def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray):
     return g, q, ne, n_iter
 
 
-def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[np.ndarray, float]:
-    """SE of the free parameters (their units) from the undamped reduced system,
-    scaled by the robust residual variance; and that variance's root (px)."""
+def _noise(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[float, np.ndarray]:
+    """The robust residual SD per coordinate (px), and each point's noise SD, shape
+    (13,): its own robust residual SD inflated for its frame-to-frame correlation.
+    Per point, since a point measured with a biased model (the tip's rim and rod)
+    scatters far more than the corners, and must not drag their geometry."""
     n_obs = 2 * int(np.count_nonzero(ne.weight))
     dof = max(n_obs - 3 * int(moving.sum()) - len(p.free), 1)
     r2 = np.nansum(ne.residual**2, axis=-1)
     sigma = float(np.sqrt(np.sum(ne.weight * r2) / dof))
+    noise = p.noise_px.copy()
+    for j in range(TIP + 1):
+        # Its dof: its coordinates less the share of the poses they absorb (a point
+        # weighted heavily fits its frames' poses itself and shows no residual).
+        dof_j = 2 * np.count_nonzero(ne.weight[:, j]) - ne.leverage[:, j].sum()
+        if dof_j >= MIN_NOISE_DOF:
+            s_j = math.sqrt(np.sum(ne.weight[:, j] * r2[:, j]) / dof_j)
+            noise[j] = s_j * math.sqrt(_correlation_inflation(ne.residual[:, j]))
+    return sigma, noise
+
+
+def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> np.ndarray:
+    """SE of the free parameters (their units) from the undamped reduced system, whose
+    residuals are in units of their noise SD: the larger of the model's covariance
+    S^-1 and the sandwich S^-1 M S^-1 with the residuals' scores summed over blocks
+    of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across)."""
     if not len(p.free):
-        return np.zeros(0), sigma
-    S, _, _ = _reduced(ne, 0.0, moving)
-    cov = np.linalg.inv(S) * sigma**2 * _correlation_inflation(ne.residual)
-    return np.sqrt(np.clip(np.diag(cov), 0.0, None)) * p.tol[p.free], sigma
+        return np.zeros(0)
+    S, _, vinv = _reduced(ne, 0.0, moving)
+    score = ne.bg_frame - np.einsum("fij,fj->fi", ne.W @ vinv, ne.bp)  # each frame's share
+    # A block never spans two videos, and each video's rest frames are one block.
+    in_video = np.where(p.rest, -1, np.arange(len(p.rest)) // BLOCK_FRAMES)
+    block = p.video * (len(p.rest) + 1) + in_video
+    _, index = np.unique(block, return_inverse=True)
+    sums = np.zeros((index.max() + 1, S.shape[0]))
+    np.add.at(sums, index, score)
+    meat = sums.T @ sums
+    is_shift = p.free >= len(GEOMETRY_NAMES)
+    meat[is_shift, is_shift] += 1.0  # the prior: an observation of unit variance
+    s_inv = np.linalg.inv(S)
+    var = np.maximum(np.diag(s_inv), np.diag(s_inv @ meat @ s_inv))
+    return np.sqrt(np.clip(var, 0.0, None)) * p.tol[p.free]
 
 
 def _correlation_inflation(residual: np.ndarray) -> float:
@@ -318,15 +401,21 @@ def _correlation_inflation(residual: np.ndarray) -> float:
 
 
 def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float):
-    """Fit, then hold the free geometry parameter worst determined (SE above
-    se_limit tolerances) at nominal and fit again, until none is; ``held`` and
-    ``p.free`` are updated. Returns g, q, the normal equations, the free SEs,
-    sigma and the iterations."""
-    n_geo, n_iter = len(nominal), 0
+    """Fit, with the noise SD measured at the solution until it agrees with the one
+    used; then hold the free geometry parameter worst determined (SE above
+    se_limit tolerances) at nominal and fit again, until none is; ``held``,
+    ``p.free`` and ``p.noise_px`` are updated. Returns g, q, the normal
+    equations, the free SEs, sigma and the iterations."""
+    n_geo, n_iter, passes = len(nominal), 0, 0
     while True:
         g, q, ne, it = _solve(p, g, q, moving)
         n_iter += it
-        se_free, sigma = _standard_errors(ne, p, moving)
+        passes += 1
+        sigma, noise = _noise(ne, p, moving)
+        if np.abs(noise / p.noise_px - 1).max() > NOISE_RTOL and passes < _NOISE_PASSES:
+            p.noise_px = noise  # the weights were off: fit again with the measured SDs
+            continue
+        se_free = _standard_errors(ne, p, moving)
         n_free_geo = int(np.count_nonzero(p.free < n_geo))
         ratio = se_free[:n_free_geo] / p.tol[p.free[:n_free_geo]]
         if not len(ratio) or ratio.max() <= se_limit:
@@ -341,6 +430,42 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
         p.free = np.delete(p.free, worst)
 
 
+def _shift_prior(sensor: Sensor, offsets_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The shifts' prior centres (mm) from the corners' rest offsets (px), and their
+    SDs (mm): each offset carried into the plate through its corner's Jacobian at rest;
+    an unmeasured one (NaN) centres at zero with the wider SD."""
+    d_corner = _corner_shift_jacobian(PlateModel(sensor), np.zeros(5))  # (12, 2, 2)
+    measured = np.isfinite(offsets_uv).all(axis=-1)  # (V, 12)
+    centre = np.linalg.solve(d_corner[None], np.nan_to_num(offsets_uv)[..., None])[..., 0]
+    centre[~measured] = 0.0
+    sd = np.where(measured, CORNER_SHIFT_MM, CORNER_SHIFT_UNMEASURED_MM)
+    return centre.reshape(-1), np.repeat(sd.reshape(-1), 2)
+
+
+def _checked(points_uv, rest, video, corner_offsets_uv, fixed):
+    """adjust_geometry's inputs as arrays (and a dict), with their defaults; ValueError
+    naming the first that is malformed."""
+    points_uv = np.asarray(points_uv, dtype=float)
+    rest = np.asarray(rest, dtype=bool)
+    n_frames = len(points_uv)
+    if points_uv.ndim != 3 or points_uv.shape[1:] != (TIP + 1, 2) or len(rest) != n_frames:
+        raise ValueError(f"points_uv must be (F, {TIP + 1}, 2) with one rest flag per frame")
+    video = np.zeros(n_frames, int) if video is None else np.asarray(video, dtype=int)
+    if video.shape != (n_frames,) or video.min(initial=0) < 0:
+        raise ValueError("video must give each frame's video index, 0 or more")
+    n_videos = int(video.max(initial=0)) + 1
+    if corner_offsets_uv is None:
+        corner_offsets_uv = np.full((n_videos, TIP, 2), np.nan)
+    corner_offsets_uv = np.asarray(corner_offsets_uv, dtype=float)
+    if corner_offsets_uv.shape != (n_videos, TIP, 2):
+        raise ValueError(f"corner_offsets_uv must be ({n_videos}, {TIP}, 2): one row per video")
+    fixed = dict(fixed or {})
+    unknown = set(fixed) - set(GEOMETRY_NAMES)
+    if unknown:
+        raise ValueError(f"unknown geometry parameter {sorted(unknown)[0]!r}")
+    return points_uv, rest, video, corner_offsets_uv, fixed
+
+
 def adjust_geometry(
     points_uv: np.ndarray,
     sensor: Sensor,
@@ -348,6 +473,8 @@ def adjust_geometry(
     fixed: dict[str, float] | None = None,
     q0: np.ndarray | None = None,
     corner_shifts: bool = False,
+    corner_offsets_uv: np.ndarray | None = None,
+    video: np.ndarray | None = None,
     huber_px: float = HUBER_PX,
     se_limit: float = SE_LIMIT,
 ) -> Adjustment:
@@ -367,9 +494,13 @@ def adjust_geometry(
     q0 : ndarray, shape (F, 3) or (F, 5), optional
         Starting poses (dz_mm, a_rad, b_rad, ...); default zero.
     corner_shifts : bool
-        Fit each tracked corner's in-plane position in the plate too, with the
-        prior ``CORNER_SHIFT_MM``: a corner detected off the true one at rest is
-        then tracked as the plate point it lies on, not read as geometry.
+        Fit each video's tracked corners' in-plane positions in the plate too,
+        under the prior of the module notes; otherwise they are held at its centre.
+    corner_offsets_uv : ndarray, shape (V, 12, 2), optional
+        Each video's tracked corners minus the true corners at rest (px), measured
+        apart from the detection (NaN: not measured); default: none measured.
+    video : ndarray of int, shape (F,), optional
+        Each frame's video, 0 ... V - 1 (its rest templates); default all 0.
     huber_px, se_limit : float
         See ``HUBER_PX`` and ``SE_LIMIT``.
 
@@ -377,33 +508,32 @@ def adjust_geometry(
     -------
     Adjustment
     """
-    points_uv = np.asarray(points_uv, dtype=float)
-    rest = np.asarray(rest, dtype=bool)
-    if points_uv.ndim != 3 or points_uv.shape[1:] != (TIP + 1, 2) or len(rest) != len(points_uv):
-        raise ValueError(f"points_uv must be (F, {TIP + 1}, 2) with one rest flag per frame")
-    fixed = dict(fixed or {})
-    unknown = set(fixed) - set(GEOMETRY_NAMES)
-    if unknown:
-        raise ValueError(f"unknown geometry parameter {sorted(unknown)[0]!r}")
+    points_uv, rest, video, corner_offsets_uv, fixed = _checked(
+        points_uv, rest, video, corner_offsets_uv, fixed
+    )
+    n_frames, n_videos = len(points_uv), len(corner_offsets_uv)
     valid = np.isfinite(points_uv).all(axis=-1)
     used = valid.sum(axis=1) >= MIN_POINTS
     if not (rest & used).any():
         raise ValueError("no rest frame with enough tracked points: the depth has no zero")
     valid &= used[:, None]
+    valid[rest, TIP] = False  # see the module notes
     g = geometry_vector(sensor)
     for name, value in fixed.items():
         g[GEOMETRY_NAMES.index(name)] = value
     start = with_geometry(sensor, g)
     nominal = geometry_vector(sensor)
     n_geo = len(g)
-    g = np.concatenate([g, np.zeros(2 * TIP)])  # then the corners' shifts (mm)
-    q = np.zeros((len(points_uv), 3)) if q0 is None else np.array(q0, dtype=float)[:, :3]
+    shift_prior, shift_sd = _shift_prior(start, corner_offsets_uv)
+    g = np.concatenate([g, shift_prior])  # then the corners' shifts (mm)
+    q = np.zeros((n_frames, 3)) if q0 is None else np.array(q0, dtype=float)[:, :3]
     q[rest | ~used] = 0.0
     moving = used & ~rest
-    tol = np.concatenate([tolerances(sensor), np.full(2 * TIP, CORNER_SHIFT_MM)])
+    tol = np.concatenate([tolerances(sensor), shift_sd])
     held = {name: "held at the given value" for name in fixed}
     held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
-    p = _Problem(points_uv, valid, rest, start, tol, np.zeros(0, dtype=int), huber_px)
+    p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior,
+                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, NOISE_START_PX))  # fmt: skip
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
@@ -411,13 +541,13 @@ def adjust_geometry(
     n_iter += it
     se = np.full(len(g), np.nan)
     se[p.free] = se_free
-    g, shifts, se = g[:n_geo], g[n_geo:].reshape(TIP, 2), se[:n_geo]
+    g, shifts, se = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2), se[:n_geo]
     q5 = np.zeros((len(q), 5))
     q5[:, :3] = q
     q5[~used] = np.nan
     return Adjustment(
         with_geometry(sensor, g), nominal, g, se, held, q5, ne.residual, used, sigma, n_iter,
-        shifts, _warnings(q5, held, fixed),
+        shifts, p.noise_px, _warnings(q5, held, fixed),
     )  # fmt: skip
 
 

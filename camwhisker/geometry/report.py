@@ -4,8 +4,9 @@ For ``BUILD.toml``::
 
     BUILD.toml          the fitted sensor file (only keys the sensor file knows)
     BUILD.report.json   every parameter's nominal and fitted value, SE, held or
-                        fitted; residual RMS per point and per frame; frames
-                        used; warnings; version, inputs, command
+                        fitted; residual RMS per point and per frame; each
+                        video's corners' offsets at rest; frames used;
+                        warnings; version, inputs, command
     BUILD.report.png    residuals per point and per frame, parameter shifts in SE
 
 All three are written atomically.
@@ -72,11 +73,17 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
         "parameters": params,
         "residual_rms_px": {
             "sigma_per_coordinate": _num(adj.sigma_px),
+            "noise_per_coordinate": {
+                n: _num(v) for n, v in zip(POINT_NAMES, adj.noise_px, strict=True)
+            },  # fmt: skip
             "per_point": {
                 n: _num(v) for n, v in zip(POINT_NAMES, adj.rms_per_point_px(), strict=True)
             },  # fmt: skip
             "per_frame": [_num(v) for v in adj.rms_per_frame_px()],
         },
+        "corner_offsets_at_rest_px": np.where(
+            np.isfinite(tracked.corner_offsets_uv), tracked.corner_offsets_uv.round(3), None
+        ).tolist(),
         "frames": {
             "total": len(tracked.ok),
             "used": int(adj.used.sum()),

@@ -9,7 +9,11 @@ of its standard errors.
 
 Each video starts at rest: its first frame is the front end's rest frame, and
 the frames before the plate first moves are held at pose zero. The square's
-side, measured with calipers, fixes the scale. The rod's diameter is measured
+side, measured with calipers, fixes the scale. Each video's tracked corners
+are its rest reference's detected corners carried along; where they lie off
+the true corners is measured at rest by the crossings of the corners' edges
+(:func:`rest_corner_offsets`), and the adjustment fits that offset as the
+corner's shift in the plate. The rod's diameter is measured
 from the tip's radius at rest (the adjustment cannot see it, the front end's
 tip measurement can). Intrinsics from chessboard
 images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 
 import cv2
@@ -31,7 +36,10 @@ from camwhisker.polygon import polygon_centroid
 from camwhisker.sensor import Sensor
 from camwhisker.sources import open_source
 from camwhisker.stream import track
-from camwhisker.vision.tip import ellipse_centre, tip_edge_points
+from camwhisker.vision.detect import FeaturesNotFound
+from camwhisker.vision.mismatch import edge_corners
+from camwhisker.vision.rest import mean_image
+from camwhisker.vision.tip import rim_centre, tip_edge_points
 from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd, FrontEndOptions
 
 __all__ = [
@@ -41,17 +49,20 @@ __all__ = [
     "Calibration",
     "track_sweep",
     "rest_frames",
+    "rest_corner_offsets",
     "rest_tip_radius_px",
     "rod_diameter_mm",
     "calibrate_sensor",
     "intrinsics_from_chessboard",
 ]
 
-#: A leading frame is at rest while its points stay this close to the first
-#: frame's (median over the points, px): a few times the tracking noise.
-REST_PX = 0.3
-#: Rounds of tracking and adjustment at most.
-MAX_ROUNDS = 3
+#: A leading frame is at rest while every point stays this close to the first
+#: frame's (px): above the tip's scatter at rest on noisy builds (~0.45 px), below
+#: its move at 0.06 deg. Every point, not their median: the tip moves first.
+REST_PX = 0.5
+#: Rounds of tracking and adjustment at most: the tip's measurement places the
+#: model's rim and rod, so each round's fit measures it better (~0.6x the error).
+MAX_ROUNDS = 6
 #: The fit is stable when no parameter moved by more than this many SE in a round.
 STABLE_SE = 0.5
 SQUARE_SIDE = "plate.square_side_mm"
@@ -67,6 +78,8 @@ class TrackedSweep:
     ok : ndarray of bool, shape (F,)
     rest : ndarray of bool, shape (F,); the leading frames at rest of each video
     video : ndarray of int, shape (F,); which video each frame came from
+    corner_offsets_uv : ndarray, shape (V, 12, 2); each video's tracked corners minus
+        the true ones at rest (:func:`rest_corner_offsets`), NaN where not measured
     """
 
     points_uv: np.ndarray
@@ -74,6 +87,7 @@ class TrackedSweep:
     ok: np.ndarray
     rest: np.ndarray
     video: np.ndarray
+    corner_offsets_uv: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -97,20 +111,50 @@ class Calibration:
 
 
 def rest_frames(points_uv: np.ndarray) -> np.ndarray:
-    """The leading run of frames whose points stay within ``REST_PX`` of frame 0's."""
+    """The leading run of frames whose points all stay within ``REST_PX`` of frame 0's."""
     d = np.linalg.norm(points_uv - points_uv[0], axis=-1)
     with np.errstate(all="ignore"):
-        still = np.nanmedian(d, axis=1) <= REST_PX
+        still = np.nanmax(d, axis=1) <= REST_PX
     run = int(np.argmin(still)) if not still.all() else len(still)
     out = np.zeros(len(points_uv), dtype=bool)
     out[: max(run, 1)] = True
     return out
 
 
+def rest_corner_offsets(images: list[np.ndarray], points_uv: np.ndarray, sensor: Sensor,
+                        options: FrontEndOptions | None = None) -> np.ndarray:  # fmt: skip
+    """Where the tracked corners lie off the true corners at rest (px), shape (12, 2):
+    their median over the rest frames minus the crossings of the corners' edges in
+    the frames' mean (:func:`~camwhisker.vision.mismatch.edge_corners`), which blur
+    does not move. NaN where an edge is not found, or the features are not.
+
+    Parameters
+    ----------
+    images : list of ndarray
+        The video's frames at rest.
+    points_uv : ndarray, shape (len(images), 13, 2)
+        The front end's points in those frames.
+    sensor : Sensor
+        The sensor file the video was tracked with.
+    options : FrontEndOptions, optional
+        The options it was tracked with.
+    """
+    fe = FrontEnd(sensor, options)
+    try:
+        fe.start(mean_image(images))
+    except FeaturesNotFound:
+        return np.full((TIP, 2), np.nan)
+    edges, _ = edge_corners(fe.rest, fe.model)
+    with np.errstate(all="ignore"):
+        return np.nanmedian(points_uv[:, :TIP], axis=0) - edges
+
+
 def rest_tip_radius_px(video: str | Path, sensor: Sensor,
                        options: FrontEndOptions | None = None) -> float:  # fmt: skip
-    """The end face's mean radius (px) in the video's first frame, from an ellipse
-    fitted to its whole edge: at rest the rod hides none of it.
+    """The end face's radius (px) in the video's first frame: the median distance of
+    its edge points from its centre as the front end measures it (the model's rim
+    fitted to the edge clear of the rod). A median, since a tilted rod's flank
+    beside the face reads as edge a few px outside it.
 
     Raises
     ------
@@ -122,10 +166,12 @@ def rest_tip_radius_px(video: str | Path, sensor: Sensor,
     fe.start(image)
     edges, _, why = tip_edge_points(image, fe.rest.gains, fe.rest.uv[TIP],
                                     _rim_radius_px(sensor), TIP_SEARCH_PX)  # fmt: skip
-    tip = ellipse_centre(edges) if edges is not None else None
+    rim, rod, _ = fe.model.outlines(np.zeros(5))
+    offset = fe.rest.offsets[TIP]
+    tip = rim_centre(edges, rim + offset, rod + offset) if edges is not None else None
     if tip is None or not tip.ok:
         raise ValueError(f"{video}: the tip's edge at rest: {why or tip.reason}")
-    return float(tip.radius_px)
+    return float(np.median(np.linalg.norm(edges - tip.centre_uv, axis=1)))
 
 
 def _rim_radius_px(sensor: Sensor) -> float:
@@ -164,7 +210,7 @@ def track_sweep(
     camwhisker.vision.FeaturesNotFound
         A video's first frame lacks a feature.
     """
-    parts = []
+    parts, offsets = [], []
     for k, video in enumerate(videos):
         images = (f.image for f in open_source(video))
         results = []
@@ -175,9 +221,14 @@ def track_sweep(
         if not results:
             raise ValueError(f"{video}: no frames")
         pts = np.array([r.points_uv for r in results], dtype=float).reshape(-1, TIP + 1, 2)
+        rest = rest_frames(pts)
+        # The rest frames again (a few): the stream does not keep its images.
+        images = [f.image for f in islice(open_source(video), int(rest.sum()))]
+        offsets.append(rest_corner_offsets(images, pts[rest], sensor, options))
         parts.append((pts, _q_from_results(results), np.array([r.ok for r in results]),
-                      rest_frames(pts), np.full(len(results), k)))  # fmt: skip
-    return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)))
+                      rest, np.full(len(results), k)))  # fmt: skip
+    return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
+                        np.array(offsets))  # fmt: skip
 
 
 def calibrate_sensor(
@@ -225,16 +276,19 @@ def calibrate_sensor(
         cam = start.camera
         values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
         fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
-    radius_px = float(np.mean([rest_tip_radius_px(v, start, options) for v in videos]))
     current, previous, ok_fraction = start, None, []
     for k in range(rounds):
+        # Again each round: the rim is placed, and the rod's flank told apart, by the fit.
+        radius_px = float(np.mean([rest_tip_radius_px(v, current, options) for v in videos]))
         fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
         tracked = track_sweep(videos, current, on_frame, options)
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
-        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q, corner_shifts=True)
+        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q, corner_shifts=True,
+                              corner_offsets_uv=tracked.corner_offsets_uv,
+                              video=tracked.video)  # fmt: skip
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
