@@ -12,6 +12,7 @@ from camwhisker.cli.common import (
     features_arg,
     sensor_arg,
 )
+from camwhisker.geometry.sweep import MAX_ROUNDS
 
 __all__ = ["add_calibrate_sensor"]
 
@@ -44,7 +45,9 @@ def add_calibrate_sensor(sub) -> None:
         metavar="S",
         help="chessboard square size (mm; does not enter the intrinsics)",
     )
-    p.add_argument("--rounds", type=int, default=3, help="rounds of tracking and adjustment")
+    p.add_argument("--rounds", type=int, default=MAX_ROUNDS,
+                   help="rounds of tracking and adjustment at most; they stop once the fit "
+                   "is stable (default %(default)s)")  # fmt: skip
     features_arg(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run_calibrate_sensor)
