@@ -128,3 +128,42 @@ def test_command_line_parser_leaves_scipy_optimize_and_stats_unimported():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert int(out.strip()) == 0
+
+
+def _no_row_ok(src, dst):
+    """A copy of a signal table with every row untrusted (ok = 0, empty pose cells),
+    as batch writes it when the front end never tracked the plate."""
+    with open(src) as fh:
+        rows = list(csv.DictReader(fh))
+    with open(dst, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({**r, "ok": "0", "dz_mm": "", "phi_deg": "", "theta_deg": ""})
+    return len(rows)
+
+
+def test_no_row_ok_is_an_error_naming_the_file(root, tmp_path, capsys):
+    """Issue #21 item 4: a table with no trusted row is bad input (exit 2, the file named,
+    nothing written), not an all-empty contact table with exit 0, nor a misleading
+    'MF needs two radii' from calibrate."""
+    bad_cal = tmp_path / "r22.5_none_ok.csv"
+    n_cal = _no_row_ok(f"{root}/cal/r22.5_signals.csv", bad_cal)
+    code = main(["calibrate", "--signals", str(bad_cal), "--stage", f"{root}/cal/r22.5_stage.csv",
+                 "--signals", f"{root}/cal/r42.5_signals.csv", "--stage",
+                 f"{root}/cal/r42.5_stage.csv", "--out", str(tmp_path / "cal.toml")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"{bad_cal}: no row is ok (ok = 0 in all {n_cal} rows)" in err
+    assert not (tmp_path / "cal.toml").exists()
+    calib = tmp_path / "good.toml"
+    assert _calibrate(root, str(calib)) == 0
+    bad = tmp_path / "c35_none_ok.csv"
+    n = _no_row_ok(f"{root}/comp/c35_signals.csv", bad)
+    out = tmp_path / "c35_contact.csv"
+    code = main(["contact", "--signals", str(bad), "--stage", f"{root}/comp/c35_stage.csv",
+                 "--calib", str(calib), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"{bad}: no row is ok (ok = 0 in all {n} rows)" in err and "Traceback" not in err
+    assert not out.exists()

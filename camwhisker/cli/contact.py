@@ -117,7 +117,12 @@ def _run_contact(args) -> int:
     cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s)
     write_csv(args.out, cols)
     defined = int((cols["r_hat_mm"] == cols["r_hat_mm"]).sum())
+    onset = (f"first contact at x = {run.x_contact_mm:.2f} mm"
+             if run.x_contact_mm == run.x_contact_mm else "no contact found")
     print(f"offset {run.offset_s:+.3f} s ({'estimated' if run.offset_estimated else 'given'}), "
-          f"first contact at x = {run.x_contact_mm:.2f} mm; {defined} of "
-          f"{cols['t_s'].size} rows with an estimate; wrote {args.out}")
+          f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
+    if defined == 0:
+        print(f"camwhisker contact: problem: {args.signals}: no row has a contact estimate "
+              f"({onset} in {args.stage})", file=sys.stderr)
+        return 1
     return 0

@@ -57,7 +57,19 @@ class RunAnalysis:
 
 
 def analyse_run(signals: dict, log: StageLog, offset_s: float | None = None) -> RunAnalysis:
-    """Clock offset (estimated unless given), pause medians and first contact of one run."""
+    """Clock offset (estimated unless given), pause medians and first contact of one run.
+
+    Raises
+    ------
+    ValueError
+        No row of the signal table is ok (named by its ``source``), or the offset
+        cannot be estimated.
+    """
+    ok = np.asarray(signals["ok"], bool)
+    if not ok.any():
+        # Without one trusted row every estimate is empty: say so rather than write it.
+        raise ValueError(f"{signals.get('source', '<signals>')}: no row is ok (ok = 0 in all "
+                         f"{ok.size} rows): nothing to estimate contact from")
     estimated = offset_s is None
     score = math.nan
     if estimated:
