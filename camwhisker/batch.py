@@ -21,7 +21,7 @@ from camwhisker.model import PlateModel
 from camwhisker.overlay import is_rest_row, rest_check_path, write_rest_check
 from camwhisker.sensor import Sensor
 from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar
-from camwhisker.sources import Frame, SessionSource, open_source
+from camwhisker.sources import Frame, SessionSource, check_frame_size, open_source
 from camwhisker.stream import stream
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
@@ -91,6 +91,7 @@ def run_batch(
     """
     options = options or FrontEndOptions()
     source = open_source(video, fps, decode_threads)
+    check_frame_size(source, sensor)
     session = isinstance(source, SessionSource)
     if session and rest_index != 0:
         raise ValueError(f"{video}: a recorded session keeps its own rest frame "

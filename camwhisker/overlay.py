@@ -33,7 +33,7 @@ from camwhisker.atomic import atomic_write_bytes, atomic_write_text
 from camwhisker.model import N_SQUARE, POINT_NAMES, TIP, PlateModel
 from camwhisker.sensor import Sensor
 from camwhisker.signals import provenance
-from camwhisker.sources import Frame, open_source
+from camwhisker.sources import Frame, check_frame_size, open_source
 from camwhisker.stream import stream
 from camwhisker.video_out import VIDEO_SUFFIXES, write_video
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
@@ -472,6 +472,7 @@ def annotate_video(
         raise ValueError(f"{out}: video must end in .avi (MJPG) or .mp4 (H.264)")
     options = options or FrontEndOptions()
     source = open_source(video)
+    check_frame_size(source, sensor)
     report = OverlayReport(out, sidecar_path(out), rest_check_path(out))
     frames = _annotated_frames(islice(source, max_frames), sensor, options, rest_index, scale,
                                report)  # fmt: skip

@@ -28,7 +28,7 @@ import numpy as np
 
 __all__ = [
     "Frame", "SourceError", "VideoSource", "ImageFolderSource", "SessionSource", "is_session",
-    "open_source", "timestamps_path", "read_timestamps", "TIMESTAMP_COLUMNS",
+    "open_source", "timestamps_path", "read_timestamps", "TIMESTAMP_COLUMNS", "check_frame_size",
 ]  # fmt: skip
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -118,6 +118,8 @@ class VideoSource:
         if first is None:
             raise SourceError(f"{self.path}: not a video OpenCV can read")
         self.shape = first.shape
+        #: (width, height) in px, from the first frame.
+        self.frame_size = (first.shape[1], first.shape[0])
         times, fps, count = _container_times(self.path)
         self._times = times
         self.fps = fps or DEFAULT_FPS
@@ -181,6 +183,11 @@ class ImageFolderSource:
         self.fps = float(fps) if fps else DEFAULT_FPS
         if not math.isfinite(self.fps) or self.fps <= 0:
             raise SourceError(f"fps must be positive, got {fps}")
+        first = cv2.imread(str(self.files[0]), cv2.IMREAD_COLOR)
+        if first is None:
+            raise SourceError(f"{self.files[0]}: cannot read image")
+        #: (width, height) in px, from the first image.
+        self.frame_size = (first.shape[1], first.shape[0])
         self.time_source = "index / fps"
         self.expected_frames = len(self.files)
         self.problem = ""
@@ -241,6 +248,7 @@ class SessionSource:
         self.timestamps = timestamps_path(self.path)
         self.rows = read_timestamps(self.timestamps)
         self.fps = self.video.fps
+        self.frame_size = self.video.frame_size
         self.time_source = f"session timestamps ({self.timestamps.name})"
         self.problem = ""
 
@@ -281,3 +289,23 @@ def open_source(path: str | Path, fps: float | None = None, decode_threads: int 
     if is_session(path):
         return SessionSource(path, decode_threads)
     return VideoSource(path, decode_threads)
+
+
+def check_frame_size(source, sensor) -> None:
+    """Refuse a source whose frames are not the size ``sensor``'s file states.
+
+    Checked once on opening, so that every command names the file and both sizes
+    before it processes (or writes) anything.
+
+    Raises
+    ------
+    SourceError
+        The sizes differ.
+    """
+    width, height = source.frame_size
+    cam = sensor.camera
+    if (width, height) != (cam.width_px, cam.height_px):
+        named = "the default sensor file" if sensor.source == "<defaults>" else sensor.source
+        raise SourceError(f"{source.path}: frames are {width}x{height} px but {named} is for "
+                          f"{cam.width_px}x{cam.height_px} px; give this camera's sensor file "
+                          "with --sensor")

@@ -98,3 +98,33 @@ def test_session_source_with_more_rows_than_frames_is_refused(tmp_path):
     video = _session(tmp_path, [(k, k, k, f"{k / 30:.6f}", "") for k in range(4)])
     with pytest.raises(SourceError, match="fewer frames than its timestamps"):
         list(SessionSource(video))
+
+
+def test_wrong_size_is_one_error_naming_the_file_and_both_sizes(tmp_path, capsys):
+    """Issue #21 item 5: a 128x72 video against the default 1280x720 sensor file. Every
+    command that tracks it refuses it before writing anything (exit 2), naming the file
+    and both sizes; live no longer exits 0 with '0 ok'."""
+    from camwhisker.cli import main
+
+    video = tmp_path / "small.avi"
+    write_video(video, _frames(4), 30.0, jpeg_quality=90)
+    session = _session(tmp_path, [(k, k, k, f"{k / 30:.6f}", "") for k in range(3)])
+    out = tmp_path / "out"
+    runs = {
+        "batch": ["batch", str(video), "--out", f"{out}/b.csv", "--quiet"],
+        "overlay": ["overlay", str(video), "--out", f"{out}/o.mp4", "--quiet"],
+        "live": ["live", str(video), "--out", f"{out}/l.csv", "--no-keys"],
+        "live playback": ["live", str(video), "--out", f"{out}/p.csv", "--no-keys",
+                          "--playback-fps", "100"],
+        "replay": ["replay", str(session), "--out", f"{out}/r.csv"],
+        "calibrate-sensor": ["calibrate-sensor", str(video), "--square-side-mm", "5",
+                             "--out", f"{out}/s.toml", "--quiet"],
+    }
+    for name, argv in runs.items():
+        code = main(argv)
+        err = capsys.readouterr().err
+        named = session if name == "replay" else video
+        assert code == 2, name
+        assert (f"{named}: frames are 128x72 px but the default sensor file is for "
+                "1280x720 px") in err, name
+    assert not out.exists() or not any(out.iterdir())

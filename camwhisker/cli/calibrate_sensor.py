@@ -83,7 +83,7 @@ def _run_calibrate_sensor(args) -> int:
     from camwhisker.geometry.report import write_calibration
     from camwhisker.geometry.sweep import calibrate_sensor
     from camwhisker.sensor import load_sensor
-    from camwhisker.sources import open_source
+    from camwhisker.sources import check_frame_size, open_source
     from camwhisker.vision.tracker import FrontEndOptions
 
     if args.rounds < 1:
@@ -91,7 +91,10 @@ def _run_calibrate_sensor(args) -> int:
     sensor = load_sensor(args.sensor)
     intrinsics = _chessboard(args, sensor) if args.chessboard else None
     options = FrontEndOptions(features=feature_hints(args, sensor))
-    n_frames = sum(len(open_source(v)) for v in args.videos)
+    sources = [open_source(v) for v in args.videos]
+    for source in sources:
+        check_frame_size(source, sensor)
+    n_frames = sum(len(s) for s in sources)
     bar = tqdm(total=n_frames * args.rounds, unit="frame", desc="calibrate-sensor round 1",
                disable=args.quiet)  # fmt: skip
 

@@ -40,7 +40,7 @@ from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
 from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
 from camwhisker.sensor import Sensor
 from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar, write_signals
-from camwhisker.sources import Frame, SessionSource
+from camwhisker.sources import Frame, SessionSource, SourceError, check_frame_size
 from camwhisker.stream import stream
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
@@ -88,7 +88,9 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
     camwhisker.sources.SourceError
         The video cannot be decoded, or holds fewer frames than the timestamps list.
     """
-    rows = stream(SessionSource(video), sensor, options, strict=False)
+    source = SessionSource(video)
+    check_frame_size(source, sensor)
+    rows = stream(source, sensor, options, strict=False)
     out_csv = Path(out_csv)
     with atomic_path(out_csv) as tmp:
         write_signals(tmp, ((frame.t_s, r) for frame, r in rows))
@@ -187,6 +189,15 @@ class LiveSession:
         #: The grabbed item of the frame being processed, and when it went in (perf_counter s).
         self._grabbed: Grabbed | None = None
         self._handed_at = 0.0
+        #: Why the first row was untrusted (said where no row is ok).
+        self._first_reason = ""
+        source = getattr(capture, "source", None)  # a file or folder: its size is known now
+        if source is not None:
+            try:
+                check_frame_size(source, sensor)
+            except SourceError:
+                capture.release()
+                raise
 
     # -------------------------------------------------------------- control
     def command(self, name: str) -> None:
@@ -336,6 +347,8 @@ class LiveSession:
                     log.warning("stdout closed: no more JSON lines")
             if udp is not None:
                 udp.send(msg)
+        if rep.rows == 0 and not r.ok:
+            self._first_reason = r.reason
         rep.rows += 1
         rep.rows_ok += bool(r.ok)
 
@@ -350,6 +363,8 @@ class LiveSession:
         rep.grabber["left_at_stop"] = grabber.pending
         rep.processing = latency_summary(proc_ms)
         rep.end_to_end = latency_summary(e2e_ms)
+        if rep.rows and not rep.rows_ok:
+            rep.problems.append(f"no row of {rep.rows} is ok (the first: {self._first_reason})")
         if stats.lost:
             rep.problems.append(f"capture lost after {cfg.max_reconnects} reconnect attempts")
         applied_fps = self._input.get("settings", {}).get("applied", {}).get("fps")

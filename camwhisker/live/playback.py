@@ -55,6 +55,11 @@ class PlaybackSource:
         self.late = 0
 
     @property
+    def source(self):
+        """The file's :mod:`camwhisker.sources` source (its frame size, its problem)."""
+        return self._src.source
+
+    @property
     def ended(self) -> bool:
         return self._src.ended and not self.loop
 
