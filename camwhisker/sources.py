@@ -9,8 +9,11 @@ decode, an :class:`ImageFolderSource` for a folder of images, or a
 Timestamps come from the container: PyAV reads every packet's presentation
 time without decoding (OpenCV's ``CAP_PROP_POS_MSEC`` is unreliable for
 MJPG AVI and variable-rate files). Where the container has none, t_s is
-index / fps. A file that ends early (truncated, corrupt) stops the iteration
-at the last readable frame and sets :attr:`VideoSource.problem`. A session's
+index / fps. Reading goes on past a corrupt stretch wherever FFmpeg can pick up
+after it: each frame lost there is a :class:`Frame` without an image (an
+untrusted row downstream), placed by its time. A file that ends early
+(truncated) stops the iteration at the last readable frame. Both set
+:attr:`VideoSource.problem`, naming the frames. A session's
 frames carry the live clock, gaps and events (re-zero, re-detect) of its
 timestamps file, so processing it again gives the live table.
 """
@@ -57,19 +60,21 @@ class Frame:
     event: str = ""
 
 
-def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int | None]:
+def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int | None,
+                                          np.ndarray]:  # fmt: skip
     """Presentation times (s) of the first video stream's packets, sorted; its frame
-    rate and stated frame count. (None, None, None) where PyAV cannot read the file."""
+    rate and stated frame count; the key frames' times. (None, None, None, empty) where
+    PyAV cannot read the file."""
     try:
         import av
     except ImportError:  # pragma: no cover - av is a dependency
-        return None, None, None
-    times = []
+        return None, None, None, np.empty(0)
+    times, keys = [], []
     fps = count = None
     try:
         with av.open(str(path)) as container:
             if not container.streams.video:
-                return None, None, None
+                return None, None, None, np.empty(0)
             stream = container.streams.video[0]
             rate = stream.average_rate or stream.base_rate
             fps = float(rate) if rate else None
@@ -79,10 +84,24 @@ def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int |
             for packet in container.demux(stream):
                 if packet.pts is not None and packet.size > 0:
                     times.append(float((packet.pts - start) * tb))
+                    if packet.is_keyframe:
+                        keys.append(times[-1])
     except (av.error.FFmpegError, ValueError, OSError):
         if not times:
-            return None, fps, count
-    return (np.sort(np.array(times)) if times else None), fps, count
+            return None, fps, count, np.empty(0)
+    return (np.sort(np.array(times)) if times else None), fps, count, np.sort(np.array(keys))
+
+
+def _ranges(indices: list[int]) -> str:
+    """``[3, 5, 6, 7]`` -> ``"3, 5-7"``."""
+    parts, start = [], None
+    for k, i in enumerate(indices):
+        if start is None:
+            start = i
+        if k + 1 == len(indices) or indices[k + 1] != i + 1:
+            parts.append(f"{start}" if start == i else f"{start}-{i}")
+            start = None
+    return ", ".join(parts)
 
 
 class VideoSource:
@@ -120,7 +139,7 @@ class VideoSource:
         self.shape = first.shape
         #: (width, height) in px, from the first frame.
         self.frame_size = (first.shape[1], first.shape[0])
-        times, fps, count = _container_times(self.path)
+        times, fps, count, self._key_times = _container_times(self.path)
         self._times = times
         self.fps = fps or DEFAULT_FPS
         #: Frame count the container states (None if unknown).
@@ -130,6 +149,8 @@ class VideoSource:
         #: Why the video ended early, or "" (set after iterating).
         self.problem = ""
         self.frames_read = 0
+        #: Indices of the frames that could not be decoded (set after iterating).
+        self.lost_frames: list[int] = []
 
     def __len__(self) -> int:
         return self.expected_frames or (len(self._times) if self._times is not None else 0)
@@ -142,26 +163,75 @@ class VideoSource:
     def _capture(self) -> cv2.VideoCapture:
         return cv2.VideoCapture(str(self.path), cv2.CAP_ANY, self._params)
 
+    def _known(self) -> int:
+        """Frames the container holds, as far as it says (0 if it does not)."""
+        return max(self.expected_frames or 0, len(self._times) if self._times is not None else 0)
+
+    def _index_of(self, cap: cv2.VideoCapture, floor: int) -> int:
+        """The container's index of the frame just read after a failed read, by its time
+        (a corrupt stretch drops frames, also some read without a failure); at least
+        ``floor``."""
+        if self._times is None:
+            return floor
+        t_s = cap.get(cv2.CAP_PROP_POS_MSEC) / 1e3
+        return max(floor, int(np.argmin(np.abs(self._times - t_s))))
+
     def __iter__(self) -> Iterator[Frame]:
+        """The frames in order. Where a read fails before the container's last frame
+        (a corrupt stretch), reading goes on; each frame lost is a :class:`Frame`
+        without an image (event ``"gap"``), and :attr:`problem` names them.
+
+        A failed read is retried while the container says frames remain: FFmpeg
+        skips the undecodable packets and picks up after them.
+        """
         cap = self._capture()
-        i = 0
+        known = self._known()
+        i = fails = read = 0
+        broken = False  # a read failed: from then on, frames are placed by their times
+        lost: list[int] = []
         try:
             while True:
                 ok, image = cap.read()
                 if not ok or image is None:
-                    break
-                yield Frame(i, self.time_of(i), image)
-                i += 1
+                    fails += 1
+                    broken = True
+                    if i + fails > known:  # past the last frame the container holds
+                        break
+                    continue
+                index = self._index_of(cap, i) if broken else i
+                for k in range(i, index):
+                    lost.append(k)
+                    yield Frame(k, self.time_of(k), None, "gap")
+                yield Frame(index, self.time_of(index), image)
+                i, fails, read = index + 1, 0, read + 1
         finally:
             cap.release()
-            self.frames_read = i
-            n_times = len(self._times) if self._times is not None else 0
-            known = max(self.expected_frames or 0, n_times)
-            if known and i < known:
-                self.problem = (
-                    f"video ended after {i} of {known} frames (truncated or corrupt); "
-                    "the readable part was processed"
-                )
+            self.frames_read = read
+            self.lost_frames = lost
+            self.problem = self._problems(i, lost, known)
+
+    def _next_key(self, index: int) -> int | None:
+        """The first key frame after frame ``index`` (None if none, or no times)."""
+        if self._times is None:
+            return None
+        after = self._key_times[self._key_times > self.time_of(index)]
+        return int(np.searchsorted(self._times, after[0])) if after.size else None
+
+    def _problems(self, end: int, lost: list[int], known: int) -> str:
+        """What went wrong reading: frames lost mid-file, the file ending early."""
+        out = []
+        if lost:
+            out.append(f"frames {_ranges(lost)} of {known or end} could not be decoded (a "
+                       f"corrupt stretch): their rows are untrusted")
+            key = self._next_key(lost[0])
+            if end - 1 > lost[0] and (key is None or key > lost[0] + 1):
+                upto = f"frame {key - 1}" if key is not None else "the end"
+                out.append(f"frames {lost[0] + 1} to {upto} were decoded from damaged "
+                           "references (before the next key frame): check them")
+        if known and end < known:
+            out.append(f"video ended after {end} of {known} frames (truncated or corrupt); "
+                       "the readable part was processed")
+        return "; ".join(out)
 
 
 class ImageFolderSource:
@@ -197,12 +267,23 @@ class ImageFolderSource:
         return len(self.files)
 
     def __iter__(self) -> Iterator[Frame]:
+        """The images in name order; one that cannot be read, or is not the first one's
+        size, is a :class:`Frame` without an image (an untrusted row), named in
+        :attr:`problem`, and the folder goes on."""
+        bad = []
+        self.frames_read, self.problem = 0, ""
         for i, f in enumerate(self.files):
             image = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if image is None:
-                self.problem = f"{f}: cannot read image; stopped after {i} frames"
-                return
-            self.frames_read = i + 1
+            if image is None or (image.shape[1], image.shape[0]) != self.frame_size:
+                why = "cannot read image" if image is None else (
+                    f"{image.shape[1]}x{image.shape[0]} px, not "
+                    f"{self.frame_size[0]}x{self.frame_size[1]} as the first")
+                bad.append(f"{f.name} (frame {i}: {why})")
+                self.problem = (f"{self.path}: {len(bad)} image(s) left out, their rows "
+                                f"untrusted: {'; '.join(bad)}")
+                yield Frame(i, i / self.fps, None, "gap")
+                continue
+            self.frames_read += 1
             yield Frame(i, i / self.fps, image)
 
 
@@ -271,7 +352,9 @@ class SessionSource:
             image = next(frames, None)
             if image is None:
                 raise SourceError(f"{self.path}: fewer frames than its timestamps file lists")
-            yield Frame(row["frame"], row["t_s"], image.image, row["event"])
+            # A frame lost in a corrupt stretch is a gap, as a failed capture read was.
+            event = row["event"] if image.image is not None else "gap"
+            yield Frame(row["frame"], row["t_s"], image.image, event)
 
 
 def is_session(path: str | Path) -> bool:

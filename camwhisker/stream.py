@@ -57,7 +57,7 @@ log = logging.getLogger(__name__)
 #: Events a frame can carry (a session's timestamps file's ``event`` column).
 EVENTS = ("", "rezero", "redetect", "gap")
 #: Reason written in a row for which no frame came (the error is in the log and sidecar).
-GAP_REASON = "no frame: capture read failed"
+GAP_REASON = "no frame: the read failed (camera) or the frame could not be decoded"
 #: ... and the longest span it covers (s, where frames have times): the light drifts
 #: over seconds, and a reference averaged over a drift is no frame's.
 REST_SPAN_S = 1.0

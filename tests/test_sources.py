@@ -128,3 +128,45 @@ def test_wrong_size_is_one_error_naming_the_file_and_both_sizes(tmp_path, capsys
         assert (f"{named}: frames are 128x72 px but the default sensor file is for "
                 "1280x720 px") in err, name
     assert not out.exists() or not any(out.iterdir())
+
+
+def _corrupt(path, out, at=0.4, size=5000):
+    """``path`` with ``size`` bytes of noise written over it at ``at`` of its length."""
+    data = path.read_bytes()
+    k = int(len(data) * at)
+    noise = np.random.default_rng(0).integers(0, 256, size, dtype=np.uint8).tobytes()
+    out.write_bytes(data[:k] + noise + data[k + size:])
+    return out
+
+
+def test_reading_goes_on_past_a_corrupt_stretch(tmp_path):
+    """Issue #21 item 6: 5 KB of noise at 40 % of a 30-frame H.264 file loses frame 12
+    (on this FFmpeg; the test holds the count exact, the reading-on is what matters).
+    Reading used to stop there (12 frames); now the 29 decodable frames come out in
+    place, frame 12 as a frame without an image, and the problem names it."""
+    clean = tmp_path / "v.mp4"
+    write_video(clean, _frames(30), 30.0)
+    src = VideoSource(_corrupt(clean, tmp_path / "cut.mp4"))
+    frames = list(src)
+    assert [f.index for f in frames] == list(range(30))
+    lost = [f.index for f in frames if f.image is None]
+    assert lost == src.lost_frames == [12] and src.frames_read == 29
+    assert [f.event for f in frames if f.image is None] == ["gap"]
+    np.testing.assert_allclose(frames[13].t_s, 13 / 30.0, atol=1e-6)
+    assert "frames 12 of 30 could not be decoded" in src.problem
+    assert "frames 13 to the end were decoded from damaged references" in src.problem
+
+
+def test_image_folder_goes_on_past_a_bad_image(tmp_path):
+    import cv2
+
+    for i, img in enumerate(_frames(4)):
+        cv2.imwrite(str(tmp_path / f"{i:02d}.png"), img)
+    (tmp_path / "01.png").write_bytes(b"not a png")
+    cv2.imwrite(str(tmp_path / "02.png"), _frames(1, h=40, w=60)[0])
+    src = open_source(tmp_path)
+    frames = list(src)
+    assert [f.image is not None for f in frames] == [True, False, False, True]
+    assert src.frames_read == 2
+    assert "01.png (frame 1: cannot read image)" in src.problem
+    assert "02.png (frame 2: 60x40 px, not 128x72 as the first)" in src.problem

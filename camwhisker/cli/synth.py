@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from camwhisker.cli.common import sensor_arg
 from camwhisker.sensor import load_sensor
 from camwhisker.synth.scenarios import SCENARIOS
@@ -113,7 +115,11 @@ def _run_describe(args) -> int:
 
     info = describe_video(args.video, args.signals)
     for key, value in info.items():
-        print(f"{key:>16}: {value}")
+        if key != "warning":
+            print(f"{key:>19}: {value}")
+    if "warning" in info:
+        print(f"camwhisker describe: warning: {args.video}: {info['warning']}", file=sys.stderr)
+        return 1
     return 0
 
 

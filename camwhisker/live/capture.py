@@ -178,6 +178,8 @@ class SourceCapture:
             return False, None
         try:
             frame = next(self._it)
+            while frame.image is None:  # lost in a corrupt stretch: a camera sends none
+                frame = next(self._it)
         except StopIteration:
             self.ended = True
             return False, None

@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from camwhisker.atomic import atomic_write_text
 from camwhisker.sensor import Sensor, dump_sensor
 from camwhisker.signals import read_signal_table
+from camwhisker.sources import VideoSource
 from camwhisker.synth.builds import draw_build
 from camwhisker.synth.scenarios import PoseTrack, make_scenario
 from camwhisker.synth.video import render_scenario, sidecar_paths
@@ -98,26 +98,27 @@ def caliper_side_mm(path: Path) -> float:
 
 
 def describe_video(path: Path, signals: Path | None = None) -> dict:
-    """What a video holds, as decoded by OpenCV, and the truth beside it if there is one;
-    with ``signals`` (its signal table), that table's :func:`truth_errors` too."""
+    """What a video holds, decoded as batch decodes it (frames decoded against the
+    container's count, ``warning`` where they differ), and the truth beside it if there
+    is one; with ``signals`` (its signal table), that table's :func:`truth_errors` too.
+
+    Raises
+    ------
+    FileNotFoundError, camwhisker.sources.SourceError
+        No such file, or not a video.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such video")
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise ValueError(f"{path}: OpenCV cannot open it as a video")
-    info = {
-        "path": str(path),
-        "backend": cap.getBackendName(),
-        "fps": cap.get(cv2.CAP_PROP_FPS),
-        "width_px": int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
-        "height_px": int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
-    }
-    n = 0
-    while cap.grab():
-        n += 1
-    cap.release()
-    info["frames_decoded"] = n
+    source = VideoSource(path)
+    info = {"path": str(path), "fps": source.fps, "width_px": source.frame_size[0],
+            "height_px": source.frame_size[1]}
+    for _ in source:  # decoded as batch decodes it, past a corrupt stretch
+        pass
+    info["frames_decoded"] = source.frames_read
+    info["frames_in_container"] = len(source) or None
+    if source.problem:
+        info["warning"] = source.problem
     truth = sidecar_paths(path)["truth"]
     if truth.is_file():
         track = PoseTrack.read_csv(truth)
