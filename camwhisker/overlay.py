@@ -18,7 +18,6 @@ Colours are BGR.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -29,6 +28,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from camwhisker import jsonfile
 from camwhisker.atomic import atomic_write_bytes, atomic_write_text
 from camwhisker.model import N_SQUARE, POINT_NAMES, TIP, PlateModel
 from camwhisker.sensor import Sensor
@@ -489,5 +489,5 @@ def annotate_video(
                       rest_frame=rest_index, max_frames=max_frames, arrow_scale=scale,
                       frames=report.frames, frames_ok=report.frames_ok, problems=report.problems,
                       rest_check=report.rest_check.name)  # fmt: skip
-    atomic_write_text(report.sidecar, json.dumps(meta, indent=2, default=str) + "\n")
+    atomic_write_text(report.sidecar, jsonfile.dumps(meta, indent=2) + "\n")
     return report

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import math
 from collections.abc import Iterable
 from pathlib import Path
@@ -26,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from camwhisker import __version__
+from camwhisker import __version__, jsonfile
 from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.tables import TableError, read_columns
@@ -243,5 +242,5 @@ def write_sidecar(out: str | Path, record: dict) -> Path:
     """Write ``record`` as ``out``'s JSON sidecar (atomically); returns its path."""
     path = sidecar_path(out)
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
+        tmp.write_text(jsonfile.dumps(record, indent=2) + "\n")
     return path

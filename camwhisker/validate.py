@@ -30,14 +30,13 @@ Uncertainty in Whisker Sensing with Tapered, Flexible Whiskers".
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__
+from camwhisker import __version__, jsonfile
 from camwhisker.atomic import atomic_write_text
 from camwhisker.mechanics.rigid import rigid_phi_deg
 from camwhisker.sensor import Sensor, sensor_to_dict
@@ -279,15 +278,6 @@ def _pause_columns(result: Validation, trial: int) -> dict:
     return cols
 
 
-def _no_nan(value):
-    """``value`` with every non-finite float as None (JSON has no NaN)."""
-    if isinstance(value, dict):
-        return {k: _no_nan(v) for k, v in value.items()}
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def _trial_record(result: Validation) -> dict:
     """One trial's inputs, clock and contact position, and statistics."""
     return {
@@ -338,7 +328,7 @@ def write_validation(results: list[Validation], out_dir: str | Path,
         "trials": [_trial_record(r) for r in results],
         "files": {k: p.name for k, p in paths.items()},
     }
-    atomic_write_text(paths["summary"], json.dumps(_no_nan(record), indent=2, default=str) + "\n")
+    atomic_write_text(paths["summary"], jsonfile.dumps(record, indent=2) + "\n")
     return paths
 
 

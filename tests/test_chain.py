@@ -100,9 +100,15 @@ def test_outputs_say_how_they_were_made_and_summary_matches(chain):
         "fig9_shapes.png",
     ):
         assert (out / name).stat().st_size > 0, name
-    assert json.loads((out / "summary.json").read_text())["C"] == pytest.approx(s["C"])
+    # Strict JSON (issue #21 item 8): NaN is null, never a bare NaN.
+    summary = json.loads((out / "summary.json").read_text(), parse_constant=_refuse)
+    assert summary["C"] == pytest.approx(s["C"])
     text = format_summary(s)
     assert f"C = {s['C']:.1f}" in text
     assert f"AUC {s['separation']['z_score']['auc']:.3f}" in text
     assert f"Z < {LOW_Z}" in text
     assert len(list((out / "contact").glob("*.csv"))) == len(list(EXPERIMENT.glob("*.mp4")))
+
+
+def _refuse(name):
+    raise ValueError(f"bare {name} in summary.json")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__
+from camwhisker import __version__, jsonfile
 from camwhisker.atomic import atomic_path
 from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
@@ -103,7 +103,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     _plots(out, calib, cal_data, ev, runs)
     timings["plots"] = {"seconds": time.perf_counter() - t0}
     with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=float) + "\n")
+        tmp.write_text(jsonfile.dumps(result, indent=2) + "\n")
     return result
 
 

@@ -15,13 +15,12 @@ All three are written atomically.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__
+from camwhisker import __version__, jsonfile
 from camwhisker.atomic import atomic_write_text
 from camwhisker.geometry.adjust import tolerances
 from camwhisker.geometry.sweep import Calibration
@@ -136,6 +135,6 @@ def write_calibration(
     paths = report_paths(out_toml)
     atomic_write_text(paths["sensor"], dump_sensor(cal.sensor))
     record = calibration_record(cal, nominal, inputs, command)
-    atomic_write_text(paths["json"], json.dumps(record, indent=2) + "\n")
+    atomic_write_text(paths["json"], jsonfile.dumps(record, indent=2) + "\n")
     plot_calibration(cal, nominal, paths["png"], command or "camwhisker calibrate-sensor")
     return paths

@@ -7,10 +7,10 @@ dz_mm, phi_deg, theta_deg, ok, latency_ms, note. Untrusted values are null.
 
 from __future__ import annotations
 
-import json
 import math
 import socket
 
+from camwhisker import jsonfile
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]
@@ -26,7 +26,7 @@ def _num(x: float, digits: int) -> float | None:
 def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float) -> str:
     """One frame's result as compact JSON (a line on stdout, a UDP datagram)."""
     ok = bool(r.ok)
-    return json.dumps({
+    return jsonfile.dumps({
         "frame": r.frame, "seq": seq, "t_s": _num(t_s, 6),
         "dz_mm": _num(r.dz_mm, 5) if ok else None,
         "phi_deg": _num(r.phi_deg, 5) if ok else None,

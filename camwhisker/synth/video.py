@@ -17,7 +17,6 @@ For ``NAME.avi`` the files are::
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -25,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from camwhisker import __version__
+from camwhisker import __version__, jsonfile
 from camwhisker.atomic import atomic_path
 from camwhisker.sensor import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.synth.artefacts import apply_artefacts, illumination_field
@@ -110,5 +109,5 @@ def render_scenario(
     if build is not None:
         meta["build"] = build.describe()
     with atomic_path(paths["meta"]) as tmp:
-        tmp.write_text(json.dumps(meta, indent=2) + "\n")
+        tmp.write_text(jsonfile.dumps(meta, indent=2) + "\n")
     return {"video": video, **paths}
