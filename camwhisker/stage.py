@@ -161,13 +161,14 @@ def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN
         k = bad[0]
         what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
         raise StageLogError(
-            f"{source}: row {k + 1 + first_row}: {what}: t_s = {t[k + 1]!r} after {t[k]!r}"
+            f"{source}: row {k + 1 + first_row}: {what}: t_s = {float(t[k + 1])!r} "
+            f"after {float(t[k])!r}"
         )
     gap = np.flatnonzero(dt > max_gap_s)
     if gap.size:
         k = gap[0]
         raise StageLogError(
-            f"{source}: row {k + 1 + first_row}: gap of {dt[k]:.3f} s after t_s = {t[k]!r} "
+            f"{source}: row {k + 1 + first_row}: gap of {dt[k]:.3f} s after t_s = {float(t[k])!r} "
             f"(more than {max_gap_s} s without a sample)"
         )
     r = None if r_mm is None else np.asarray(r_mm, float)

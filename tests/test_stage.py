@@ -24,10 +24,10 @@ def _write(tmp_path, text):
 @pytest.mark.parametrize(
     ("body", "needle"),
     [
-        ("0,0\n0.1,0\n0.05,0\n", "row 4: time goes backwards"),
-        ("0,0\n0.1,0\n0.1,0\n", "row 4: duplicate time"),
+        ("0,0\n0.1,0\n0.05,0\n", "row 4: time goes backwards (unsorted): t_s = 0.05 after 0.1"),
+        ("0,0\n0.1,0\n0.1,0\n", "row 4: duplicate time: t_s = 0.1 after 0.1"),
         ("0,0\n0.1,abc\n", "row 3, column x_mm: not a number: 'abc'"),
-        ("0,0\n5.0,0\n", "row 3: gap of 5.000 s"),
+        ("0,0\n5.0,0\n", "row 3: gap of 5.000 s after t_s = 0.0 "),
         ("0,0\n0.1,nan\n", "row 3, column x_mm: not a finite number"),
     ],
 )
@@ -37,6 +37,7 @@ def test_bad_logs_name_file_row_problem(tmp_path, body, needle):
         read_stage_log(p)
     assert str(p) in str(err.value)
     assert needle in str(err.value)
+    assert "np." not in str(err.value)  # issue #21 item 9: numbers plain, not numpy reprs
 
 
 def test_missing_column(tmp_path):

@@ -116,11 +116,20 @@ def _run_describe(args) -> int:
     info = describe_video(args.video, args.signals)
     for key, value in info.items():
         if key != "warning":
-            print(f"{key:>19}: {value}")
+            print(f"{key:>19}: {_plain(value)}")
     if "warning" in info:
         print(f"camwhisker describe: warning: {args.video}: {info['warning']}", file=sys.stderr)
         return 1
     return 0
+
+
+def _plain(value) -> str:
+    """A number to 6 significant digits, a range as 'lo to hi', anything else as it is."""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, tuple):
+        return " to ".join(_plain(v) for v in value)
+    return str(value)
 
 
 def add_experiment(sub) -> None:
