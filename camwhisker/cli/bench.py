@@ -17,7 +17,8 @@ def add_chain(sub) -> None:
         "checked against its truth",
     )
     p.add_argument("experiment", help="folder made by make-experiment (has experiment.toml)")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for summary.json, calib.toml, signals/, contact/ and the figures")
     p.add_argument("--jobs", type=int, default=2, help="videos processed in parallel")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_chain)
@@ -39,7 +40,7 @@ def add_contact_bench(sub) -> None:
     p = sub.add_parser("contact-bench",
                        help="speed and error of the contact back end on simulated runs, "
                             "at the paper's noise and at our front end's")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated runs")
     p.add_argument("--samples", type=int, default=100_000, help="samples for the timing")
     p.add_argument("--figures", metavar="DIR", help="write Fig. 8 and Fig. 9 style PNGs here")
     p.set_defaults(func=_run_contact_bench)
@@ -67,7 +68,7 @@ def add_bench(sub) -> None:
     p.add_argument("--cache", metavar="DIR", help="renders and bounds kept here (default: temp)")
     p.add_argument("--repeat", type=int, default=3,
                    help="time fast configurations this many times, keep the least (default 3)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=_run_bench)
 
 

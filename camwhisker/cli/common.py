@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import shlex
 
-__all__ = ["CommandError", "INPUT_ERRORS", "sensor_arg", "features_arg", "feature_hints",
-           "mode_arg", "runs_arg", "paired_runs", "command_line"]
+__all__ = ["CommandError", "INPUT_ERRORS", "EXIT_CODES", "HelpFormatter", "sensor_arg",
+           "features_arg", "feature_hints", "mode_arg", "runs_arg", "paired_runs", "command_line"]
 
 
 class CommandError(RuntimeError):
@@ -16,6 +16,26 @@ class CommandError(RuntimeError):
 # The library reports bad input (a file, key, row or frame it cannot use) as a
 # ValueError subclass naming it, and a missing or unreadable file as an OSError.
 INPUT_ERRORS = (CommandError, ValueError, OSError)
+
+#: Every command's exit status (README, "Exit status"; `camwhisker --help`).
+EXIT_CODES = {
+    0: "done, nothing went wrong",
+    1: "finished, but something failed: named on stderr (a video that could not be "
+       "processed, frames lost, no row ok); what was done is written",
+    2: "usage or bad input: the file, key, row or frame named on stderr; nothing written",
+    130: "interrupted (Ctrl-C)",
+}
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Shows each option's default after its help, where it has one and the help does
+    not already say it (``ArgumentDefaultsHelpFormatter`` also prints 'default: None')."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or any(action.default is v for v in (None, False, argparse.SUPPRESS)):
+            return text
+        return text + " (default: %(default)s)"
 
 
 SENSOR_HELP = "sensor file (TOML); default: Table I values"
@@ -57,7 +77,8 @@ def runs_arg(p: argparse.ArgumentParser, per_run: str) -> None:
     p.add_argument("--signals", action="append", required=True, metavar="S.csv",
                    help=f"signal table of one {per_run}; repeat once per {per_run}")
     p.add_argument("--stage", action="append", required=True, metavar="L.csv",
-                   help=f"stage log of the {per_run} given by the --signals in the same place")
+                   help=f"stage log of one {per_run}; repeat once per {per_run}, in the "
+                   "order of --signals")
 
 
 def paired_runs(args: argparse.Namespace, *optional: str) -> list[tuple]:

@@ -10,7 +10,7 @@ from camwhisker.sensor import load_sensor
 
 __all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
 
-_SENSOR_HELP = "sensor file (whisker length)"
+_SENSOR_HELP = "sensor file, for the whisker's length; default: Table I values"
 
 
 def add_simulate_stage(sub) -> None:
@@ -25,8 +25,9 @@ def add_simulate_stage(sub) -> None:
     p = sub.add_parser("simulate-stage", help="simulate a stage experiment (mechanics) to files")
     p.add_argument("--kind", required=True, choices=KINDS,
                    help="test1 and test2: the paper's accuracy tests, for `camwhisker validate`")
-    p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the signal tables, stage logs and truth of every run")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulation")
     p.add_argument("--noise-phi-deg", type=float, default=PAPER_NOISE_PHI_DEG,
                    help=f"per-frame phi noise (default: the paper's; our front end's target: "
                         f"{FRONT_END_NOISE_PHI_DEG})")
@@ -59,7 +60,8 @@ def add_calibrate(sub) -> None:
                    help="known clock offset per run (t_camera = t_stage + offset); "
                         "default: estimated")
     sensor_arg(p, _SENSOR_HELP)
-    p.add_argument("--out", required=True, metavar="CALIB")
+    p.add_argument("--out", required=True, metavar="CALIB",
+                   help="calibration file to write (TOML; CALIB.mf.csv beside it)")
     p.add_argument("--plots", metavar="DIR", help="also write gm_model.png (Fig. 7A) here")
     p.set_defaults(func=_run_calibrate)
 
@@ -97,11 +99,16 @@ def _run_calibrate(args) -> int:
 
 def add_contact(sub) -> None:
     p = sub.add_parser("contact", help="contact distance and shape per signal row")
-    p.add_argument("--signals", required=True, metavar="S.csv")
-    p.add_argument("--stage", required=True, metavar="L.csv")
-    p.add_argument("--calib", required=True, metavar="CALIB")
-    p.add_argument("--offset-s", type=float, help="known clock offset; default: estimated")
-    p.add_argument("--out", required=True, metavar="C.csv")
+    p.add_argument("--signals", required=True, metavar="S.csv",
+                   help="the run's signal table (batch, live or replay)")
+    p.add_argument("--stage", required=True, metavar="L.csv",
+                   help="the run's stage log (t_s, x_mm on the stage's clock)")
+    p.add_argument("--calib", required=True, metavar="CALIB",
+                   help="calibration file written by camwhisker calibrate")
+    p.add_argument("--offset-s", type=float,
+                   help="known clock offset (t_camera = t_stage + offset); default: estimated")
+    p.add_argument("--out", required=True, metavar="C.csv",
+                   help="contact table to write, one row per signal row")
     p.set_defaults(func=_run_contact)
 
 

@@ -124,7 +124,8 @@ def _run_live(args) -> int:
 def add_replay(sub) -> None:
     p = sub.add_parser("replay", help="a recorded live session -> its signal table again")
     p.add_argument("session", help="SESSION.avi recorded by 'camwhisker live --record'")
-    p.add_argument("--out", required=True, metavar="OUT.csv")
+    p.add_argument("--out", required=True, metavar="OUT.csv",
+                   help="signal table to write (OUT.json beside it)")
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)

@@ -7,7 +7,7 @@ import sys
 
 from camwhisker import __version__
 from camwhisker.cli import batch, bench, calibrate_sensor, contact, live, overlay, synth, validate
-from camwhisker.cli.common import INPUT_ERRORS
+from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
 
 __all__ = ["build_parser", "main"]
 
@@ -37,13 +37,19 @@ _COMMANDS = [
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="camwhisker",
-        description="The camwhisker command line: wiring only, every computation lives in "
-        "the library.",
+        description="From webcam video of a camera-based robotic whisker to the plate's pose "
+        "(dz, phi, theta) per frame, and from there to contact distance and shape. Start "
+        "with `camwhisker batch VIDEO --sensor SENSOR.toml --out OUT.csv`; `camwhisker "
+        "COMMAND --help` describes each command.",
+        epilog="exit status, the same for every command: "
+        + "; ".join(f"{code} {text}" for code, text in EXIT_CODES.items()),
     )
     parser.add_argument("--version", action="version", version=f"camwhisker {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in _COMMANDS:
         add(sub)
+    for command in sub.choices.values():
+        command.formatter_class = HelpFormatter
     return parser
 
 

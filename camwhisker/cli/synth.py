@@ -15,9 +15,10 @@ def add_render(sub) -> None:
     p = sub.add_parser("render", help="render a synthetic scenario to video with its truth")
     p.add_argument("scenario", choices=sorted(SCENARIOS), help="what to render")
     p.add_argument("--out", required=True, metavar="VIDEO", help="output .avi (MJPG) or .mp4")
-    p.add_argument("--frames", type=int, default=60)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--frames", type=int, default=60, metavar="N", help="frames to render")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the scenario's noise and artefacts (same seed, same video)")
+    p.add_argument("--fps", type=float, default=30.0, help="the video's frame rate")
     p.add_argument(
         "--build",
         type=int,
@@ -54,9 +55,9 @@ def add_bound(sub) -> None:
         choices=sorted(SCENARIOS),
         help="whose camera and artefacts to use",
     )
-    p.add_argument("--dz-mm", type=float, default=0.5)
-    p.add_argument("--phi-deg", type=float, default=15.0)
-    p.add_argument("--theta-deg", type=float, default=30.0)
+    p.add_argument("--dz-mm", type=float, default=0.5, help="the pose's axial deflection (mm)")
+    p.add_argument("--phi-deg", type=float, default=15.0, help="the pose's tilt (deg)")
+    p.add_argument("--theta-deg", type=float, default=30.0, help="the tilt's direction (deg)")
     p.add_argument("--with-shift", action="store_true", help="estimate sx, sy as nuisances too")
     sensor_arg(p)
     p.set_defaults(func=_run_bound)
@@ -87,7 +88,8 @@ def _run_bound(args) -> int:
 
 def add_samples(sub) -> None:
     p = sub.add_parser("make-samples", help="regenerate the bundled sample videos and build")
-    p.add_argument("--dest", default="sample_frames", metavar="DIR")
+    p.add_argument("--dest", default="sample_frames", metavar="DIR",
+                   help="folder to write the samples into")
     p.set_defaults(func=_run_samples)
 
 
@@ -101,7 +103,8 @@ def _run_samples(args) -> int:
 
 def add_describe(sub) -> None:
     p = sub.add_parser("describe", help="decode a video and summarise it and its truth")
-    p.add_argument("video")
+    p.add_argument("video", help="a video file (its truth V.truth.csv is read where it is "
+                   "beside it)")
     p.add_argument(
         "--signals",
         metavar="S.csv",
@@ -137,8 +140,9 @@ def add_experiment(sub) -> None:
         "make-experiment",
         help="simulate a stage experiment and film it (videos, stage logs, truth)",
     )
-    p.add_argument("--dest", default="sample_frames/experiment", metavar="DIR")
-    p.add_argument("--seed", type=int, default=8)
+    p.add_argument("--dest", default="sample_frames/experiment", metavar="DIR",
+                   help="folder to write the videos, stage logs and truth into")
+    p.add_argument("--seed", type=int, default=8, help="seed of the simulation and the renders")
     p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
     p.set_defaults(func=_run_experiment)
 

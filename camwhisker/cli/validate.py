@@ -11,9 +11,10 @@ __all__ = ["add_validate"]
 def add_validate(sub) -> None:
     p = sub.add_parser("validate", help="applied against measured phi (test 1) or dz (test 2), "
                                         "RMSE and the plot of Fig. 6 A/B")
-    runs_arg(p, "trial (its stage log with r_mm for test 1, dz_mm for test 2)")
+    runs_arg(p, "trial")
     p.add_argument("--test", required=True, type=int, choices=(1, 2),
-                   help="1: rigid whisker stepped at a known r (phi); 2: known dz steps")
+                   help="1: rigid whisker stepped at a known r (phi; the stage logs need r_mm); "
+                        "2: known dz steps (the stage logs need dz_mm)")
     sensor_arg(p, "sensor file the signals were made with (recorded in the summary)")
     p.add_argument("--clock-offset-s", type=float, action="append",
                    help="known clock offset per trial (t_camera = t_stage + offset); "
@@ -21,7 +22,8 @@ def add_validate(sub) -> None:
     p.add_argument("--contact-x-mm", type=float, action="append",
                    help="test 1: stage position at first contact, per trial; default: from "
                         "the pauses")  # fmt: skip
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for the per-pause CSV, the JSON summary and the figure")
     p.set_defaults(func=_run_validate)
 
 
