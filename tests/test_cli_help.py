@@ -44,3 +44,11 @@ def test_top_level_help_is_for_a_user_and_lists_the_exit_status():
     assert "wiring only" not in text and "camwhisker batch VIDEO" in text
     for code in (0, 1, 2, 130):
         assert f"{code} {EXIT_CODES[code]}" in text
+
+
+def test_readme_documents_the_same_exit_status():
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    for code, text in EXIT_CODES.items():
+        assert f"| {code} | {text} |" in readme

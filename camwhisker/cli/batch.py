@@ -96,7 +96,7 @@ def _run_batch(args) -> int:
     print(f"{report.frames} frames, {report.frames_ok} ok -> {outputs}")
     for problem in report.problems:
         print(f"camwhisker batch: problem: {problem}", file=sys.stderr)
-    return 3 if report.problems else 0
+    return 1 if report.problems else 0
 
 
 def _run_batch_many(args, sensor, options) -> int:
@@ -108,4 +108,4 @@ def _run_batch_many(args, sensor, options) -> int:
     task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps)
     summary = run_many(tasks, task, args.jobs, args.scheduler, args.overwrite, not args.quiet)
     print(summary.report())
-    return 3 if summary.failed else 0
+    return 1 if summary.failed else 0

@@ -10,7 +10,7 @@ __all__ = ["CommandError", "INPUT_ERRORS", "EXIT_CODES", "HelpFormatter", "senso
 
 
 class CommandError(RuntimeError):
-    """A user-facing failure: printed without a traceback, exit status 2."""
+    """A user-facing failure: printed without a traceback, exit status 2 (EXIT_CODES)."""
 
 
 # The library reports bad input (a file, key, row or frame it cannot use) as a

@@ -51,4 +51,4 @@ def _run_overlay(args) -> int:
           f"{report.rest_check}")  # fmt: skip
     for problem in report.problems:
         print(f"camwhisker overlay: problem: {problem}", file=sys.stderr)
-    return 3 if report.problems else 0
+    return 1 if report.problems else 0
