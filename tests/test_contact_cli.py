@@ -167,3 +167,27 @@ def test_no_row_ok_is_an_error_naming_the_file(root, tmp_path, capsys):
     assert code == 2
     assert f"{bad}: no row is ok (ok = 0 in all {n} rows)" in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_fig7a_draws_the_measured_pauses_with_a_legend_entry(root, monkeypatch):
+    """Issue #21 item 10: Fig. 7A's measured data are one point per calibration pause,
+    named in the legend (they were dozens of boxes a few px wide, with no entry)."""
+    from camwhisker.calibrate import CalibrationRun, calibrate
+    from camwhisker.contact import plots
+    from camwhisker.signals import read_signal_table
+    from camwhisker.stage import read_stage_log
+
+    runs = [CalibrationRun(read_signal_table(f"{root}/cal/{r}_signals.csv"),
+                           read_stage_log(f"{root}/cal/{r}_stage.csv"))
+            for r in ("r22.5", "r42.5", "r60", "r90")]
+    calib, _, data = calibrate(runs, 150.0)
+    shown = {}
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, how: shown.update(fig=fig))
+    plots.plot_gm_model(calib, data, "unused.png")
+    ax = shown["fig"].axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    measured = [line for line in ax.lines if line.get_label().startswith("measured")]
+    n_pauses = int((np.isfinite(data["dx_mm"]) & (data["phi_deg"] >= 1.0)).sum())
+    assert labels[0] == f"measured: {n_pauses} calibration pauses (known r)"
+    assert len(measured) == 1 and measured[0].get_xdata().size == n_pauses
+    assert not ax.patches and not any(line.get_label().startswith("_") for line in ax.lines)

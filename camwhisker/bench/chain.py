@@ -40,12 +40,38 @@ from camwhisker.synth.video import sidecar_paths
 from camwhisker.tables import read_columns, write_csv
 from camwhisker.vision.tracker import FrontEndOptions
 
-__all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "SHAPE_TOL_MM"]
+__all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "FLAG_Z", "SHAPE_TOL_MM",
+           "TERMS"]
 
-#: The paper's reading of Z: below 0.5 an expected deviation.
+#: The paper's reading of Z: below 0.5 an expected deviation (trusted) ...
 LOW_Z = 0.5
+#: ... above 1 a doubtful estimate (flagged).
+FLAG_Z = 1.0
 #: Issue #8: box and bottle points with a low score must lie this close to the profile.
 SHAPE_TOL_MM = 3.0
+
+
+#: Every term of the summary, defined once: printed above it and kept in summary.json.
+TERMS = {
+    "r": "contact distance along the whisker from its base (mm); an error is r - r_hat at "
+         "a stage pause (the median of its frames)",
+    "GM": "r from the stage's travel since first contact and the tilt phi (eq. 8, or the "
+          "beam model where it fits the calibration better)",
+    "MF": "r from phi and the axial deflection dz, looked up in the calibration's table "
+          "(eqs. 9-10); fused: GM and MF combined by their spreads",
+    "Z": "eq. (11): how far GM and MF disagree, in units of GM's spread at that phi",
+    "trusted": f"Z < {LOW_Z:g}: GM and MF agree",
+    "flagged": f"Z > {FLAG_Z:g}: the estimate is shown as doubtful",
+    "bad": f"a GM estimate more than {BAD_GM_ERROR_MM:g} mm off (the paper's GM failure); "
+           "every other one is good",
+    "hit": "share of the bad estimates that are flagged",
+    "false flags": "share of the good estimates that are flagged",
+    "AUC": "chance that a bad estimate has a higher Z than a good one (1: Z tells them "
+           "apart always, 0.5: no better than chance)",
+    "n/a": "nothing to compute it on (no bad estimate, or no point)",
+    "separation": "(summary.json only) Z against the cause rather than the error: slipping "
+                  "or compliant contact against rigid contact held still (issue #8's check)",
+}
 
 
 class ChainError(RuntimeError):
@@ -88,7 +114,7 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     t0 = time.perf_counter()
     ev, front_end = _contact(out, runs, calib, signals, logs)
     timings["contact"] = {"seconds": time.perf_counter() - t0}
-    result = _evaluate(calib, ev, front_end)
+    result = {"terms": TERMS, **_evaluate(calib, ev, front_end)}
     result["timings"] = timings
     result["provenance"] = {
         "camwhisker_version": __version__,
@@ -217,13 +243,14 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
         }
         for name in ("z_score", "z_combined"):
             s = np.where(defined, p[name], np.nan)
-            hit, false = flag_rates(s, doubtful, 1.0)
+            hit, false = flag_rates(s, doubtful, FLAG_Z)
             out["separation"][name] = {"auc": roc_auc(s, doubtful), "hit": hit, "false": false}
+        # The summary's one definition of a bad estimate (TERMS["bad"]).
         bad = np.abs(p["r_true_mm"] - p["r_gm_mm"]) > BAD_GM_ERROR_MM
         s = np.where(defined, p["z_score"], np.nan)
-        out["separation"]["z_score_vs_gm_error_15mm"] = dict(
-            zip(("hit", "false"), flag_rates(s, bad, 1.0), strict=True)
-        )
+        hit, false = flag_rates(s, bad, FLAG_Z)
+        out["z_flags"] = {"n": int(defined.sum()), "n_bad": int((bad & defined).sum()),
+                          "auc": roc_auc(s, bad), "hit": hit, "false_flags": false}
     # Shapes: low-score points of the box and bottle against the true profile.
     out["shapes"] = {}
     for role in ("box", "bottle"):
@@ -235,6 +262,7 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
         d = e["profile_dist_mm"][low]
         # Fig. 9's slip stretch: slipping points with a defined score, and those shown doubtful.
         slip = np.asarray(e["slipping"], bool) & np.isfinite(e["z_score"])
+        flagged = e["z_score"][slip] > FLAG_Z
         out["shapes"][role] = {
             "n_low_z": int(low.sum()),
             "max_dist_mm": float(d.max()) if d.size else math.nan,
@@ -244,7 +272,7 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
             else math.nan,
             "within_tol": int((d <= SHAPE_TOL_MM).sum()),
             "n_slipping": int(slip.sum()),
-            "slipping_z_ge_1": int((e["z_score"][slip] >= 1.0).sum()),
+            "slipping_flagged": int(flagged.sum()),
         }
     return out
 
@@ -275,52 +303,60 @@ def _plots(out: Path, calib, cal_data: dict, ev: dict, runs) -> None:
         )
 
 
+def _num(x: float, fmt: str) -> str:
+    """``x`` formatted, or "n/a" where it is not a number (TERMS["n/a"])."""
+    return format(x, fmt) if x is not None and math.isfinite(x) else "n/a"
+
+
 def format_summary(s: dict) -> str:
-    """The short summary a person reads after the chain."""
+    """The short summary a person reads after the chain: its terms first, each once."""
+    width = max(len(t) for t in TERMS if t != "separation")
+    lines = ["terms:"] + [f"  {t:<{width}}  {d}" for t, d in TERMS.items() if t != "separation"]
     fe = s["front_end"]
-    lines = [
-        f"C = {s['C']:.1f} (95% CI {s['C_ci95'][0]:.1f}-{s['C_ci95'][1]:.1f}); "
-        f"GM model used: {s['gm_model_used']}",
-        f"front end: {fe['ok']}/{fe['frames']} frames ok, phi RMSE {fe['phi_rmse_deg']:.3f} deg, "
-        f"dz RMSE {fe['dz_rmse_mm']:.4f} mm",
-        "contact error r - r_hat (mm), pause medians (calibration rows are in-sample: "
-        "the MF table holds them):",
-        f"  {'role':<12}{'n':>5}{'GM rmse':>9}{'GM mean':>9}{'MF rmse':>9}{'fused':>8}"
-        f"{'Z>1 hit':>9}{'Z>1 ff':>8}",
+    lines += [
+        f"GM: C of eq. (8) = {s['C']:.1f} (95 % CI {s['C_ci95'][0]:.1f}-{s['C_ci95'][1]:.1f});"
+        f" model used: {s['gm_model_used']}",
+        f"front end: {fe['ok']} of {fe['frames']} frames ok; phi RMSE "
+        f"{_num(fe['phi_rmse_deg'], '.3f')} deg, dz RMSE {_num(fe['dz_rmse_mm'], '.4f')} mm",
+        "contact errors (mm) per role; the calibration's are in-sample (MF's table holds "
+        "its pauses):",
+        f"  {'role':<12}{'pauses':>7}{'GM RMSE':>9}{'GM mean':>9}{'MF RMSE':>9}"
+        f"{'fused RMSE':>12}{'bad':>5}{'hit':>6}{'false flags':>13}",
     ]
     for role, r in s["roles"].items():
         lines.append(
-            f"  {role:<12}{r['n']:>5}{r['gm_rmse_mm']:>9.2f}{r['gm_mean_mm']:>9.2f}"
-            f"{r['mf_rmse_mm']:>9.2f}{r['fused_rmse_mm']:>8.2f}"
-            f"{r['z_score_hit']:>9.2f}{r['z_score_false']:>8.2f}"
+            f"  {role:<12}{r['n']:>7}{_num(r['gm_rmse_mm'], '.2f'):>9}"
+            f"{_num(r['gm_mean_mm'], '.2f'):>9}{_num(r['mf_rmse_mm'], '.2f'):>9}"
+            f"{_num(r['fused_rmse_mm'], '.2f'):>12}{r['n_bad']:>5}"
+            f"{_num(r['z_score_hit'], '.2f'):>6}{_num(r['z_score_false'], '.2f'):>13}"
         )
     if "rigid_stuck_gm" in s:
         g = s["rigid_stuck_gm"]
         lines.append(
-            f"rigid, non-slipping (box and bottle before they slide): GM error mean "
-            f"{g['mean_mm']:.2f} mm, sd {g['sd_mm']:.2f} mm (n = {g['n']})"
+            f"rigid contact held still (box and bottle before they slide): GM error mean "
+            f"{_num(g['mean_mm'], '.2f')} mm, sd {_num(g['sd_mm'], '.2f')} mm ({g['n']} pauses)"
         )
-    if "separation" in s:
-        sep = s["separation"]
+    if "z_flags" in s:
+        z = s["z_flags"]
         lines.append(
-            f"slipping + compliant ({sep['n_doubtful']}) vs good ({sep['n_good']}): "
-            f"eq. (11) Z AUC {sep['z_score']['auc']:.3f}, hit {sep['z_score']['hit']:.2f}, "
-            f"false flags {sep['z_score']['false']:.2f} (paper: 0.26); combined-spread Z AUC "
-            f"{sep['z_combined']['auc']:.3f}"
+            f"every role but the calibration: {z['n_bad']} bad of {z['n']} pauses; Z's AUC "
+            f"{_num(z['auc'], '.3f')}, hit {_num(z['hit'], '.2f')}, false flags "
+            f"{_num(z['false_flags'], '.2f')} (the paper's: 0.26)"
         )
     for role, sh in s["shapes"].items():
+        trusted = (f"{sh['n_low_z']} trusted, {sh['within_tol']} of them within "
+                   f"{SHAPE_TOL_MM:g} mm (max {_num(sh['max_dist_mm'], '.2f')} mm)"
+                   if sh["n_low_z"] else "none trusted")
         lines.append(
-            f"{role}: {sh['n_low_z']} points with Z < {LOW_Z}, "
-            f"{sh['within_tol']} within {SHAPE_TOL_MM} mm of the profile "
-            f"(max {sh['max_dist_mm']:.2f} mm); all {sh['n_points']} points within "
-            f"{sh['max_dist_all_mm']:.2f} mm; slipping points shown doubtful (Z >= 1): "
-            f"{sh['slipping_z_ge_1']}/{sh['n_slipping']}"
+            f"{role} shape (Fig. 9): {sh['n_points']} points, all within "
+            f"{_num(sh['max_dist_all_mm'], '.2f')} mm of the true profile; {trusted}; "
+            f"{sh['slipping_flagged']} of {sh['n_slipping']} slipping points flagged"
         )
     t = s["timings"]
     lines.append(
         f"time: batch {t['batch']['seconds']:.1f} s ({t['batch']['frames']} frames, "
         f"{t['batch']['reused']} tables reused; "
-        f"{t['batch']['frames_per_s_per_core']:.0f} frames/s per core incl. decode), "
+        f"{_num(t['batch']['frames_per_s_per_core'], '.0f')} frames/s per core incl. decode), "
         f"calibrate {t['calibrate']['seconds']:.1f} s, contact {t['contact']['seconds']:.1f} s, "
         f"plots {t['plots']['seconds']:.1f} s"
     )

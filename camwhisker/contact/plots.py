@@ -1,7 +1,7 @@
 """Figures of the contact back end (matplotlib, Agg, PNG), written atomically.
 
 - :func:`plot_gm_model`: eq.-(8) and beam GM models against calibration data
-  (r against dx / phi, boxes per known r), like the paper's Fig. 7A.
+  (r against dx / phi, one point per stage pause), like the paper's Fig. 7A.
 - :func:`plot_error_boxes`: r - r_hat of GM, MF and fused for rigid and
   compliant contact (Fig. 8).
 - :func:`plot_shapes`: reconstructed contact points coloured by Z with the
@@ -46,20 +46,21 @@ def save_figure(fig, path, how: str) -> None:
 
 
 def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
-    """Known r against measured dx / phi (boxes per r) with the fitted GM models."""
+    """Known r against measured dx / phi, one point per calibration pause, with the
+    fitted GM models."""
     fig, ax = plt.subplots(figsize=(6, 4.8), layout="constrained")
     ok = np.isfinite(data["dx_mm"]) & (data["phi_deg"] >= 1.0)
     q = data["dx_mm"][ok] / data["phi_deg"][ok]
     r = data["r_mm"][ok]
-    radii = np.unique(np.round(r, 0))
-    groups = [q[np.round(r, 0) == v] for v in radii]
-    ax.boxplot(groups, positions=radii, orientation="horizontal", widths=2.5,
-               manage_ticks=False)
+    # Each pause its own point: the contact slides along the whisker within a run, so
+    # the known r is not one value per run (boxes per r came out dozens, a few px wide).
+    ax.plot(q, r, "o", ms=4, mfc="none", mec="k", mew=0.7,
+            label=f"measured: {q.size} calibration pauses (known r)")
     qq = np.linspace(1e-3, max(q.max(), 1e-2) * 1.05, 200)
     beam = calib.gm.alternatives.get("beam")
     if beam is not None:  # r from dx and phi apart: no one curve in dx / phi, so per sample
-        ax.plot(q, beam.r_mm(data["dx_mm"][ok], data["phi_deg"][ok]), ".", ms=3, color="C2",
-                label="beam model at each sample", zorder=3)
+        ax.plot(q, beam.r_mm(data["dx_mm"][ok], data["phi_deg"][ok]), "+", ms=4, color="C2",
+                label="beam model at each pause", zorder=3)
     eq8 = calib.gm.alternatives.get("eq8")
     if eq8 is not None:
         c = eq8.params["c"]
@@ -68,7 +69,7 @@ def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
     ax.set_xlabel("dx / phi (mm / deg)")
     ax.set_ylabel("r (mm)")
     ax.set_title(f"GM model vs calibration data (used: {calib.gm.kind})")
-    ax.legend(loc="lower right")
+    ax.legend(loc="lower right", fontsize=8)
     save_figure(fig, path, how or "GM model vs data (Fig. 7A)")
 
 
