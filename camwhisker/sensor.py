@@ -152,11 +152,14 @@ def load_sensor(path: str | Path | None = None) -> Sensor:
     Raises
     ------
     SensorFileError
-        The file is missing, is not TOML, or has an unknown or bad key.
+        The file is missing, empty, is not TOML, or has an unknown or bad key.
     """
     if path is None:
         return Sensor()
     data = read_toml(path, "sensor file", SensorFileError)
+    if not data:  # a failed copy, most likely: defaults a user did not ask for
+        raise SensorFileError(f"{path}: no table at all (an empty sensor file); for the "
+                              "defaults leave --sensor out")
     return sensor_from_dict(data, source=str(path))
 
 

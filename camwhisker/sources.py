@@ -187,7 +187,7 @@ class VideoSource:
         cap = self._capture()
         known = self._known()
         i = fails = read = 0
-        broken = False  # a read failed: from then on, frames are placed by their times
+        ended = broken = False  # a read failed: from then on, frames are placed by their times
         lost: list[int] = []
         try:
             while True:
@@ -196,6 +196,7 @@ class VideoSource:
                     fails += 1
                     broken = True
                     if i + fails > known:  # past the last frame the container holds
+                        ended = True
                         break
                     continue
                 index = self._index_of(cap, i) if broken else i
@@ -208,7 +209,8 @@ class VideoSource:
             cap.release()
             self.frames_read = read
             self.lost_frames = lost
-            self.problem = self._problems(i, lost, known)
+            # A reader that stops early (max frames, a live stop) did not find the end.
+            self.problem = self._problems(i, lost, known, ended)
 
     def _next_key(self, index: int) -> int | None:
         """The first key frame after frame ``index`` (None if none, or no times)."""
@@ -217,8 +219,9 @@ class VideoSource:
         after = self._key_times[self._key_times > self.time_of(index)]
         return int(np.searchsorted(self._times, after[0])) if after.size else None
 
-    def _problems(self, end: int, lost: list[int], known: int) -> str:
-        """What went wrong reading: frames lost mid-file, the file ending early."""
+    def _problems(self, end: int, lost: list[int], known: int, ended: bool) -> str:
+        """What went wrong reading: frames lost mid-file, the file ending early (only
+        where the reading ``ended`` there, not where its reader stopped)."""
         out = []
         if lost:
             out.append(f"frames {_ranges(lost)} of {known or end} could not be decoded (a "
@@ -228,10 +231,10 @@ class VideoSource:
                 upto = f"frame {key - 1}" if key is not None else "the end"
                 out.append(f"frames {lost[0] + 1} to {upto} were decoded from damaged "
                            "references (before the next key frame): check them")
-        if known and end < known:
+        if ended and known and end < known:
             out.append(f"video ended after {end} of {known} frames (truncated or corrupt); "
                        "the readable part was processed")
-        return "; ".join(out)
+        return f"{self.path}: " + "; ".join(out) if out else ""
 
 
 class ImageFolderSource:
@@ -327,6 +330,9 @@ class SessionSource:
         self.path = Path(video)
         self.video = VideoSource(self.path, decode_threads)
         self.timestamps = timestamps_path(self.path)
+        if not self.timestamps.is_file():
+            raise FileNotFoundError(f"{self.path}: not a recorded session: no "
+                                    f"{self.timestamps.name} beside it")
         self.rows = read_timestamps(self.timestamps)
         self.fps = self.video.fps
         self.frame_size = self.video.frame_size

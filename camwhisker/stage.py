@@ -125,7 +125,8 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
     header = [h.strip() for h in rows[0]]
     for need in ("t_s", "x_mm"):
         if need not in header:
-            raise StageLogError(f"{path}: row 1: missing column {need!r} (header: {header})")
+            raise StageLogError(f"{path}: row 1: missing column {need} (header: "
+                                f"{', '.join(header)})")
     cols = {name: header.index(name) for name in ("t_s", "x_mm", "r_mm", "dz_mm")
             if name in header}
     data = {name: [] for name in cols}

@@ -44,9 +44,12 @@ def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> di
         raise TableError(f"{path}: cannot read ({exc.strerror})") from exc
     reader = csv.reader(io.StringIO(text))
     header = [h.strip() for h in next(reader, [])]
+    if not header:
+        raise TableError(f"{path}: empty file, expected a header ({', '.join(columns or ())})")
     for need in columns or ():
         if need not in header:
-            raise TableError(f"{path}: row 1: missing column {need!r} (header: {header})")
+            raise TableError(f"{path}: row 1: missing column {need} (header: "
+                             f"{', '.join(header)})")
     idx = {name: header.index(name) for name in (columns or header)}
     cols = {name: [] for name in idx}
     for i, row in enumerate(reader, start=2):

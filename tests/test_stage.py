@@ -42,7 +42,7 @@ def test_bad_logs_name_file_row_problem(tmp_path, body, needle):
 
 def test_missing_column(tmp_path):
     p = _write(tmp_path, "t,x_mm\n0,0\n")
-    with pytest.raises(StageLogError, match="row 1: missing column 't_s'"):
+    with pytest.raises(StageLogError, match=r"row 1: missing column t_s \(header: t, x_mm\)"):
         read_stage_log(p)
 
 

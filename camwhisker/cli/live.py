@@ -118,7 +118,7 @@ def _run_live(args) -> int:
     print(LiveSession.summary(report), file=sys.stderr)
     for problem in report.problems:
         print(f"camwhisker live: problem: {problem}", file=sys.stderr)
-    return 1 if report.grabber.get("lost") or not report.rows_ok else 0
+    return 1 if report.failed else 0
 
 
 def add_replay(sub) -> None:

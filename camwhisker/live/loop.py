@@ -153,6 +153,9 @@ class LiveReport:
     events: list = field(default_factory=list)
     stopped_by: str = ""
     problems: list[str] = field(default_factory=list)
+    #: Something failed (exit status 1): the capture lost, no row ok, or frames of a
+    #: file lost; a frame rate off the camera's stated one is a problem, not a failure.
+    failed: bool = False
 
 
 class LiveSession:
@@ -365,6 +368,11 @@ class LiveSession:
         rep.end_to_end = latency_summary(e2e_ms)
         if rep.rows and not rep.rows_ok:
             rep.problems.append(f"no row of {rep.rows} is ok (the first: {self._first_reason})")
+        source = getattr(self.capture, "source", None)  # a file's frames lost, or its end
+        lost_frames = source.problem if source is not None else ""
+        if lost_frames:
+            rep.problems.append(lost_frames)
+        rep.failed = bool(stats.lost or not rep.rows_ok or lost_frames)
         if stats.lost:
             rep.problems.append(f"capture lost after {cfg.max_reconnects} reconnect attempts")
         applied_fps = self._input.get("settings", {}).get("applied", {}).get("fps")
