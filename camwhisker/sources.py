@@ -187,7 +187,9 @@ class VideoSource:
         cap = self._capture()
         known = self._known()
         i = fails = read = 0
-        ended = broken = False  # a read failed: from then on, frames are placed by their times
+        # ended: the reads ran past the container's last frame; broken: a read failed,
+        # and from then on frames are placed by their times.
+        ended = broken = False
         lost: list[int] = []
         try:
             while True:
