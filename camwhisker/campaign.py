@@ -127,17 +127,17 @@ def output_path(
     """Where a video's signal table goes.
 
     Beside the video, or under ``dest`` mirroring the video's folder relative
-    to ``root`` (default: the working directory; folders outside it are
-    mirrored from the filesystem root). The rule does not depend on the other
-    inputs of a run, so a rerun finds its earlier outputs, and equal names in
-    different folders never collide.
+    to ``root`` (default: the folder that holds ``dest``; folders outside it are
+    mirrored from the filesystem root). The rule depends neither on the other
+    inputs of a run nor on the working directory, so a rerun from anywhere finds
+    its earlier outputs, and equal names in different folders never collide.
     """
     video = Path(video)
     name = video.stem + ".signals" + suffix
     if dest is None:
         return video.with_name(name)
     folder = video.parent.resolve()
-    base = Path(root or Path.cwd()).resolve()
+    base = Path(root).resolve() if root is not None else Path(dest).resolve().parent
     try:
         rel = folder.relative_to(base)
     except ValueError:

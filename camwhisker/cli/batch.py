@@ -31,7 +31,8 @@ def add_batch(sub) -> None:
         help="video files OpenCV can read, folders, globs; or one folder of images with --out",
     )
     p.add_argument("--out", metavar="OUT.csv", help="signal table of a single input")
-    p.add_argument("--dest", metavar="DIR", help="many inputs: write the tables under DIR")
+    p.add_argument("--dest", metavar="DIR", help="many inputs: write the tables under DIR, "
+                   "mirroring each input's folder as seen from DIR's parent")  # fmt: skip
     p.add_argument(
         "--format", choices=("csv", "parquet"), default="csv", help="many inputs: table format"
     )
