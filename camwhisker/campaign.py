@@ -11,7 +11,8 @@ finished files.
 Tasks run in this process (``jobs=1``), in ``jobs`` local processes, each with
 OpenCV on one thread, or on an existing Dask distributed cluster
 (``scheduler``), one video per task. One failed video never stops the others;
-the summary lists each failure with its reason.
+the summary lists each failure with its reason. A run first removes the
+temporary files that killed runs left in its output folders.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from camwhisker import signals
-from camwhisker.atomic import atomic_path
+from camwhisker.atomic import atomic_path, remove_stale_temps
 from camwhisker.signals import sidecar_path
 
 __all__ = [
@@ -65,8 +66,12 @@ class TaskResult:
 
 @dataclass
 class Summary:
+    """The tasks' results; ``stale`` lists the temporary files of killed earlier runs
+    that this run removed."""
+
     results: list[TaskResult] = field(default_factory=list)
     seconds: float = 0.0
+    stale: list[Path] = field(default_factory=list)
 
     def count(self, status: str) -> int:
         return sum(r.status == status for r in self.results)
@@ -80,11 +85,16 @@ class Summary:
         return sum(r.frames for r in self.results if r.status == "done")
 
     def report(self) -> str:
-        lines = [
+        lines = []
+        if self.stale:
+            folders = sorted({str(p.parent) for p in self.stale})
+            lines.append(f"removed {len(self.stale)} temporary files that killed runs left "
+                         f"in {', '.join(folders)}")  # fmt: skip
+        lines.append(
             f"{len(self.results)} videos: {self.count('done')} done, "
             f"{self.count('skipped')} already complete, {self.count('failed')} failed; "
             f"{self.frames} frames in {self.seconds:.1f} s"
-        ]
+        )
         lines += [f"  FAILED {r.video}: {r.reason}" for r in self.failed]
         return "\n".join(lines)
 
@@ -242,13 +252,15 @@ def run_many(
         Address of a Dask distributed scheduler; overrides ``jobs``.
     """
     t0 = time.perf_counter()
-    summary = Summary()
+    tasks = [(Path(video), Path(out)) for video, out in tasks]
+    folders = sorted({out.parent for _, out in tasks})
+    summary = Summary(stale=[p for f in folders for p in remove_stale_temps(f)])
     todo = []
     for video, out in tasks:
         if not overwrite and is_complete(out):
             summary.results.append(TaskResult(str(video), str(out), "skipped"))
         else:
-            todo.append((Path(video), Path(out)))
+            todo.append((video, out))
     bar = tqdm(total=len(todo), desc="videos", unit="video", disable=not progress)
     try:
         for result in _dispatch(todo, process, jobs, scheduler):

@@ -1,11 +1,19 @@
-"""Batch resumes from any directory (issue #21, item 7)."""
+"""Batch output after kill -9 and from any directory (issue #21, items 3 and 7).
 
+Real ``python -m camwhisker.cli batch`` processes over copies of a 12-frame sample clip.
+"""
+
+import contextlib
 import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
+from camwhisker.atomic import atomic_path, remove_stale_temps
 from camwhisker.campaign import is_complete, output_path
 from camwhisker.cli import main
 from camwhisker.signals import read_signal_table
@@ -14,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_frames" / "nominal_mjpg.avi"
 SAMPLE_FRAMES = 12  # every one tracked (test_campaign: frames_decoded == 12)
 VIDEOS = 40  # as in the issue; at ~0.3 s a video on 2 workers, the run lasts ~12 s
+START_S = 120.0  # time for a first output on a loaded machine; only a bound on waiting
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +35,48 @@ def videos(tmp_path_factory):
     return out
 
 
+@pytest.fixture()
+def dest(tmp_path):
+    """The run's output folder; any process of the run still alive at the end (a
+    failed test) is killed, so none outlives the test."""
+    folder = tmp_path / "dest"
+    yield folder
+    for pid in _processes_naming(str(folder)):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+def _start(dest: Path, *inputs, jobs: int = 2) -> subprocess.Popen:
+    """``camwhisker batch INPUTS --dest DEST --jobs N`` in its own process group, with
+    SIGINT at its default as a terminal's foreground job has it (a test run in the
+    background would otherwise pass its ignored SIGINT on)."""
+    cmd = [sys.executable, "-m", "camwhisker.cli", "batch", *map(str, inputs),
+           "--dest", str(dest), "--jobs", str(jobs), "--quiet"]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        process_group=0, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+
+
 def _outputs(videos, dest) -> list[Path]:
     return [output_path(v, dest) for v in videos]
+
+
+def _processes_naming(text: str) -> list[int]:
+    """Live (not zombie) processes whose command line contains ``text``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            state = (proc / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:  # ended meanwhile
+            continue
+        if text in cmdline and state != "Z":
+            found.append(int(proc.name))
+    return found
 
 
 def _check_outputs(outs) -> int:
@@ -38,6 +87,55 @@ def _check_outputs(outs) -> int:
         table = read_signal_table(out)
         assert table["t_s"].size == SAMPLE_FRAMES and table["ok"].all(), out
     return len(present)
+
+
+_HOLD_TEMP = """
+import sys, time
+from camwhisker.atomic import atomic_path
+with atomic_path(sys.argv[1]) as tmp:
+    tmp.write_text("t_s,half a row")
+    print(tmp.name, flush=True)
+    time.sleep(600)
+"""
+
+
+def _writer_holding_temp(out: Path) -> tuple[subprocess.Popen, Path]:
+    """A process halfway through writing ``out``, and its temporary file."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD_TEMP, str(out)], env=env,
+                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    return proc, out.parent / proc.stdout.readline().strip()
+
+
+def test_next_batch_removes_temporaries_of_killed_writers_only(videos, dest):
+    outs = _outputs(videos[:2], dest)
+    killed, stale = _writer_holding_temp(outs[0])
+    live, busy = _writer_holding_temp(outs[1].with_name("elsewhere.signals.csv"))
+    try:
+        os.kill(killed.pid, signal.SIGKILL)
+        killed.wait()
+        assert stale.exists() and busy.exists()
+        proc = _start(dest, *videos[:2])
+        stdout, stderr = proc.communicate(timeout=START_S)
+        assert proc.returncode == 0, stderr
+        assert f"removed 1 temporary files that killed runs left in {dest}" in stdout
+        assert not stale.exists() and busy.exists()  # a live writer's file is kept
+        assert _check_outputs(outs) == 2
+    finally:
+        live.kill()
+        live.wait()
+    assert remove_stale_temps(busy.parent) == [busy]  # its writer dead now, it is stale
+
+
+def test_remove_stale_temps_keeps_what_a_live_writer_holds(tmp_path):
+    target = tmp_path / "t.signals.csv"
+    with atomic_path(target) as tmp:
+        tmp.write_text("t_s\n")
+        assert remove_stale_temps(tmp_path) == [] and tmp.exists()
+        (tmp_path / ".t.signals.partial.csv").write_text("not ours\n")
+    assert target.read_text() == "t_s\n"
+    assert remove_stale_temps(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".t.signals.partial.csv", target.name]
 
 
 def test_output_path_does_not_depend_on_the_working_directory(tmp_path, monkeypatch):
