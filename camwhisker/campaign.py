@@ -11,8 +11,10 @@ finished files.
 Tasks run in this process (``jobs=1``), in ``jobs`` local processes, each with
 OpenCV on one thread, or on an existing Dask distributed cluster
 (``scheduler``), one video per task. One failed video never stops the others;
-the summary lists each failure with its reason. A run first removes the
-temporary files that killed runs left in its output folders.
+the summary lists each failure with its reason. Interrupted (Ctrl-C, SIGTERM),
+local runs stop within a few seconds (:mod:`camwhisker.workers`): finished outputs
+are kept, unfinished ones leave no file, and the summary lists what is left. A run
+first removes the temporary files that killed runs left in its output folders.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ import json
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from tqdm import tqdm
 from camwhisker import signals
 from camwhisker.atomic import atomic_path, remove_stale_temps
 from camwhisker.signals import sidecar_path
+from camwhisker.workers import run_in_processes, stop_signals_interrupt
 
 __all__ = [
     "VIDEO_SUFFIXES",
@@ -58,7 +60,7 @@ class CampaignError(ValueError):
 class TaskResult:
     video: str
     out: str
-    status: str  # "done", "skipped" or "failed"
+    status: str  # "done", "skipped", "failed" or "left" (not finished when interrupted)
     reason: str = ""
     frames: int = 0
     seconds: float = 0.0
@@ -66,11 +68,12 @@ class TaskResult:
 
 @dataclass
 class Summary:
-    """The tasks' results; ``stale`` lists the temporary files of killed earlier runs
-    that this run removed."""
+    """The tasks' results, and whether the run was interrupted; ``stale`` lists the
+    temporary files of killed earlier runs that this run removed."""
 
     results: list[TaskResult] = field(default_factory=list)
     seconds: float = 0.0
+    interrupted: bool = False
     stale: list[Path] = field(default_factory=list)
 
     def count(self, status: str) -> int:
@@ -90,12 +93,17 @@ class Summary:
             folders = sorted({str(p.parent) for p in self.stale})
             lines.append(f"removed {len(self.stale)} temporary files that killed runs left "
                          f"in {', '.join(folders)}")  # fmt: skip
+        left = f", {self.count('left')} left" if self.interrupted else ""
         lines.append(
             f"{len(self.results)} videos: {self.count('done')} done, "
-            f"{self.count('skipped')} already complete, {self.count('failed')} failed; "
+            f"{self.count('skipped')} already complete, {self.count('failed')} failed{left}; "
             f"{self.frames} frames in {self.seconds:.1f} s"
         )
         lines += [f"  FAILED {r.video}: {r.reason}" for r in self.failed]
+        if self.interrupted:
+            left_n = self.count("left")
+            lines.append(f"interrupted: {left_n} videos left to do, none of them complete "
+                         "(partial files removed); the same command again does them")  # fmt: skip
         return "\n".join(lines)
 
 
@@ -250,6 +258,12 @@ def run_many(
         Local worker processes (1: run here).
     scheduler : str, optional
         Address of a Dask distributed scheduler; overrides ``jobs``.
+
+    Returns
+    -------
+    Summary
+        ``interrupted`` where SIGINT or SIGTERM (in the main thread) stopped the run;
+        the tasks not finished then are "left", none with a complete output.
     """
     t0 = time.perf_counter()
     tasks = [(Path(video), Path(out)) for video, out in tasks]
@@ -262,16 +276,36 @@ def run_many(
         else:
             todo.append((video, out))
     bar = tqdm(total=len(todo), desc="videos", unit="video", disable=not progress)
-    try:
-        for result in _dispatch(todo, process, jobs, scheduler):
-            summary.results.append(result)
-            bar.update(1)
-            if result.status == "failed" and progress:
-                bar.write(f"FAILED {result.video}: {result.reason}")
-    finally:
-        bar.close()
+    results = _dispatch(todo, process, jobs, scheduler)
+    with stop_signals_interrupt():
+        try:
+            for result in results:
+                summary.results.append(result)
+                bar.update(1)
+                if result.status == "failed" and progress:
+                    bar.write(f"FAILED {result.video}: {result.reason}")
+        except KeyboardInterrupt:
+            summary.interrupted = True
+        finally:
+            results.close()  # an interrupted run's workers stop here
+            bar.close()
+    if summary.interrupted:
+        reported = {r.out for r in summary.results}
+        left = [(v, o) for v, o in todo if str(o) not in reported]
+        summary.results += [_unreported(v, o) for v, o in left]
+        for folder in sorted({o.parent for _, o in left}):
+            remove_stale_temps(folder)  # those of workers killed after the grace time
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _unreported(video: Path, out: Path) -> TaskResult:
+    """A task whose result did not come back before the stop: "done" where it finished
+    its output meanwhile (frames as its sidecar records them), else "left"."""
+    if is_complete(out):
+        frames = json.loads(sidecar_path(out).read_text()).get("frames", 0)
+        return TaskResult(str(video), str(out), "done", frames=int(frames))
+    return TaskResult(str(video), str(out), "left")
 
 
 def _dispatch(todo, process, jobs, scheduler):
@@ -290,11 +324,8 @@ def _dispatch(todo, process, jobs, scheduler):
         for v, o in todo:
             yield _run_one(process, v, o)
         return
-    workers = min(jobs, len(todo))
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(_run_one, process, v, o) for v, o in todo]
-        for fut in as_completed(futures):
-            yield fut.result()
+    calls = [(process, v, o) for v, o in todo]
+    yield from run_in_processes(_run_one, calls, min(jobs, len(todo)))
 
 
 @dataclass(frozen=True)
@@ -313,32 +344,48 @@ class BatchTask:
     fps: float | None = None
 
     def __call__(self, video: Path, out: Path) -> dict:
-        from camwhisker.batch import run_batch
         from camwhisker.overlay import rest_check_path
 
         out = Path(out)
+        try:
+            return self._run(Path(video), out)
+        except BaseException as exc:
+            # Interrupted (Ctrl-C, a worker told to stop) between the table and the sidecar
+            # that completes it: what this call wrote goes, so a stop leaves whole outputs.
+            if not isinstance(exc, Exception) and not is_complete(out):
+                for p in (out, sidecar_path(out), rest_check_path(out)):
+                    p.unlink(missing_ok=True)
+            raise
+
+    def _run(self, video: Path, out: Path) -> dict:
+        from camwhisker.batch import run_batch
+        from camwhisker.overlay import rest_check_path
+
         parquet = out.suffix.lower() == ".parquet"
         # Parquet is converted from the CSV, written first under a hidden name.
         table = out.with_name(f".{out.stem}.partial.csv") if parquet else out
         t0 = time.perf_counter()
-        report = run_batch(
-            video,
-            self.sensor,
-            table,
-            self.options,
-            self.rest_index,
-            self.fps,
-            progress=False,
-            decode_threads=1,  # one core per task, decoding included
-        )
-        seconds = time.perf_counter() - t0
-        meta = json.loads(report.sidecar.read_text())
-        if parquet:
-            _csv_to_parquet(table, out)
-            table.unlink()
-            report.sidecar.unlink()
-            if report.rest_check is not None:
-                meta["rest_check"] = report.rest_check.replace(rest_check_path(out)).name
+        try:
+            report = run_batch(
+                video,
+                self.sensor,
+                table,
+                self.options,
+                self.rest_index,
+                self.fps,
+                progress=False,
+                decode_threads=1,  # one core per task, decoding included
+            )
+            seconds = time.perf_counter() - t0
+            meta = json.loads(report.sidecar.read_text())
+            if parquet:
+                _csv_to_parquet(table, out)
+                if report.rest_check is not None:
+                    meta["rest_check"] = report.rest_check.replace(rest_check_path(out)).name
+        finally:
+            if parquet:  # the hidden CSV and its companions, used or interrupted
+                for p in (table, sidecar_path(table), rest_check_path(table)):
+                    p.unlink(missing_ok=True)
         meta.update(
             calibration_id=self.calibration_id,
             frames_decoded=report.frames,

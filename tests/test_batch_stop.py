@@ -1,14 +1,18 @@
-"""Batch output after kill -9 and from any directory (issue #21, items 3 and 7).
+"""A parallel batch stops cleanly (issue #21, items 1-3 and 7), run as a user runs it.
 
-Real ``python -m camwhisker.cli batch`` processes over copies of a 12-frame sample clip.
+Real ``python -m camwhisker.cli batch`` processes over copies of a 12-frame sample
+clip, real signals. After every stop: the outputs present are complete tables, no
+temporary file is left, and no process of the run is alive.
 """
 
 import contextlib
 import os
+import re
 import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -16,13 +20,17 @@ import pytest
 from camwhisker.atomic import atomic_path, remove_stale_temps
 from camwhisker.campaign import is_complete, output_path
 from camwhisker.cli import main
+from camwhisker.sensor import Sensor
 from camwhisker.signals import read_signal_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_frames" / "nominal_mjpg.avi"
 SAMPLE_FRAMES = 12  # every one tracked (test_campaign: frames_decoded == 12)
 VIDEOS = 40  # as in the issue; at ~0.3 s a video on 2 workers, the run lasts ~12 s
+STOP_S = 5.0  # the issue's bound from SIGINT to exit; the stop itself takes ~0.2 s
+ORPHAN_S = 10.0  # the issue's bound for workers to be gone after kill -9 of the parent
 START_S = 120.0  # time for a first output on a loaded machine; only a bound on waiting
+SUMMARY = re.compile(r"(\d+) videos: (\d+) done, (\d+) already complete, (\d+) failed, (\d+) left")
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +67,13 @@ def _start(dest: Path, *inputs, jobs: int = 2) -> subprocess.Popen:
     )  # fmt: skip
 
 
+def _wait_for(condition, what: str) -> None:
+    deadline = time.monotonic() + START_S
+    while not condition():
+        assert time.monotonic() < deadline, f"no {what} within {START_S} s"
+        time.sleep(0.02)
+
+
 def _outputs(videos, dest) -> list[Path]:
     return [output_path(v, dest) for v in videos]
 
@@ -79,6 +94,10 @@ def _processes_naming(text: str) -> list[int]:
     return found
 
 
+def _temps(dest: Path) -> list[str]:
+    return sorted(p.name for p in dest.rglob(".*"))
+
+
 def _check_outputs(outs) -> int:
     """Every table present is complete and whole; returns how many there are."""
     present = [o for o in outs if o.exists()]
@@ -87,6 +106,50 @@ def _check_outputs(outs) -> int:
         table = read_signal_table(out)
         assert table["t_s"].size == SAMPLE_FRAMES and table["ok"].all(), out
     return len(present)
+
+
+@pytest.mark.parametrize("how", ["SIGINT to the group", "SIGTERM to the parent"])
+def test_interrupt_stops_keeps_finished_and_exits_130(videos, dest, how):
+    outs = _outputs(videos, dest)
+    proc = _start(dest, videos[0].parent)
+    _wait_for(lambda: is_complete(outs[0]) or is_complete(outs[1]), "first output")
+    t0 = time.monotonic()
+    if how.startswith("SIGINT"):
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
+    try:
+        stdout, stderr = proc.communicate(timeout=STOP_S)
+    finally:
+        proc.kill()  # no-op once it has exited; ends it where the assertion below fails
+    assert time.monotonic() - t0 < STOP_S
+    assert proc.returncode == 130, stderr
+    total, done, skipped, failed, left = map(int, SUMMARY.search(stdout).groups())
+    assert (total, skipped, failed) == (VIDEOS, 0, 0) and done + left == VIDEOS
+    assert left >= 1 and "interrupted" in stdout
+    assert _check_outputs(outs) == done  # each finished one kept, nothing half-done
+    assert _temps(dest) == []
+    assert _processes_naming(str(dest)) == []
+    # The same command again does exactly what was left.
+    again = _start(dest, videos[0].parent)
+    stdout, stderr = again.communicate(timeout=START_S)
+    assert again.returncode == 0, stderr
+    assert f"{VIDEOS} videos: {left} done, {done} already complete, 0 failed" in stdout
+
+
+def test_kill_9_of_the_parent_leaves_no_worker(videos, dest):
+    outs = _outputs(videos, dest)
+    proc = _start(dest, *videos[:12])
+    _wait_for(lambda: is_complete(outs[0]) or is_complete(outs[1]), "first output")
+    assert len(_processes_naming(str(dest))) == 3  # the parent and its 2 workers
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + ORPHAN_S
+    while _processes_naming(str(dest)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _processes_naming(str(dest)) == []
+    assert 1 <= _check_outputs(outs) < 12
+    assert _temps(dest) == []  # the workers unwound before they exited
 
 
 _HOLD_TEMP = """
@@ -164,3 +227,18 @@ def test_dest_resume_from_another_directory_redoes_nothing(videos, tmp_path, mon
         assert main(["batch", *args, "--quiet"]) == 0
         assert "2 videos: 0 done, 2 already complete" in capsys.readouterr().out
     assert _check_outputs(_outputs([data / v.name for v in videos[:2]], tmp_path / "out")) == 2
+
+
+@pytest.mark.parametrize(
+    "suffix, step", [(".csv", "write_sidecar"), (".parquet", "_csv_to_parquet")]
+)
+def test_task_interrupted_leaves_nothing_half_done(videos, tmp_path, monkeypatch, suffix, step):
+    import camwhisker.campaign as campaign
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt  # Ctrl-C at this step, the table written, not yet complete
+
+    monkeypatch.setattr(campaign, step, interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        campaign.BatchTask(Sensor())(videos[0], tmp_path / f"c.signals{suffix}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -109,4 +109,6 @@ def _run_batch_many(args, sensor, options) -> int:
     task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps)
     summary = run_many(tasks, task, args.jobs, args.scheduler, args.overwrite, not args.quiet)
     print(summary.report())
+    if summary.interrupted:
+        return 130  # 128 + SIGINT, as a shell reports a command stopped by Ctrl-C
     return 1 if summary.failed else 0
