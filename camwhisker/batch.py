@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -24,6 +25,9 @@ from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sideca
 from camwhisker.sources import Frame, SessionSource, check_frame_size, open_source
 from camwhisker.stream import stream
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
+
+if TYPE_CHECKING:
+    from camwhisker.mechanics.springs import Stiffness
 
 __all__ = ["BatchReport", "run_batch"]
 
@@ -53,6 +57,7 @@ def run_batch(
     fps: float | None = None,
     progress: bool = True,
     decode_threads: int | None = None,
+    springs: Stiffness | None = None,
 ) -> BatchReport:
     """Process a video (or image folder) into the signal table and its sidecar.
 
@@ -75,6 +80,8 @@ def run_batch(
         Show a progress bar on long videos.
     decode_threads : int, optional
         FFmpeg decoding threads (see :class:`camwhisker.sources.VideoSource`).
+    springs : Stiffness, optional
+        Adds the forces' columns fz_mN and mb_Nmm (:data:`camwhisker.signals.FORCE_COLUMNS`).
 
     Returns
     -------
@@ -101,14 +108,15 @@ def run_batch(
     rest: list = []
     rows = stream(source, sensor, options, rest_index, strict=not session, rest_log=rest)
     rows = _checking_rest(rows, rest_check_path(report.out_csv), PlateModel(sensor), report)
-    report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress)
+    report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress,
+                                                   springs)
     if source.problem:
         report.problems.append(source.problem)
     if report.frames <= rest_index:
         report.problems.append(f"the video has no frame {rest_index} to use as the rest frame")
     meta = sidecar("camwhisker.batch.run_batch", str(Path(video)), source.time_source,
                    (report.frames, report.frames_ok), report.problems, options, sensor,
-                   rest_index, rest, fps=source.fps,
+                   rest_index, rest, springs, fps=source.fps,
                    rest_check=report.rest_check.name if report.rest_check else None)  # fmt: skip
     write_sidecar(report.out_csv, meta)
     return report
@@ -126,13 +134,14 @@ def _checking_rest(
 
 
 def _write_table(
-    out_csv: Path, rows: Iterable[tuple[Frame, FrameResult]], total: int, progress: bool
+    out_csv: Path, rows: Iterable[tuple[Frame, FrameResult]], total: int, progress: bool,
+    springs: Stiffness | None = None,
 ) -> tuple[int, int]:
     """Write the (frame, result) rows as the table at ``out_csv`` (atomically), with a
     progress bar on long inputs; returns (rows, rows ok)."""
     bar = tqdm(rows, total=total or None, unit="frame", desc="batch",
                disable=not progress or total < PROGRESS_MIN_FRAMES)  # fmt: skip
-    with atomic_path(out_csv) as tmp, SignalWriter(tmp) as writer:
+    with atomic_path(out_csv) as tmp, SignalWriter(tmp, springs=springs) as writer:
         for frame, r in bar:
             writer.write(frame.t_s, r)
     bar.close()

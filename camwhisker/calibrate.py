@@ -34,7 +34,7 @@ from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
 from camwhisker.tables import write_csv
-from camwhisker.tomlfile import read_toml
+from camwhisker.tomlfile import read_toml, toml_value
 
 __all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
            "format_calibration", "mf_phi_floor", "write_calibration", "read_calibration",
@@ -184,32 +184,13 @@ def mf_table_path(calib_path: str | Path) -> Path:
     return p.with_name(p.stem + ".mf.csv")
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | np.integer):
-        return str(int(v))
-    if isinstance(v, float | np.floating):
-        v = float(v)
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, list | tuple | np.ndarray):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
 def _spread_lines(name: str, s: SpreadTable, what: str) -> list[str]:
     lines = [f"[{name}]", f"# {what}: error r - r_hat per phi bin lo <= phi < hi (deg)."]
     for lo, hi, n, m, sd in s.rows():
         lines.append(f"#   {lo:5.1f} - {hi:5.1f}: n = {n:4d}  mean = {m:7.2f} mm  "
                      f"std = {sd:6.2f} mm")
-    lines += [f"edges_deg = {_toml_value(s.edges_deg)}", f"n = {_toml_value(s.n)}",
-              f"mean_mm = {_toml_value(s.mean_mm)}", f"std_mm = {_toml_value(s.std_mm)}", ""]
+    lines += [f"edges_deg = {toml_value(s.edges_deg)}", f"n = {toml_value(s.n)}",
+              f"mean_mm = {toml_value(s.mean_mm)}", f"std_mm = {toml_value(s.std_mm)}", ""]
     return lines
 
 
@@ -218,10 +199,10 @@ def _gm_lines(fit: GMFit) -> list[str]:
     for kind, f in sorted(fit.alternatives.items()):
         lines.append(f"[gm.{kind}]")
         for key, value in f.params.items():
-            lines.append(f"{key} = {_toml_value(value)}")
+            lines.append(f"{key} = {toml_value(value)}")
             lo, hi = f.ci[key]
-            lines.append(f"{key}_ci95 = {_toml_value([lo, hi])}")
-        lines += [f"rmse_mm = {_toml_value(f.rmse_mm)}", f"aic = {_toml_value(f.aic)}",
+            lines.append(f"{key}_ci95 = {toml_value([lo, hi])}")
+        lines += [f"rmse_mm = {toml_value(f.rmse_mm)}", f"aic = {toml_value(f.aic)}",
                   f"n = {f.n}", ""]
     return lines
 
@@ -245,33 +226,33 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
     lines += [
         "",
         "[provenance]",
-        f"package = {_toml_value(prov['package'])}",
-        f"version = {_toml_value(prov['version'])}",
-        f"created_utc = {_toml_value(prov['created_utc'])}",
-        f"command = {_toml_value(prov.get('command', ''))}",
-        f"sensor = {_toml_value(prov.get('sensor', ''))}",
+        f"package = {toml_value(prov['package'])}",
+        f"version = {toml_value(prov['version'])}",
+        f"created_utc = {toml_value(prov['created_utc'])}",
+        f"command = {toml_value(prov.get('command', ''))}",
+        f"sensor = {toml_value(prov.get('sensor', ''))}",
         "",
         "[whisker]",
-        f"length_mm = {_toml_value(calib.l_w_mm)}",
+        f"length_mm = {toml_value(calib.l_w_mm)}",
         "",
         "[gm]",
         "# The model used for r_gm_mm: the lower AIC of eq. (8) and the beam model.",
-        f"model = {_toml_value(calib.gm.kind)}",
-        f"phi_min_deg = {_toml_value(PHI_MIN_DEG)}",
+        f"model = {toml_value(calib.gm.kind)}",
+        f"phi_min_deg = {toml_value(PHI_MIN_DEG)}",
         "",
         *_gm_lines(calib.gm),
         *_spread_lines("gm_spread", calib.gm_spread, "sigma_GM"),
         "[mf]",
-        f"table = {_toml_value(mf_path.name)}",
+        f"table = {toml_value(mf_path.name)}",
         f"k = {MF_K}",
-        f"phi_scale_deg = {_toml_value(PHI_SCALE_DEG)}",
-        f"dz_scale_mm = {_toml_value(DZ_SCALE_MM)}",
-        f"domain_radius = {_toml_value(MF_DOMAIN_RADIUS)}",
+        f"phi_scale_deg = {toml_value(PHI_SCALE_DEG)}",
+        f"dz_scale_mm = {toml_value(DZ_SCALE_MM)}",
+        f"domain_radius = {toml_value(MF_DOMAIN_RADIUS)}",
         "# Points every curve_step_deg along each run's fitted dz(phi) and r(phi).",
-        f"curve_step_deg = {_toml_value(MF_CURVE_STEP_DEG)}",
+        f"curve_step_deg = {toml_value(MF_CURVE_STEP_DEG)}",
         f"rows = {len(calib.mf_table)}",
         f"# No MF estimate below phi_min_deg: MF's noise scatter > {MF_MAX_SPREAD_MM:g} mm.",
-        f"phi_min_deg = {_toml_value(calib.mf_table.phi_min_deg)}",
+        f"phi_min_deg = {toml_value(calib.mf_table.phi_min_deg)}",
         "",
         *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave one run out)"),
         *_spread_lines("mf_noise", calib.mf_noise,
@@ -280,7 +261,7 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
     ]
     for run in prov.get("runs", []):
         lines.append("[[provenance.runs]]")
-        lines += [f"{k} = {_toml_value(v)}" for k, v in run.items()]
+        lines += [f"{k} = {toml_value(v)}" for k, v in run.items()]
         lines.append("")
     write_csv(mf_path, {"phi_deg": calib.mf_table.phi_deg, "dz_mm": calib.mf_table.dz_mm,
                         "r_mm": calib.mf_table.r_mm}, digits=9)

@@ -1,7 +1,9 @@
 """The signal table (docs/sensor.md section 6): its columns, rows, writer, reader and sidecar.
 
 One row per frame, in frame order: ``frame, t_s, dz_mm, phi_deg, theta_deg,
-ok`` (the columns every reader may rely on), then diagnostics. Untrusted
+ok`` (the columns every reader may rely on), then diagnostics, then, where a
+spring stiffness is given (``--springs``), the forces ``fz_mN, mb_Nmm``
+(:data:`FORCE_COLUMNS`; docs/sensor.md section 6.1). Untrusted
 values are empty cells, never numbers; so is theta where phi is too small to
 define it. Batch, live and replay write the table through
 :class:`SignalWriter`, the contact back end reads it with
@@ -31,12 +33,13 @@ from camwhisker.sensor import Sensor, sensor_to_dict
 from camwhisker.tables import TableError, read_columns
 
 if TYPE_CHECKING:
+    from camwhisker.mechanics.springs import Stiffness
     from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
 __all__ = [
-    "SIGNAL_COLUMNS", "REQUIRED_COLUMNS", "SignalTableError", "signal_row", "SignalWriter",
-    "write_signals", "read_signal_table", "sidecar_path", "provenance", "sidecar",
-    "write_sidecar",
+    "SIGNAL_COLUMNS", "REQUIRED_COLUMNS", "FORCE_COLUMNS", "table_columns", "SignalTableError",
+    "signal_row", "SignalWriter", "write_signals", "read_signal_table", "sidecar_path",
+    "provenance", "sidecar", "write_sidecar",
 ]  # fmt: skip
 
 #: Required columns first (docs/sensor.md section 6), then diagnostics.
@@ -46,6 +49,13 @@ SIGNAL_COLUMNS = (
 )  # fmt: skip
 #: The columns docs/sensor.md section 6 promises; readers need no others.
 REQUIRED_COLUMNS = SIGNAL_COLUMNS[:6]
+#: Optional, last, where a spring stiffness is given: F_z = k_z dz, M_b = k_phi phi.
+FORCE_COLUMNS = ("fz_mN", "mb_Nmm")
+
+
+def table_columns(springs: Stiffness | None = None) -> tuple[str, ...]:
+    """The signal table's columns: :data:`FORCE_COLUMNS` added where ``springs`` is given."""
+    return SIGNAL_COLUMNS + (FORCE_COLUMNS if springs is not None else ())
 
 
 class SignalTableError(TableError):
@@ -56,12 +66,16 @@ def _cell(x: float, fmt: str) -> str:
     return "" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
-def signal_row(t_s: float, r: FrameResult) -> list:
-    """One row of the signal table (:data:`SIGNAL_COLUMNS`) for a front-end result.
+def signal_row(t_s: float, r: FrameResult, springs: Stiffness | None = None) -> list:
+    """One row of the signal table (:func:`table_columns`) for a front-end result.
 
     Untrusted estimates (ok = 0) are empty cells, never numbers.
     """
     ok = bool(r.ok)
+    forces = []
+    if springs is not None:
+        forces = [_cell(float(springs.fz_mN(r.dz_mm)), ".5g") if ok else "",
+                  _cell(float(springs.mb_Nmm(r.phi_deg)), ".5g") if ok else ""]
     return [
         r.frame, _cell(t_s, ".6f"),
         _cell(r.dz_mm, ".5f") if ok else "",
@@ -71,7 +85,7 @@ def signal_row(t_s: float, r: FrameResult) -> list:
         _cell(r.sx_mm, ".5f") if ok else "",
         _cell(r.sy_mm, ".5f") if ok else "",
         _cell(r.phi_sigma_deg, ".5f"),
-        r.n_corners, _cell(r.rms_px, ".3f"), r.reason,
+        r.n_corners, _cell(r.rms_px, ".3f"), r.reason, *forces,
     ]  # fmt: skip
 
 
@@ -85,21 +99,24 @@ class SignalWriter:
         reader must never see a partial table.
     flush : bool
         Flush after every row, so the table can be read while it grows (live).
+    springs : Stiffness, optional
+        Adds the forces' columns (:data:`FORCE_COLUMNS`).
     """
 
-    def __init__(self, path: str | Path, flush: bool = False):
+    def __init__(self, path: str | Path, flush: bool = False, springs: Stiffness | None = None):
         self.path = Path(path)
         self.flush = flush
+        self.springs = springs
         self._fh = open(self.path, "w", newline="")  # noqa: SIM115 - closed in close()
         self._csv = csv.writer(self._fh)
-        self._csv.writerow(SIGNAL_COLUMNS)
+        self._csv.writerow(table_columns(springs))
         if flush:
             self._fh.flush()
         self.rows = 0
         self.rows_ok = 0
 
     def write(self, t_s: float, r: FrameResult) -> None:
-        self._csv.writerow(signal_row(t_s, r))
+        self._csv.writerow(signal_row(t_s, r, self.springs))
         if self.flush:
             self._fh.flush()
         self.rows += 1
@@ -206,6 +223,7 @@ def sidecar(
     sensor: Sensor,
     rest_frame: int = 0,
     rest: list | None = None,
+    springs: Stiffness | None = None,
     **stage: object,
 ) -> dict:
     """How a signal table was made: the sidecar's record, the same keys for every writer
@@ -225,6 +243,8 @@ def sidecar(
     rest : list of camwhisker.stream.RestRecord, optional
         The rest references built (how many frames each used, the mismatch check);
         ``rest_frames_used`` is the first one's count.
+    springs : Stiffness, optional
+        The stiffness behind the forces' columns, recorded with its source.
     **stage
         The writer's own fields (a frame rate, a live session's latencies), placed
         after ``time_source``.
@@ -234,7 +254,10 @@ def sidecar(
                         rest_frames_used=rest[0].frames_used if rest else None,
                         rest_references=[r.as_dict() for r in rest or []],
                         frames=counts[0], frames_ok=counts[1], problems=problems)  # fmt: skip
-    record["columns"] = list(SIGNAL_COLUMNS)
+    if springs is not None:
+        record["springs"] = {"source": springs.source, "k_z_n_per_mm": springs.k_z_n_per_mm,
+                             "k_phi_nmm_per_rad": springs.k_phi_nmm_per_rad}
+    record["columns"] = list(table_columns(springs))
     return record
 
 

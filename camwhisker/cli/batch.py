@@ -11,6 +11,8 @@ from camwhisker.cli.common import (
     features_arg,
     mode_arg,
     sensor_arg,
+    springs_arg,
+    springs_of,
 )
 from camwhisker.sensor import load_sensor
 
@@ -56,6 +58,7 @@ def add_batch(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     sensor_arg(p)
     features_arg(p)
+    springs_arg(p)
     p.set_defaults(func=_run_batch)
 
 
@@ -85,13 +88,16 @@ def _run_batch(args) -> int:
         features=feature_hints(args, sensor),
     )
     if args.out is None:
+        if args.springs:
+            raise CommandError("--springs takes a single input with --out")
         return _run_batch_many(args, sensor, options)
     if len(args.video) != 1 or args.dest:
         raise CommandError("--out takes a single input; for many use --dest (or neither)")
     from camwhisker.batch import run_batch
 
     report = run_batch(
-        args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet
+        args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet,
+        springs=springs_of(args),
     )
     outputs = ", ".join(str(p) for p in (report.out_csv, report.sidecar, report.rest_check) if p)
     print(f"{report.frames} frames, {report.frames_ok} ok -> {outputs}")

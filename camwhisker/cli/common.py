@@ -6,7 +6,8 @@ import argparse
 import shlex
 
 __all__ = ["CommandError", "INPUT_ERRORS", "EXIT_CODES", "HelpFormatter", "sensor_arg",
-           "features_arg", "feature_hints", "mode_arg", "runs_arg", "paired_runs", "command_line"]
+           "features_arg", "feature_hints", "springs_arg", "springs_of", "mode_arg", "runs_arg",
+           "paired_runs", "command_line"]
 
 
 class CommandError(RuntimeError):
@@ -60,6 +61,23 @@ def feature_hints(args: argparse.Namespace, sensor):
     from camwhisker.vision.hints import load_feature_hints
 
     return load_feature_hints(args.features, (sensor.camera.width_px, sensor.camera.height_px))
+
+
+def springs_arg(p: argparse.ArgumentParser) -> None:
+    """``--springs FILE``: the suspension's stiffness; adds the forces' columns."""
+    p.add_argument("--springs", metavar="FILE",
+                   help="springs file (TOML, docs/sensor.md section 7.2: the spring model's "
+                   "design and/or fitted stiffnesses, as calibrate-springs writes it); adds "
+                   "fz_mN and mb_Nmm to the table")  # fmt: skip
+
+
+def springs_of(args: argparse.Namespace):
+    """The ``--springs`` file's stiffness, or None."""
+    if args.springs is None:
+        return None
+    from camwhisker.springfile import read_springs
+
+    return read_springs(args.springs)
 
 
 def mode_arg(p: argparse.ArgumentParser) -> None:

@@ -5,7 +5,15 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.cli.common import command_line, paired_runs, runs_arg, sensor_arg
+from camwhisker.cli.common import (
+    CommandError,
+    command_line,
+    paired_runs,
+    runs_arg,
+    sensor_arg,
+    springs_arg,
+    springs_of,
+)
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
@@ -35,17 +43,28 @@ def add_simulate_stage(sub) -> None:
                    help=f"per-frame dz noise (default: the paper's; our front end's target: "
                         f"{FRONT_END_NOISE_DZ_MM})")
     sensor_arg(p, _SENSOR_HELP)
+    p.add_argument("--springs", metavar="FILE",
+                   help="test1 and test2: the suspension's stiffness behind the simulated "
+                        "force log (<run>_forces.csv); default: the spring model of Table I")
     p.set_defaults(func=_run_simulate)
 
 
 def _run_simulate(args) -> int:
     from camwhisker.mechanics import NoiseModel, WhiskerMechanics, simulate_runs
     from camwhisker.mechanics.files import write_runs
+    from camwhisker.mechanics.ftsensor import FORCE_KINDS, simulate_force_logs
+    from camwhisker.mechanics.springs import suspension_stiffness
 
     l_w = load_sensor(args.sensor).whisker.length_mm
     noise = NoiseModel(phi_deg=args.noise_phi_deg, dz_mm=args.noise_dz_mm)
     runs = simulate_runs(args.kind, args.seed, mech=WhiskerMechanics(length_mm=l_w), noise=noise)
-    manifest = write_runs(runs, args.out, args.seed, command_line(args))
+    force_logs = None
+    if args.kind in FORCE_KINDS:
+        stiffness = springs_of(args) or suspension_stiffness()
+        force_logs = simulate_force_logs(runs, stiffness, args.seed)
+    elif args.springs:
+        raise CommandError(f"--springs: only {' and '.join(FORCE_KINDS)} write a force log")
+    manifest = write_runs(runs, args.out, args.seed, command_line(args), force_logs)
     for run in runs:
         print(f"{run.name}: {run.info['n_steps']} steps, offset {run.offset_s:+.3f} s, "
               f"{run.signals['t_s'].size} frames")
@@ -109,6 +128,7 @@ def add_contact(sub) -> None:
                    help="known clock offset (t_camera = t_stage + offset); default: estimated")
     p.add_argument("--out", required=True, metavar="C.csv",
                    help="contact table to write, one row per signal row")
+    springs_arg(p)
     p.set_defaults(func=_run_contact)
 
 
@@ -121,7 +141,10 @@ def _run_contact(args) -> int:
 
     calib = read_calibration(args.calib)
     signals = read_signal_table(args.signals)
+    springs = springs_of(args)
     cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s)
+    if springs is not None:
+        cols.update(springs.columns(cols["dz_mm"], cols["phi_deg"]))
     write_csv(args.out, cols)
     defined = int((cols["r_hat_mm"] == cols["r_hat_mm"]).sum())
     onset = (f"first contact at x = {run.x_contact_mm:.2f} mm"

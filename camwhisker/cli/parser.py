@@ -6,7 +6,17 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import batch, bench, calibrate_sensor, contact, live, overlay, synth, validate
+from camwhisker.cli import (
+    batch,
+    bench,
+    calibrate_sensor,
+    contact,
+    live,
+    overlay,
+    springs,
+    synth,
+    validate,
+)
 from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
 
 __all__ = ["build_parser", "main"]
@@ -23,6 +33,7 @@ _COMMANDS = [
     contact.add_calibrate,
     calibrate_sensor.add_calibrate_sensor,
     contact.add_contact,
+    springs.add_calibrate_springs,
     validate.add_validate,
     bench.add_contact_bench,
     batch.add_batch,

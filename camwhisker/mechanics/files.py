@@ -7,6 +7,7 @@ from pathlib import Path
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_write_text
+from camwhisker.forcelog import ForceLog, write_force_log
 from camwhisker.mechanics.experiment import StageRun
 from camwhisker.tables import write_csv
 
@@ -20,12 +21,15 @@ def _toml_str(s: str) -> str:
     return '"' + str(s).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
-def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: str = "") -> Path:
-    """Write each run as ``<name>_stage.csv``, ``<name>_signals.csv``, ``<name>_truth.csv``.
+def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: str = "",
+               force_logs: list[tuple[ForceLog, float]] | None = None) -> Path:
+    """Write each run as ``<name>_stage.csv``, ``<name>_signals.csv``, ``<name>_truth.csv``,
+    and ``<name>_forces.csv`` where ``force_logs`` (one (log, offset_s) per run) are given.
 
     A manifest ``experiment.toml`` records how the files were made (package
     version, command, seed, time) and each run's true clock offset
-    (t_camera = t_stage + offset_s), scene and step count. Returns its path.
+    (t_camera = t_stage + offset_s), scene and step count, and the force log's
+    true offset (t_camera = t_force + force_offset_s). Returns its path.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -41,7 +45,7 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
         f"kind = {_toml_str(runs[0].kind if runs else '')}",
         "",
     ]
-    for run in runs:
+    for i, run in enumerate(runs):
         stage_cols = {k: run.stage[k] for k in ("t_s", "x_mm", "r_mm", "dz_mm")
                       if k in run.stage}
         write_csv(out / f"{run.name}_stage.csv", stage_cols, digits=10)
@@ -61,8 +65,13 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
             f"scene = {_toml_str(repr(run.scene))}",
             f"steps = {int(run.info['n_steps'])}",
             f"x_first_contact_mm = {float(run.info['x_first_contact_mm'])!r}",
-            "",
         ]
+        if force_logs is not None:
+            log, force_offset = force_logs[i]
+            write_force_log(out / f"{run.name}_forces.csv", log)
+            lines += [f"forces = {_toml_str(run.name + '_forces.csv')}",
+                      f"force_offset_s = {force_offset!r}"]
+        lines.append("")
     manifest = out / "experiment.toml"
     atomic_write_text(manifest, "\n".join(lines))
     return manifest
