@@ -118,6 +118,8 @@ def _make_tables(d: Path) -> None:
     (d / "sensor_toml.toml").write_text("[camera\nfx_px = 1\n")
     (d / "sensor_key.toml").write_text("[camera]\nfocal_px = 900.0\n")
     (d / "sensor_type.toml").write_text('[camera]\nfx_px = "nine hundred"\n')
+    (d / "forces_text.csv").write_text("t_s,fz_mN\n0,0\n0.01,1.5 mN\n")
+    (d / "springs_key.toml").write_text("[stiffness]\nkz = 0.05\n")
     # Recorded sessions: one without its timestamps, one listing more frames than it has.
     shutil.copy(MJPG, d / "session_alone.avi")
     shutil.copy(MJPG, d / "session_long.avi")
@@ -206,6 +208,19 @@ def _cases(d: Path) -> dict:
                                             str(stage), "--calib", str(d / "empty.toml"),
                                             "--out", f"{out}/contact.csv"],
                                            2, f"{d / 'empty.toml'}: missing key 'whisker'")
+    # A broken force log and springs file.
+    forces = d / "forces_text.csv"
+    cases["calibrate-springs --forces forces_text.csv"] = (
+        ["calibrate-springs", "--signals", str(sig), "--forces", str(forces), "--out",
+         f"{out}/springs.toml"], 2, f"{forces}: row 3, column fz_mN: not a number: '1.5 mN'")
+    springs = d / "springs_key.toml"
+    cases["batch --springs springs_key.toml"] = (
+        ["batch", good, "--springs", str(springs), "--out", f"{out}/springs.csv", "--quiet"],
+        2, f"{springs}: [stiffness] kz: unknown key")
+    cases["contact --springs springs_key.toml"] = (
+        ["contact", "--signals", str(sig), "--stage", str(stage), "--calib", str(calib),
+         "--springs", str(springs), "--out", f"{out}/contact_springs.csv"],
+        2, f"{springs}: [stiffness] kz: unknown key")
     cases["replay session_alone.avi"] = (["replay", str(d / "session_alone.avi"), "--out",
                                           f"{out}/replay.csv", *s], 2,
                                          "session_alone.avi: not a recorded session: no "
@@ -244,7 +259,7 @@ def test_every_bad_input_gets_a_clear_error_and_its_exit_status(runs):
         if rc != code or needle not in err or "Traceback" in err or "np." in err:
             wrong.append(f"{name}: exit {rc} (expected {code}): {err.strip()[-300:]}")
     assert wrong == []
-    assert len(cases) == 47
+    assert len(cases) == 50
 
 
 def test_bad_input_leaves_no_output_and_no_temporary_file(corpus, runs):
