@@ -33,6 +33,7 @@ import datetime as _dt
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,8 +55,12 @@ from camwhisker.stage import (
 )
 from camwhisker.tables import write_csv
 
+if TYPE_CHECKING:
+    from camwhisker.forcelog import ForceLog
+    from camwhisker.mechanics.springs import Stiffness
+
 __all__ = ["TESTS", "ValidationError", "Validation", "validate", "pooled", "write_validation",
-           "plot_validation"]
+           "plot_validation", "force_check"]
 
 
 @dataclass(frozen=True)
@@ -240,6 +245,44 @@ def validate(signals: dict, log: StageLog, test: int, offset_s: float | None = N
     )
 
 
+def force_check(result: Validation, signals: dict, log: ForceLog, springs: Stiffness,
+                offset_s: float | None = None) -> dict:
+    """Fig. 6C: F_z from the signal (k_z times the pause's median dz) against the force log.
+
+    Per used pause of a test-2 ``result``, the log's median over the pause (the
+    same :data:`~camwhisker.stage.PAUSE_TRIM_S` in from either end, on the camera
+    clock: t_camera = t_force + offset_s, given or estimated as
+    :func:`camwhisker.forces.estimate_force_offset` does). Returns the RMSE over
+    the pauses (mN), the clock and the per-pause values (``fz_log_mN``,
+    ``fz_signal_mN``; NaN where a pause is not used).
+    """
+    from camwhisker.forces import estimate_force_offset
+
+    if result.test != 2:
+        raise ValidationError(f"{log.source}: a force log checks test 2 (dz), not test "
+                              f"{result.test}")
+    estimated = offset_s is None
+    if estimated:
+        offset_s, _ = estimate_force_offset(signals, log)
+    p = result.pauses
+    tf = log.t_s + offset_s
+    fz_log = np.full(p["used"].size, np.nan)
+    for k in np.flatnonzero(p["used"]):
+        inside = (tf >= p["t_start_s"][k] + PAUSE_TRIM_S) & (tf <= p["t_end_s"][k] - PAUSE_TRIM_S)
+        if inside.any():
+            fz_log[k] = np.median(log.fz_mN[inside])
+    fz_signal = np.where(p["used"], springs.fz_mN(p["measured"]), np.nan)
+    both = np.isfinite(fz_log) & np.isfinite(fz_signal)
+    if not both.any():
+        raise ValidationError(f"{log.source}: no pause of {result.signals_source} lies inside "
+                              "the force log (is the clock offset right?)")
+    rmse = float(np.sqrt(np.mean((fz_signal[both] - fz_log[both]) ** 2)))
+    return {"fz_rmse_mN": rmse, "pauses": int(both.sum()), "force_offset_s": float(offset_s),
+            "force_offset_estimated": estimated, "k_z_n_per_mm": springs.k_z_n_per_mm,
+            "springs": springs.source, "forces": log.source, "fz_log_mN": fz_log,
+            "fz_signal_mN": fz_signal}
+
+
 def pooled(results: list[Validation]) -> dict:
     """The statistics of several trials of one test, named as
     :meth:`Validation.statistics`: RMSE and bias over every trial's frames, the
@@ -292,14 +335,17 @@ def _trial_record(result: Validation) -> dict:
 
 
 def write_validation(results: list[Validation], out_dir: str | Path,
-                     sensor: Sensor | None = None, command: str = "") -> dict:  # fmt: skip
+                     sensor: Sensor | None = None, command: str = "",
+                     forces: list[dict] | None = None) -> dict:  # fmt: skip
     """Write ``test<N>_pauses.csv`` (every trial's pauses, numbered from 1),
     ``test<N>.json`` and the figure ``fig<6A|6B>.png``.
 
     The JSON says how the result was made: package version, command, time,
     sensor file, how the applied values were found, the constants of the pause
     detection, each trial's inputs, clock offset, contact position and
-    statistics, and the statistics pooled over the trials (:func:`pooled`).
+    statistics, and the statistics pooled over the trials (:func:`pooled`), and
+    where ``forces`` (one :func:`force_check` per trial) are given, Fig. 6C's F_z
+    RMSE per trial and over every trial's pauses.
     Returns the written paths by role (``pauses``, ``summary``, ``plot``).
     """
     out = Path(out_dir)
@@ -328,6 +374,13 @@ def write_validation(results: list[Validation], out_dir: str | Path,
         "trials": [_trial_record(r) for r in results],
         "files": {k: p.name for k, p in paths.items()},
     }
+    if forces:
+        diff = np.concatenate([f["fz_signal_mN"] - f["fz_log_mN"] for f in forces])
+        diff = diff[np.isfinite(diff)]
+        record["forces"] = {
+            "fz_rmse_mN": float(np.sqrt(np.mean(diff**2))), "pauses": int(diff.size),
+            "trials": [{k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in f.items()}
+                       for f in forces]}  # fmt: skip
     atomic_write_text(paths["summary"], jsonfile.dumps(record, indent=2) + "\n")
     return paths
 

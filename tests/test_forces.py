@@ -228,3 +228,22 @@ def test_batch_adds_the_force_columns(video, tmp_path, capsys):
     assert meta["springs"]["k_z_n_per_mm"] == 0.05 and meta["springs"]["source"] == str(springs)
     # Readers take the table as before.
     assert read_signal_table(out)["ok"].all()
+
+
+def test_validate_reports_fig_6c(tmp_path, capsys):
+    d = _simulate(tmp_path)
+    args = ["validate", "--test", "2", "--out", str(tmp_path / "v")]
+    for trial in ("trial1", "trial2"):
+        args += ["--signals", str(d / f"{trial}_signals.csv"), "--stage",
+                 str(d / f"{trial}_stage.csv"), "--forces", str(d / f"{trial}_forces.csv")]
+    assert main(args) == 0
+    forces = json.loads((tmp_path / "v" / "test2.json").read_text())["forces"]
+    # Pause medians: dz's (60 mN/mm x 0.04 mm x 1.25 / sqrt(39 frames) = 0.48 mN) and the
+    # log's (3.1 mN x 1.25 / sqrt(130 samples) = 0.34 mN) give ~0.59 mN; seeds 0-4 give
+    # 0.45-0.65. 0.9 mN is 1.5 times the expected.
+    assert forces["pauses"] == 22 and forces["fz_rmse_mN"] < 0.9
+    assert "F_z RMSE" in capsys.readouterr().out
+    rc = main(["validate", "--test", "1", "--signals", str(d / "trial1_signals.csv"), "--stage",
+               str(d / "trial1_stage.csv"), "--forces", str(d / "trial1_forces.csv"), "--out",
+               str(tmp_path / "v1")])
+    assert rc == 2 and "--forces checks test 2" in capsys.readouterr().err

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from camwhisker.cli.common import command_line, paired_runs, runs_arg, sensor_arg
+from camwhisker.cli.common import (
+    CommandError,
+    command_line,
+    paired_runs,
+    runs_arg,
+    sensor_arg,
+    springs_of,
+)
 from camwhisker.sensor import load_sensor
 
 __all__ = ["add_validate"]
@@ -22,21 +29,37 @@ def add_validate(sub) -> None:
     p.add_argument("--contact-x-mm", type=float, action="append",
                    help="test 1: stage position at first contact, per trial; default: from "
                         "the pauses")  # fmt: skip
+    p.add_argument("--forces", action="append", metavar="F.csv",
+                   help="test 2: the trial's force log (docs/sensor.md section 7.1), per "
+                        "trial; adds Fig. 6C's F_z RMSE: k_z times each pause's median dz "
+                        "against the log's median")  # fmt: skip
+    p.add_argument("--springs", metavar="FILE",
+                   help="with --forces: the springs file giving k_z; default: the spring "
+                        "model of Table I")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="folder for the per-pause CSV, the JSON summary and the figure")
     p.set_defaults(func=_run_validate)
 
 
 def _run_validate(args) -> int:
+    from camwhisker.forcelog import read_force_log
+    from camwhisker.mechanics.springs import suspension_stiffness
     from camwhisker.signals import read_signal_table
     from camwhisker.stage import read_stage_log
-    from camwhisker.validate import pooled, validate, write_validation
+    from camwhisker.validate import force_check, pooled, validate, write_validation
 
-    pairs = paired_runs(args, "clock_offset_s", "contact_x_mm")
+    pairs = paired_runs(args, "clock_offset_s", "contact_x_mm", "forces")
     sensor = load_sensor(args.sensor)
-    results = [validate(read_signal_table(s), read_stage_log(g), args.test, offset, x0)
-               for s, g, offset, x0 in pairs]  # fmt: skip
-    paths = write_validation(results, args.out, sensor, command_line(args))
+    if args.forces and args.test != 2:
+        raise CommandError("--forces checks test 2 (F_z against dz)")
+    springs = springs_of(args) or suspension_stiffness()
+    results, forces = [], []
+    for s, g, offset, x0, f in pairs:
+        signals = read_signal_table(s)
+        results.append(validate(signals, read_stage_log(g), args.test, offset, x0))
+        if f is not None:
+            forces.append(force_check(results[-1], signals, read_force_log(f), springs))
+    paths = write_validation(results, args.out, sensor, command_line(args), forces)
     unit = results[0].spec.unit
     for k, r in enumerate(results, start=1):
         how = "estimated" if r.offset_estimated else "given"
@@ -48,6 +71,11 @@ def _run_validate(args) -> int:
         print(f"test {args.test}, {len(results)} trials pooled: {s['frames_used']} frames; "
               f"RMSE {s[f'rmse_{unit}']:.4g} {unit}, bias {s[f'bias_{unit}']:+.4g} {unit}, "
               f"slope {s['slope']:.4f}")
+    for k, f in enumerate(forces, start=1):
+        how = "estimated" if f["force_offset_estimated"] else "given"
+        print(f"test 2, trial {k}: F_z RMSE {f['fz_rmse_mN']:.3g} mN over {f['pauses']} pause "
+              f"medians (k_z {f['k_z_n_per_mm'] * 1e3:.4g} mN/mm; force clock "
+              f"{f['force_offset_s']:+.3f} s, {how})")
     for path in paths.values():
         print(f"wrote {path}")
     return 0
