@@ -87,6 +87,15 @@ def read_design(path: str | Path) -> SpringDesign:
     return _design(_document(path), path)
 
 
+def _interval(table: dict, key: str, path: Path) -> tuple[float, float]:
+    value = table[key]
+    if (not isinstance(value, list) or len(value) != 2
+            or any(isinstance(v, bool) or not isinstance(v, int | float) for v in value)):
+        raise SpringsFileError(f"{path}: [stiffness] {key}: expected a list of two numbers "
+                               "(the 95 % interval)")
+    return float(value[0]), float(value[1])
+
+
 def read_springs(path: str | Path) -> Stiffness:
     """The stiffness a springs file gives: the model of its ``[design]``, with the values
     of its ``[stiffness]`` in their place.
@@ -107,6 +116,9 @@ def read_springs(path: str | Path) -> Stiffness:
         if key not in _VALUES and key not in _NOTES:
             raise SpringsFileError(f"{path}: [stiffness] {key}: unknown key (known: "
                                    f"{', '.join((*_VALUES, *_NOTES))})")
+    for key in ("k_z_ci95_n_per_mm", "k_phi_ci95_nmm_per_rad"):
+        if key in given:
+            _interval(given, key, path)  # checked even where its value is not given
     kz = _value(given, "k_z_n_per_mm", path) if "k_z_n_per_mm" in given else None
     kp = _value(given, "k_phi_nmm_per_rad", path) if "k_phi_nmm_per_rad" in given else None
     nan2 = (math.nan, math.nan)
@@ -114,8 +126,10 @@ def read_springs(path: str | Path) -> Stiffness:
         k_z_n_per_mm=model.k_z_n_per_mm if kz is None else kz,
         k_phi_nmm_per_rad=model.k_phi_nmm_per_rad if kp is None else kp,
         source=str(path),
-        k_z_ci95=tuple(given.get("k_z_ci95_n_per_mm", nan2)) if kz is not None else nan2,
-        k_phi_ci95=tuple(given.get("k_phi_ci95_nmm_per_rad", nan2)) if kp is not None else nan2,
+        k_z_ci95=(_interval(given, "k_z_ci95_n_per_mm", path)
+                  if kz is not None and "k_z_ci95_n_per_mm" in given else nan2),
+        k_phi_ci95=(_interval(given, "k_phi_ci95_nmm_per_rad", path)
+                    if kp is not None and "k_phi_ci95_nmm_per_rad" in given else nan2),
     )
 
 

@@ -131,6 +131,7 @@ def test_bad_springs_file_on_the_command_line_is_exit_2(tmp_path, capsys):
     ("[design]\nturns = 0\n", "turns: must be a positive integer"),
     ("[stiffness]\nk_phi_nmm_per_rad = \"a\"\n", "k_phi_nmm_per_rad: expected a number"),
     ("[stiffness]\nk_z_n_per_mm = 0\n", "k_z_n_per_mm: must be a positive number"),
+    ("[stiffness]\nk_z_ci95_n_per_mm = 0.05\n", "k_z_ci95_n_per_mm: expected a list of two"),
 ])  # fmt: skip
 def test_bad_springs_file_names_the_key(tmp_path, text, needle):
     path = tmp_path / "s.toml"
