@@ -22,7 +22,7 @@ images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import islice
 from pathlib import Path
 
@@ -45,6 +45,7 @@ from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd, FrontEndOptions
 __all__ = [
     "REST_PX",
     "MAX_ROUNDS",
+    "SWEEP_APEX_MASK_PX",
     "TrackedSweep",
     "Calibration",
     "track_sweep",
@@ -63,6 +64,10 @@ REST_PX = 0.5
 #: Rounds of tracking and adjustment at most: the tip's measurement places the
 #: model's rim and rod, so each round's fit measures it better (~0.6x the error).
 MAX_ROUNDS = 6
+#: The sweep's corners are tracked without their apex (px, FrontEndOptions.apex_mask_px):
+#: the phi scale comes from the corners' foreshortening, which blur's rounding of the
+#: apex biases at the 0.02 px level under tilt; the edges' half levels it does not move.
+SWEEP_APEX_MASK_PX = 4.0
 #: The fit is stable when no parameter moved by more than this many SE in a round.
 STABLE_SE = 0.5
 SQUARE_SIDE = "plate.square_side_mm"
@@ -259,7 +264,8 @@ def calibrate_sensor(
     on_frame, on_round : callable, optional
         Progress: called per tracked frame, and after each round with its index and fit.
     options : FrontEndOptions, optional
-        How the front end tracks the sweep (``features``: rough rest positions).
+        How the front end tracks the sweep (``features``: rough rest positions);
+        its corners without their apex (``SWEEP_APEX_MASK_PX``).
 
     Returns
     -------
@@ -276,6 +282,7 @@ def calibrate_sensor(
         cam = start.camera
         values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
         fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
+    options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX)
     current, previous, ok_fraction = start, None, []
     for k in range(rounds):
         # Again each round: the rim is placed, and the rod's flank told apart, by the fit.

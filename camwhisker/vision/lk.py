@@ -5,7 +5,9 @@ the rest frame's patch, so errors do not accumulate (the drift correction of
 Matthews, Ishikawa & Baker, 2004). The rest patch is first warped by the
 affine map the plate model predicts between the rest pose and the current
 pose (:func:`warp_templates`), so the remaining motion is a pure translation
-even at large tilts.
+even at large tilts. The fit may leave out each corner's apex (``apex_px``):
+under tilt the warped template's blurred rounding stretches with the plate
+while the image's stays round, and an edge's half level does not move with blur.
 
 References
 ----------
@@ -101,6 +103,7 @@ def refine_first_template(
     templates: np.ndarray,
     start_uv: np.ndarray,
     active: np.ndarray,
+    apex_px: float = 0.0,
 ):
     """Inverse-compositional translation LK of each template in ``image``.
 
@@ -118,6 +121,8 @@ def refine_first_template(
         Starting positions (pixels of the full frame).
     active : ndarray of bool, shape (K,)
         Points to refine; the others come back NaN.
+    apex_px : float
+        The fit leaves out the window's pixels closer than this to its centre (px).
 
     Returns
     -------
@@ -135,16 +140,25 @@ def refine_first_template(
     origins[:] = origin
     d0 = np.asarray(start_uv, float) - origins
     ok = np.asarray(active, bool) & np.isfinite(d0).all(axis=1)
+    weights = _fit_weights(templates.shape[1] - 2, apex_px)
     d, quality = _refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
-                         LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
+                         weights, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
     return d + origins, quality
 
 
+def _fit_weights(m: int, apex_px: float) -> np.ndarray:
+    """Each pixel's weight in the fit over an m x m window: 0 closer than
+    ``apex_px`` to its centre, else 1."""
+    r = np.arange(m) - (m - 1) / 2
+    return (np.hypot(r[:, None], r[None, :]) >= apex_px).astype(np.float64)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def _refine(images, which, templates, d0, ok, tol, max_iter):
+def _refine(images, which, templates, d0, ok, weights, tol, max_iter):
     """Per point: inverse-compositional translation LK on the mean-removed window
-    (the template without its one-pixel gradient border), iterated until the step
-    is below ``tol``; then the zero-mean NCC at the result. NaN where it failed."""
+    (the template without its one-pixel gradient border), each pixel's equation
+    weighted by ``weights`` (m, m), iterated until the step is below ``tol``; then
+    the zero-mean NCC of the whole window at the result. NaN where it failed."""
     k_all, n, _ = templates.shape
     m = n - 2
     half = (m - 1) // 2
@@ -167,9 +181,10 @@ def _refine(images, which, templates, d0, ok, tol, max_iter):
                 t[i, j] = tk[i + 1, j + 1]
                 tx[i, j] = (tk[i + 1, j + 2] - tk[i + 1, j]) * 0.5
                 ty[i, j] = (tk[i + 2, j + 1] - tk[i, j + 1]) * 0.5
-                hxx += tx[i, j] * tx[i, j]
-                hxy += tx[i, j] * ty[i, j]
-                hyy += ty[i, j] * ty[i, j]
+                wx, wy = weights[i, j] * tx[i, j], weights[i, j] * ty[i, j]
+                hxx += wx * tx[i, j]
+                hxy += wx * ty[i, j]
+                hyy += wy * ty[i, j]
         det = hxx * hyy - hxy * hxy
         if not det > 1e-12:
             continue
@@ -189,8 +204,8 @@ def _refine(images, which, templates, d0, ok, tol, max_iter):
             bx = by = 0.0
             for i in range(m):
                 for j in range(m):
-                    bx += tx[i, j] * (e[i, j] - mean)
-                    by += ty[i, j] * (e[i, j] - mean)
+                    bx += weights[i, j] * tx[i, j] * (e[i, j] - mean)
+                    by += weights[i, j] * ty[i, j] * (e[i, j] - mean)
             sx = (hyy * bx - hxy * by) / det
             sy = (hxx * by - hxy * bx) / det
             dx -= sx

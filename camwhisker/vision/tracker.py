@@ -147,6 +147,8 @@ class FrontEndOptions:
     features : the user's rough positions of the features in the rest frame
         (:func:`~camwhisker.vision.hints.load_feature_hints`): detection searches
         each hinted feature around its hint; None: where the model puts them.
+    apex_mask_px : the corners' LK leaves out its window's pixels this close to
+        the centre (px; :func:`~camwhisker.vision.lk.refine_first_template`).
     """
 
     mode: str = "model"
@@ -156,6 +158,7 @@ class FrontEndOptions:
     roi_margin_px: int = REFINE_MARGIN_PX
     rest_frames: int = REST_FRAMES
     features: FeatureHints | None = None
+    apex_mask_px: float = 0.0
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -164,6 +167,8 @@ class FrontEndOptions:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if not 0.0 <= self.apex_mask_px < self.lk_half_px:
+            raise ValueError(f"apex_mask_px must be in [0, lk_half_px), got {self.apex_mask_px!r}")
         if self.features is not None and not isinstance(self.features, FeatureHints):
             raise ValueError(f"features must be FeatureHints or None, got {self.features!r}")
 
@@ -681,11 +686,12 @@ class FrontEnd:
         active = active & self._patches_inside(look.image, start_uv, half)[0]
         near = opts.lk_half_px + min(NEAR_MARGIN_PX, opts.roi_margin_px)
         patches, origins, _ = self._share_patches(look, start_uv, near)
-        uv, qual = refine_first_template(patches, origins, templates, start_uv, active)
+        apex = opts.apex_mask_px
+        uv, qual = refine_first_template(patches, origins, templates, start_uv, active, apex)
         again = active & np.isnan(qual)
         if near < half and again.any():
             patches, origins, _ = self._share_patches(look, start_uv, half)
-            uv_f, q_f = refine_first_template(patches, origins, templates, start_uv, again)
+            uv_f, q_f = refine_first_template(patches, origins, templates, start_uv, again, apex)
             uv[again], qual[again] = uv_f[again], q_f[again]
         return uv, qual
 
