@@ -138,8 +138,15 @@ def test_library_imports_no_benchmark_command_line_or_renderer():
 
 
 def test_calibration_table_and_summary_on_made_up_rows():
-    from camwhisker.bench.calibration import CalibrationRow, summary, table, within_3se
+    from camwhisker.bench.calibration import (
+        CalibrationRow,
+        outside_3se,
+        summary,
+        table,
+        within_3se,
+    )
     from camwhisker.bench.reality import RealityRow
+    from camwhisker.model import GEOMETRY_NAMES
 
     def row(label, ok, phi, dz):
         return RealityRow(100, label, True, ok, phi, dz)
@@ -159,7 +166,16 @@ def test_calibration_table_and_summary_on_made_up_rows():
     assert "| - | - | - |" in lines[3] and "no fit" in lines[3]
     assert good.meets() == {"phi": True, "dz": True, "ok": True, "se": True}
     assert not any(failed.meets().values())
-    assert summary([good, failed]).endswith("all four 1/2")
+    half = CalibrationRow(102, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.012),
+                          row("true", 1.0, 0.02, 0.01), 0.5, 4, 40.0, "",
+                          ("camera.k1", "plate.h_r_mm"))  # fmt: skip
+    first, pooled = summary([good, failed, half]).splitlines()
+    assert first.endswith("all four 1/3")
+    assert "builds pooled: 22/24" in pooled and "camera.k1 1, plate.h_r_mm 1" in pooled
+    value, se = np.zeros(len(GEOMETRY_NAMES)), np.full(len(GEOMETRY_NAMES), 0.1)
+    truth, se[2] = value + 0.25, np.nan  # 2.5 SE off, one held
+    truth[[1, 2]] = 0.35  # 3.5 SE off, and held
+    assert outside_3se(value, se, truth) == (GEOMETRY_NAMES[1],)
 
 
 def test_reality_summary_counts_each_limit_on_made_up_rows():

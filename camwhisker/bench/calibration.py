@@ -17,6 +17,7 @@ import argparse
 import math
 import tempfile
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip, seed_list
 from camwhisker.geometry.sweep import calibrate_sensor
-from camwhisker.model import geometry_vector
+from camwhisker.model import GEOMETRY_NAMES, geometry_vector
 from camwhisker.sensor import Sensor
 from camwhisker.sources import VideoSource
 from camwhisker.synth.builds import REALITY_SUITE, draw_build
@@ -53,6 +54,7 @@ class CalibrationRow:
     n_fitted: int
     calibration_s: float
     note: str = ""
+    outside: tuple[str, ...] = ()  # fitted parameters more than 3 SE off the truth
 
     def ratio(self, attr: str) -> float:
         """Fitted over true of ``attr`` (a :class:`RealityRow` field); NaN without a fit."""
@@ -79,6 +81,13 @@ def within_3se(value: np.ndarray, se: np.ndarray, truth: np.ndarray) -> tuple[fl
     return float(inside.mean()), int(fitted.sum())
 
 
+def outside_3se(value: np.ndarray, se: np.ndarray, truth: np.ndarray) -> tuple[str, ...]:
+    """Names of the fitted parameters more than 3 SE off the truth."""
+    with np.errstate(invalid="ignore"):
+        off = np.isfinite(se) & (np.abs(value - truth) > 3.0 * se)
+    return tuple(n for n, o in zip(GEOMETRY_NAMES, off, strict=True) if o)
+
+
 def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
               nominal: Sensor | None = None) -> CalibrationRow:  # fmt: skip
     """Calibrate build ``seed`` on its sweep and score the three files on a separate clip."""
@@ -100,10 +109,12 @@ def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
         return CalibrationRow(seed, rows["nominal"], None, rows["true"], math.nan, 0, seconds,
                               note)  # fmt: skip
     adj = cal.adjustment
-    share, n_fitted = within_3se(adj.value, adj.se, geometry_vector(build.sensor))
+    truth = geometry_vector(build.sensor)
+    share, n_fitted = within_3se(adj.value, adj.se, truth)
     fitted = clip_row(seed, "fitted", frames, scenario, cal.sensor)
     return CalibrationRow(seed, rows["nominal"], fitted, rows["true"], share, n_fitted, seconds,
-                          "; ".join(r.note for r in (fitted, rows["true"]) if r.note))  # fmt: skip
+                          "; ".join(r.note for r in (fitted, rows["true"]) if r.note),
+                          outside_3se(adj.value, adj.se, truth))  # fmt: skip
 
 
 def _cells(r: RealityRow | None) -> list[str]:
@@ -134,10 +145,17 @@ def summary(rows: list[CalibrationRow]) -> str:
     n = len(rows)
     count = {k: sum(m[k] for m in meets) for k in ("phi", "dz", "ok", "se")}
     detected = sum(r.true.detected and r.nominal.detected for r in rows)
+    fits = [r for r in rows if r.n_fitted]
+    n_par = sum(r.n_fitted for r in fits)
+    n_in = sum(round(r.within_3se * r.n_fitted) for r in fits)
+    off = Counter(name for r in fits for name in r.outside)
+    worst = ", ".join(f"{name} {k}" for name, k in off.most_common()) or "none"
     return (f"{n} builds: detected {detected}/{n}; phi within {MAX_RATIO}x {count['phi']}/{n}, "
             f"dz within {MAX_RATIO}x {count['dz']}/{n}, >= {100 * MIN_OK:.0f} % ok "
             f"{count['ok']}/{n}, >= {100 * MIN_WITHIN_3SE:.0f} % within 3 SE {count['se']}/{n}; "
-            f"all four {sum(all(m.values()) for m in meets)}/{n}")  # fmt: skip
+            f"all four {sum(all(m.values()) for m in meets)}/{n}\n"
+            f"fitted parameters within 3 SE, builds pooled: {n_in}/{n_par}; "
+            f"builds where each is outside: {worst}")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
