@@ -342,6 +342,7 @@ class BatchTask:
     calibration_id: str | None = None
     rest_index: int = 0
     fps: float | None = None
+    springs: object = None  # camwhisker.mechanics.springs.Stiffness: adds the force columns
 
     def __call__(self, video: Path, out: Path) -> dict:
         from camwhisker.overlay import rest_check_path
@@ -375,6 +376,7 @@ class BatchTask:
                 self.fps,
                 progress=False,
                 decode_threads=1,  # one core per task, decoding included
+                springs=self.springs,
             )
             seconds = time.perf_counter() - t0
             meta = json.loads(report.sidecar.read_text())

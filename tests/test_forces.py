@@ -12,6 +12,7 @@ import csv
 import dataclasses
 import json
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -205,6 +206,25 @@ def video(tmp_path_factory):
     d = tmp_path_factory.mktemp("forces_batch")
     return render_scenario(make_scenario("nominal", 6, 912, fps=25.0), Sensor(), d / "n.avi",
                            912)
+
+
+def test_batch_over_many_inputs_adds_the_force_columns(video, tmp_path, capsys):
+    """--springs reaches every worker of a many-input batch, not only a single --out."""
+    springs = tmp_path / "s.toml"
+    springs.write_text("[stiffness]\nk_z_n_per_mm = 0.05\nk_phi_nmm_per_rad = 20.0\n")
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        shutil.copy(video["video"], tmp_path / sub / "n.avi")
+    dest = tmp_path / "dest"
+    assert main(["batch", str(tmp_path / "a"), str(tmp_path / "b"), "--sensor",
+                 str(video["sensor"]), "--dest", str(dest), "--springs", str(springs),
+                 "--jobs", "2", "--quiet"]) == 0  # fmt: skip
+    for sub in ("a", "b"):
+        with open(dest / sub / "n.signals.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        # 5 significant digits in the force cells, as in the single-input test below.
+        assert all(float(r["fz_mN"]) == pytest.approx(50.0 * float(r["dz_mm"]), rel=1e-4,
+                                                      abs=50.0 * 0.5e-5) for r in rows)  # fmt: skip
 
 
 def test_batch_adds_the_force_columns(video, tmp_path, capsys):

@@ -88,8 +88,6 @@ def _run_batch(args) -> int:
         features=feature_hints(args, sensor),
     )
     if args.out is None:
-        if args.springs:
-            raise CommandError("--springs takes a single input with --out")
         return _run_batch_many(args, sensor, options)
     if len(args.video) != 1 or args.dest:
         raise CommandError("--out takes a single input; for many use --dest (or neither)")
@@ -112,7 +110,8 @@ def _run_batch_many(args, sensor, options) -> int:
     videos = expand_inputs(args.video)
     dest = Path(args.dest) if args.dest else None
     tasks = [(v, output_path(v, dest, "." + args.format)) for v in videos]
-    task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps)
+    task = BatchTask(sensor, options, rest_index=args.rest_frame, fps=args.fps,
+                     springs=springs_of(args))  # fmt: skip
     summary = run_many(tasks, task, args.jobs, args.scheduler, args.overwrite, not args.quiet)
     print(summary.report())
     if summary.interrupted:
