@@ -6,7 +6,17 @@ import argparse
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import batch, bench, calibrate_sensor, contact, live, overlay, synth, validate
+from camwhisker.cli import (
+    batch,
+    bench,
+    calibrate_sensor,
+    contact,
+    live,
+    overlay,
+    percept,
+    synth,
+    validate,
+)
 from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
 
 __all__ = ["build_parser", "main"]
@@ -23,8 +33,10 @@ _COMMANDS = [
     contact.add_calibrate,
     calibrate_sensor.add_calibrate_sensor,
     contact.add_contact,
+    percept.add_percept,
     validate.add_validate,
     bench.add_contact_bench,
+    percept.add_percept_bench,
     batch.add_batch,
     overlay.add_overlay,
     live.add_list_cameras,
