@@ -180,8 +180,9 @@ def test_simulated_sweeps_of_each_object():
     assert [r["kind"] for r in rows] == ["wall", "cylinder", "corner", "wall", "none"]
     assert all(r["correct"] for r in rows)
     s = summarise(rows)
-    # These seeds' errors (looked at while tuning), with room: radius 0.4 mm, centre
-    # 3.6 mm, apex 0.9 mm.
+    # These seeds' errors (looked at while tuning), with room for a change in the
+    # simulator's numerics: radius 0.07 mm, centre 2.6 mm, apex 0.5 mm, wall angle 4.5 deg.
     assert s["radius_err_mm"]["max"] < 1.0
-    assert s["center_err_mm"]["max"] < 4.0
-    assert s["apex_err_mm"]["max"] < 2.0
+    assert s["center_err_mm"]["max"] < 3.5
+    assert s["apex_err_mm"]["max"] < 1.5
+    assert s["angle_err_deg"]["max"] < 6.0
