@@ -43,6 +43,9 @@ CHECKED = {"wall": ("angle_deg", "distance_mm"), "cylinder": ("center_x_mm", "ce
 # Runs go on until phi reaches 30 deg (the default protocol stops at 40 mm of travel,
 # before a large cylinder's contact has slid far enough to show its curvature).
 PROTOCOL = StageProtocol(max_travel_mm=90.0)
+#: Issue #23's targets: each error's limit (deg or mm).
+TARGETS = {"angle_err_deg": 1.0, "distance_err_mm": 1.0, "radius_err_mm": 3.0,
+           "center_err_mm": 2.0, "apex_err_mm": 2.0}
 # One sweep in ten touches nothing; the rest are walls, cylinders and corners in turn.
 _CYCLE = ("wall", "cylinder", "corner", "wall", "cylinder", "corner", "wall", "cylinder",
           "corner", "none")
@@ -88,8 +91,7 @@ def fitted_outline(evaluation: dict):
              for r in np.unique(runs)]
     surfels = merge(parts)
     p = perceive(surfels)
-    return (*outline(p.best, surfels.xy_mm), f"percept: {OBJECT_OF[p.best.model]} "
-            f"({', '.join(f'{k} {v:.1f}' for k, v in list(p.best.params.items())[:3])})")
+    return (*outline(p.best, surfels.xy_mm), f"percept: {OBJECT_OF[p.best.model]}")
 
 
 def _errors(kind: str, truth: dict, params: dict) -> dict:
@@ -161,9 +163,13 @@ def summarise(rows: list[dict]) -> dict:
                 "apex_err_mm"):
         vals = [r[key] for r in rows if key in r]
         out[key] = {"median": _pct(vals, 50), "p95": _pct(vals, 95), "max": _pct(vals, 100),
-                    "n": len(vals)}
+                    "n": len(vals), "within": sum(v <= TARGETS[key] for v in vals)}
     checked = sum(r.get("checked", 0) for r in rows)
     out["coverage"] = sum(r.get("covered", 0) for r in rows) / checked if checked else math.nan
+    for kind in CHECKED:
+        sel = [r for r in rows if r["kind"] == kind and "checked" in r]
+        n = sum(r["checked"] for r in sel)
+        out[f"coverage_{kind}"] = sum(r["covered"] for r in sel) / n if n else math.nan
     out["confusions"] = sorted({(r["kind"], r["chosen"]) for r in rows if not r["correct"]})
     out["s_per_sweep"] = float(np.mean([r["s"] for r in rows]))
     return out
@@ -174,12 +180,15 @@ def format_summary(s: dict) -> str:
     lines = [f"sweeps: {s['n']}; identified {100 * s['identified']:.1f} %  ("
              + ", ".join(f"{k} {s[f'identified_{k}'][0]}/{s[f'identified_{k}'][1]}"
                          for k in OBJECT_KINDS if f"identified_{k}" in s) + ")",
-             "", "| error | n | median | 95th pct | max |", "|---|---|---|---|---|"]
+             "", "| error | n | median | 95th pct | max | within target |",
+             "|---|---|---|---|---|---|"]
     for key in ("angle_err_deg", "distance_err_mm", "radius_err_mm", "center_err_mm",
                 "apex_err_mm"):
         e = s[key]
-        lines.append(f"| {key} | {e['n']} | {e['median']:.2f} | {e['p95']:.2f} | {e['max']:.2f} |")
-    lines += ["", f"95 % intervals covering the truth: {100 * s['coverage']:.1f} %",
+        lines.append(f"| {key} | {e['n']} | {e['median']:.2f} | {e['p95']:.2f} | {e['max']:.2f} "
+                     f"| {e['within']}/{e['n']} (<= {TARGETS[key]:g}) |")
+    lines += ["", f"95 % intervals covering the truth: {100 * s['coverage']:.1f} % ("
+              + ", ".join(f"{k} {100 * s[f'coverage_{k}']:.0f} %" for k in CHECKED) + ")",
               f"confusions (object, chosen): {s['confusions'] or 'none'}",
               f"{s['s_per_sweep']:.2f} s per sweep (simulation, contact, percept)"]
     return "\n".join(lines)
