@@ -297,10 +297,12 @@ def _plots(out: Path, calib, cal_data: dict, ev: dict, runs) -> None:
     )
     shapes = {r.role: r for r in runs if r.role in ("box", "bottle")}
     if shapes:
+        from camwhisker.bench.percepts import fitted_outline
+
         outlines = {role: scene_by_name(r.kind, r.name).outline() for role, r in shapes.items()}
-        plot_shapes(
-            {role: ev[role] for role in shapes}, outlines, out / "fig9_shapes.png", "Fig. 9: " + how
-        )
+        fitted = {role: fitted_outline(ev[role]) for role in shapes}
+        plot_shapes({role: ev[role] for role in shapes}, outlines, out / "fig9_shapes.png",
+                    "Fig. 9: " + how, fitted)
 
 
 def _num(x: float, fmt: str) -> str:

@@ -172,9 +172,11 @@ def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
         d = Path(figures_dir)
         plot_error_boxes({k: evs[k] for k in ("rigid", "compliant")}, d / "fig8_errors.png",
                          "Fig. 8: " + how)
+        from camwhisker.bench.percepts import fitted_outline
+
         outlines = {k: _scenes(k)[0][1].outline() for k in ("slide-box", "slide-circle")}
         plot_shapes({k: evs[k] for k in outlines}, outlines, d / "fig9_shapes.png",
-                    "Fig. 9: " + how)
+                    "Fig. 9: " + how, {k: fitted_outline(evs[k]) for k in outlines})
     return out
 
 

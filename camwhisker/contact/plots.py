@@ -5,7 +5,8 @@
 - :func:`plot_error_boxes`: r - r_hat of GM, MF and fused for rigid and
   compliant contact (Fig. 8).
 - :func:`plot_shapes`: reconstructed contact points coloured by Z with the
-  true outline (Fig. 9).
+  true outline and the percept's fitted one (Fig. 9).
+- :func:`plot_percept`: the surfels of a percept and its fitted outline.
 
 Every figure carries a footer and PNG metadata saying how it was made.
 """
@@ -24,7 +25,7 @@ from camwhisker import __version__  # noqa: E402
 from camwhisker.atomic import atomic_write_bytes  # noqa: E402
 from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
 
-__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "save_figure"]
+__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "save_figure"]
 
 
 #: Share of the figure's height kept above the axes for the provenance line.
@@ -89,11 +90,13 @@ def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
     save_figure(fig, path, how or "error boxes (Fig. 8)")
 
 
-def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
+def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "",
+                fitted: dict | None = None) -> None:
     """Fig. 9: reconstructed points (GM r, eq. 12) coloured by eq.-(11) Z; MF grey, fused x.
 
     The colour bands are the paper's reading of Z (< 0.5 expected, 0.5-1, > 1 probable
     error); points where the simulated contact truly slips are ringed in black.
+    ``fitted`` maps a panel to (x, y, label): the percept's outline, dashed.
     """
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
@@ -104,6 +107,9 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
     for ax, (kind, ev) in zip(axes[0], evaluations.items(), strict=True):
         ox, oy = outlines[kind]
         ax.plot(ox, oy, "k-", lw=1, label="true outline")
+        if fitted and kind in fitted:
+            fx, fy, label = fitted[kind]
+            ax.plot(fx, fy, "--", color="C4", lw=1.5, zorder=6, label=label)
         ax.scatter(ev["mf_x_hat_mm"], ev["mf_y_hat_mm"], s=8, c="0.7", label="MF")
         ax.scatter(ev["x_hat_mm"], ev["y_hat_mm"], s=14, c="k", marker="x", lw=0.7, zorder=5,
                    label="fused (the contact table's r_hat)")
@@ -130,3 +136,26 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "") -> None:
     fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=4,
                fontsize=8)  # fmt: skip
     save_figure(fig, path, how or "shape reconstruction (Fig. 9)")
+
+
+def plot_percept(xy_mm, dirs, free_xy_mm, fit_xy, label: str, path, how: str = "") -> None:
+    """Surfels (points with their directions), free space (the base) and the fitted outline."""
+    fig, ax = plt.subplots(figsize=(6, 5.6), layout="constrained")
+    xy = np.asarray(xy_mm, float).reshape(-1, 2)
+    ax.scatter(xy[:, 0], xy[:, 1], s=14, c="k", marker="x", lw=0.7, label="contacts (eq. 12)")
+    d = np.asarray(dirs, float).reshape(-1, 2)
+    has = np.isfinite(d[:, 0])
+    if has.any():
+        ax.quiver(xy[has, 0], xy[has, 1], d[has, 0], d[has, 1], angles="xy", color="0.5",
+                  width=0.003, label="surfel direction")
+    free = np.asarray(free_xy_mm, float).reshape(-1, 2)
+    if free.size:
+        ax.plot(free[:, 0], free[:, 1], ".", ms=2, color="C0", label="whisker base (free)")
+    if len(fit_xy[0]):
+        ax.plot(fit_xy[0], fit_xy[1], "--", color="C4", lw=1.5, label=label)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(label)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
+    save_figure(fig, path, how or "percept")

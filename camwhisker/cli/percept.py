@@ -1,0 +1,113 @@
+"""Shape percepts: percept (contact tables -> wall, cylinder, corner or nothing), percept-bench."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+from pathlib import Path
+
+from camwhisker.cli.common import CommandError, command_line
+
+__all__ = ["add_percept", "add_percept_bench"]
+
+
+def add_percept(sub) -> None:
+    p = sub.add_parser("percept", help="the object behind contact tables: wall, cylinder, box "
+                                       "corner or nothing, with 95 %% intervals")
+    p.add_argument("--contacts", action="append", required=True, metavar="C.csv",
+                   help="a contact table (camwhisker contact); repeat for more sweeps")
+    p.add_argument("--pose", action="append", metavar="X0,Y0,DEG",
+                   help="where a table's stage frame lies in the common frame (common = "
+                        "(X0, Y0) + rotation by DEG of the stage's x, y); once per --contacts "
+                        "or not at all (default: 0,0,0, all in one frame)")
+    p.add_argument("--out", required=True, metavar="P.json", help="the percept to write")
+    p.add_argument("--plot", metavar="P.png", help="also draw the contacts and fitted outline")
+    p.set_defaults(func=_run_percept)
+
+
+def _poses(args):
+    from camwhisker.contact.surfels import Pose
+
+    if not args.pose:
+        return [Pose()] * len(args.contacts)
+    if len(args.pose) != len(args.contacts):
+        raise CommandError(f"give --pose for every --contacts or for none ({len(args.contacts)} "
+                           f"tables, {len(args.pose)} poses)")
+    poses = []
+    for text in args.pose:
+        try:
+            x0, y0, deg = (float(v) for v in text.split(","))
+        except ValueError:
+            raise CommandError(f"--pose {text!r}: expected X0,Y0,DEG (three numbers)") from None
+        poses.append(Pose(x0, y0, deg))
+    return poses
+
+
+def _sha256(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _run_percept(args) -> int:
+    from camwhisker import __version__
+    from camwhisker.atomic import atomic_write_text
+    from camwhisker.contact.percepts import OBJECT_OF, outline, perceive, percept_record
+    from camwhisker.contact.surfels import read_surfels
+    from camwhisker.jsonfile import dumps
+
+    poses = _poses(args)
+    surfels = read_surfels(args.contacts, poses)
+    p = perceive(surfels)
+    record = {
+        "camwhisker": __version__,
+        "command": command_line(args),
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "inputs": [{"contacts": str(c), "sha256": _sha256(c), "pose": vars(pose)}
+                   for c, pose in zip(args.contacts, poses, strict=True)],
+        **percept_record(p),
+    }
+    if args.plot:
+        from camwhisker.contact.plots import plot_percept
+
+        label = f"percept: {OBJECT_OF[p.best.model]}"
+        plot_percept(surfels.xy_mm, surfels.dir, surfels.free_xy_mm,
+                     outline(p.best, surfels.xy_mm), label, args.plot, command_line(args))
+    atomic_write_text(args.out, dumps(record, indent=1) + "\n")
+    params = ", ".join(f"{k} {v:.2f} [{lo:.2f}, {hi:.2f}]"
+                       for (k, v), (lo, hi) in zip(p.best.params.items(),
+                                                   p.best.intervals.values(), strict=True))
+    print(f"{OBJECT_OF[p.best.model]} ({p.best.model}) from {surfels.n} contacts"
+          + (f": {params}" if params else "")
+          + (f"; runner-up {p.runner_up}, evidence ratio {p.evidence_ratio:.3g}"
+             if p.runner_up else ""))
+    print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
+    return 0
+
+
+def add_percept_bench(sub) -> None:
+    p = sub.add_parser("percept-bench", help="shape percepts on simulated sweeps: identification, "
+                                             "localisation error, interval coverage")
+    p.add_argument("--seeds", default="1000-1199", metavar="A-B",
+                   help="sweep seeds, inclusive (0-39 were used to choose the constants)")
+    p.add_argument("--out", metavar="R.json", help="also write every sweep's result here")
+    p.set_defaults(func=_run_percept_bench)
+
+
+def _run_percept_bench(args) -> int:
+    from camwhisker.atomic import atomic_write_text
+    from camwhisker.bench.percepts import format_summary, run_campaign, summarise
+    from camwhisker.jsonfile import dumps
+
+    try:
+        a, b = (int(v) for v in args.seeds.split("-"))
+    except ValueError:
+        raise CommandError(f"--seeds {args.seeds!r}: expected A-B (two integers)") from None
+    if b < a:
+        raise CommandError(f"--seeds {args.seeds!r}: the last seed is before the first")
+    rows = run_campaign(range(a, b + 1))
+    s = summarise(rows)
+    print(format_summary(s))
+    if args.out:
+        atomic_write_text(args.out, dumps({"command": command_line(args), "summary": s,
+                                           "sweeps": rows}, indent=1) + "\n")
+        print(f"wrote {args.out}")
+    return 0

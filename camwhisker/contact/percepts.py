@@ -1,0 +1,360 @@
+"""Shape percepts from surfels: wall, cylinder, corner or nothing, with intervals.
+
+Each candidate model is fitted by robust least squares (Cauchy loss) to the
+BIOTACT cost (Pearson et al., eqs. 3-7): believed contacts far from the
+model's surface, free-space points (belief 0) inside the object, and surfels
+whose direction is misaligned with the surface. The percept is the model with
+the lowest Bayesian information criterion (the cost as a negative log
+likelihood plus k ln n / 2): a model's extra parameters must pay for
+themselves. "No object" charges every residual the cost of a contact
+:data:`NONE_RESIDUAL` spreads from any surface.
+
+Models (common frame, mm; the solid is on the side away from the free space):
+
+- ``line`` (a wall): unit normal at angle t (toward free space), offset d:
+  signed distance n . p - d. Reported as ``angle_deg`` (its direction, in
+  [0, 180)) and ``distance_mm`` (from the origin).
+- ``circle`` (a cylinder): centre (cx, cy), radius R.
+- ``corner`` (two faces from an apex): apex (ax, ay), face direction a1 and
+  the opening, face 2 at a1 - opening; the solid is the wedge between them,
+  its opening held within :data:`CORNER_OPENING_DEG` (narrower, the two faces
+  are one wall with a kink in its contact points).
+
+Intervals are 95 % Wald intervals from the Jacobian at the solution,
+(J^T J)^-1 times the residuals' robust variance, inflated for the contacts'
+correlation along a sweep (AR(1), :func:`_inflation`; the campaign,
+:mod:`camwhisker.bench.percepts`, measures how often they cover the truth).
+
+References
+----------
+Pearson, M. J. et al. (2013). Simultaneous localisation and mapping on a
+multi-degree of freedom biomimetic whiskered robot. ICRA. (BIOTACT surfels.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from camwhisker.contact.surfels import Surfels
+
+__all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "outline",
+           "percept_record", "POINT_SIGMA_MM",
+           "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS"]
+
+MODELS = ("line", "circle", "corner")
+#: What each model stands for.
+OBJECT_OF = {"none": "no object", "line": "wall", "circle": "cylinder", "corner": "box corner"}
+# Scale of a contact point's distance from the surface: the fused contact points
+# scatter 0.1-0.3 mm about the profile but drift from it by a millimetre or more
+# along a sweep: at 0.5 mm a corner or circle bent to that drift beat the line on
+# half the walls of the tuning sweeps (seeds 0-39), at 1.5 mm on none.
+POINT_SIGMA_MM = 1.5
+# Scale of a chord direction's error: two points' ~0.1 mm scatter across a chord of a
+# millimetre or two.
+DIR_SIGMA_RAD = 0.3
+# A contact this many scales from every surface is as likely as no object at all.
+NONE_RESIDUAL = 3.0
+# Fewer contacts than this cannot tell a shape: "no object".
+MIN_SURFELS = 4
+# The residuals' lag-1 autocorrelation is taken up to this (inflation 39 at most).
+MAX_AUTOCORR = 0.95
+# A box corner opens this far (deg): from a sharp wedge to a blunt edge.
+CORNER_OPENING_DEG = (30.0, 150.0)
+# Two-sided 95 % normal quantile for the intervals.
+Z95 = 1.959963984540054
+
+
+@dataclass
+class Fit:
+    """One model's fit: parameters, intervals, cost and information criterion."""
+
+    model: str
+    params: dict
+    intervals: dict
+    cost: float
+    bic: float
+    n_residuals: int
+    x: np.ndarray = field(repr=False, default=None)
+
+
+@dataclass
+class Percept:
+    """The chosen model, every candidate's fit, the runner-up and the evidence ratio."""
+
+    best: Fit
+    fits: dict
+    runner_up: str
+    evidence_ratio: float
+    n_surfels: int
+
+
+def _rho(z):
+    return np.log1p(z)  # scipy's "cauchy" loss, f_scale 1
+
+
+# --- signed distance and tangent of each model --------------------------------------------
+
+
+def _line_sd(x, p):
+    t, d = x
+    n = np.array([math.cos(t), math.sin(t)])
+    return p @ n - d, np.broadcast_to(np.array([-n[1], n[0]]), p.shape)
+
+
+def _circle_sd(x, p):
+    cx, cy, r = x
+    v = p - np.array([cx, cy])
+    dist = np.hypot(v[:, 0], v[:, 1])
+    u = v / np.maximum(dist, 1e-9)[:, None]
+    return dist - abs(r), np.c_[-u[:, 1], u[:, 0]]
+
+
+def _corner_sd(x, p):
+    ax, ay, a1, opening = x
+    a2 = a1 - opening
+    v = p - np.array([ax, ay])
+    best, tang = None, None
+    for a in (a1, a2):
+        u = np.array([math.cos(a), math.sin(a)])
+        s = np.clip(v @ u, 0.0, None)
+        d = np.hypot(*(v - s[:, None] * u).T)
+        if best is None:
+            best, tang = d, np.broadcast_to(u, p.shape).copy()
+        else:
+            closer = d < best
+            best = np.where(closer, d, best)
+            tang[closer] = u
+    # Inside the wedge (opening < 180 deg) when on the inner side of both faces.
+    u1 = np.array([math.cos(a1), math.sin(a1)])
+    u2 = np.array([math.cos(a2), math.sin(a2)])
+    sgn = 1.0 if u1[0] * u2[1] - u1[1] * u2[0] > 0 else -1.0
+    c1 = sgn * (u1[0] * v[:, 1] - u1[1] * v[:, 0])
+    c2 = -sgn * (u2[0] * v[:, 1] - u2[1] * v[:, 0])
+    inside = (c1 > 0) & (c2 > 0)
+    return np.where(inside, -best, best), tang
+
+
+_SD = {"line": _line_sd, "circle": _circle_sd, "corner": _corner_sd}
+
+
+def _residuals(model, x, s: Surfels):
+    """Eqs. 3-7 as residuals in units of their scale: distance, misalignment, intrusion."""
+    sd, tang = _SD[model](x, s.xy_mm)
+    res = [s.belief * sd / POINT_SIGMA_MM]
+    has = np.isfinite(s.dir[:, 0])
+    cross = tang[has, 0] * s.dir[has, 1] - tang[has, 1] * s.dir[has, 0]
+    res.append(s.belief[has] * cross / DIR_SIGMA_RAD)  # sin of the misalignment
+    if s.free_xy_mm.size:
+        fsd, _ = _SD[model](x, s.free_xy_mm)
+        res.append(np.minimum(fsd, 0.0) / POINT_SIGMA_MM)  # free space inside the object
+    return np.concatenate(res)
+
+
+# --- starting points --------------------------------------------------------------------
+
+
+def _line_start(s: Surfels):
+    p = s.xy_mm
+    c = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - c)
+    n = vt[1]
+    if s.free_xy_mm.size and np.mean((s.free_xy_mm - c) @ n) < 0:
+        n = -n  # the normal points to free space
+    t = math.atan2(n[1], n[0])
+    return [np.array([t, float(c @ n)])]
+
+
+def _circle_start(s: Surfels):
+    """Kasa's algebraic circle, and circles through the extreme contacts in x at a range of
+    radii (two short arcs from either side leave Kasa's fit near any radius)."""
+    p = s.xy_mm
+    a = np.c_[2 * p, np.ones(len(p))]
+    b = (p ** 2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    starts = [np.array([sol[0], sol[1], math.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 1.0))])]
+    left, right = p[np.argmin(p[:, 0])], p[np.argmax(p[:, 0])]
+    half = 0.5 * (right[0] - left[0])
+    if half > 1.0:  # the sides' outermost contacts, where the tangent is along y
+        starts.append(np.array([0.5 * (left[0] + right[0]), 0.5 * (left[1] + right[1]), half]))
+    top = p[np.argmax(p[:, 1])]
+    for r in (15.0, 30.0, 60.0):  # one side only: the circle beside its highest contact
+        for side in (-1.0, 1.0):
+            starts.append(np.array([top[0] + side * r, top[1], r]))
+    return starts
+
+
+def _corner_start(s: Surfels, n_apex: int = 12):
+    """Apex candidates among the contacts; faces the mean directions of the two angular groups."""
+    p = s.xy_mm
+    starts = []
+    for i in np.unique(np.linspace(0, len(p) - 1, min(n_apex, len(p))).astype(int)):
+        v = np.delete(p, i, axis=0) - p[i]
+        v = v[np.hypot(*v.T) > 1.0]
+        if len(v) < 4:
+            continue
+        ang = np.sort(np.arctan2(v[:, 1], v[:, 0]))
+        gaps = np.diff(np.r_[ang, ang[0] + 2 * math.pi])
+        # The two largest gaps split the directions into the two faces.
+        k1, k2 = np.sort(np.argsort(gaps)[-2:])
+        g1 = ang[k1 + 1:k2 + 1]
+        g2 = np.r_[ang[k2 + 1:], ang[:k1 + 1]]
+        if len(g1) < 2 or len(g2) < 2:
+            continue
+        a1 = math.atan2(np.sin(g1).mean(), np.cos(g1).mean())
+        a2 = math.atan2(np.sin(g2).mean(), np.cos(g2).mean())
+        opening = (a1 - a2) % (2 * math.pi)
+        if opening > math.pi:  # face 1 the counter-clockwise one
+            a1, opening = a2, 2 * math.pi - opening
+        lo, hi = np.radians(CORNER_OPENING_DEG)
+        starts.append(np.array([p[i, 0], p[i, 1], a1, np.clip(opening, lo + 1e-3, hi - 1e-3)]))
+    return starts
+
+
+_STARTS = {"line": _line_start, "circle": _circle_start, "corner": _corner_start}
+_K = {"line": 2, "circle": 3, "corner": 4}
+
+
+def _public(model, x):
+    """Reported parameters from the fitted vector (angles in degrees)."""
+    if model == "line":
+        t, d = x
+        return {"angle_deg": math.degrees(t + math.pi / 2) % 180.0, "distance_mm": abs(d),
+                "normal_deg": math.degrees(t) % 360.0, "offset_mm": d}
+    if model == "circle":
+        return {"center_x_mm": x[0], "center_y_mm": x[1], "radius_mm": abs(x[2])}
+    return {"apex_x_mm": x[0], "apex_y_mm": x[1], "face1_deg": math.degrees(x[2]) % 360.0,
+            "face2_deg": math.degrees(x[2] - x[3]) % 360.0, "opening_deg": math.degrees(x[3])}
+
+
+def _inflation(point_res: np.ndarray) -> float:
+    """AR(1) variance inflation (1 + rho) / (1 - rho) of residuals in time order.
+
+    Neighbouring contacts of a sweep err alike (the contact estimate drifts as
+    the contact slides), so n of them carry fewer than n independent errors.
+    """
+    r = point_res - point_res.mean()
+    if r.size < 3 or not np.any(r):
+        return 1.0
+    rho = float(np.clip(np.sum(r[1:] * r[:-1]) / np.sum(r * r), 0.0, MAX_AUTOCORR))
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def _intervals(model, x, jac, fun, k, n_points, m):
+    """95 % Wald intervals of the reported parameters (NaN where J^T J is singular).
+
+    The spread comes from the ``m`` contact and direction residuals; free-space
+    residuals (zero unless the model swallows the base) would only dilute it.
+    """
+    sigma2 = float(np.sum(_rho(fun[:m] ** 2))) / max(m - k, 1) * _inflation(fun[:n_points])
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * sigma2
+    except np.linalg.LinAlgError:
+        cov = np.full((k, k), np.nan)
+    half = Z95 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    names = list(_public(model, x))
+    if model == "line":
+        widths = [math.degrees(half[0]), half[1], math.degrees(half[0]), half[1]]
+    elif model == "circle":
+        widths = list(half)
+    else:
+        face2 = math.degrees(math.sqrt(max(cov[2, 2] + cov[3, 3] - 2 * cov[2, 3], 0.0)))
+        widths = [half[0], half[1], math.degrees(half[2]), Z95 * face2, math.degrees(half[3])]
+    pub = _public(model, x)
+    return {name: [pub[name] - w, pub[name] + w] for name, w in zip(names, widths, strict=True)}
+
+
+def fit_model(model: str, s: Surfels) -> Fit | None:
+    """Robust least-squares fit of one model to the surfels; None without a starting point."""
+    if model not in _SD:
+        raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
+    best = None
+    bounds = (-np.inf, np.inf)
+    if model == "corner":
+        lo, hi = np.radians(CORNER_OPENING_DEG)
+        bounds = ([-np.inf, -np.inf, -np.inf, lo], [np.inf, np.inf, np.inf, hi])
+    for x0 in _STARTS[model](s):
+        res = least_squares(lambda x: _residuals(model, x, s), x0, loss="cauchy", f_scale=1.0,
+                            bounds=bounds)
+        if best is None or res.cost < best.cost:
+            best = res
+    if best is None:
+        return None
+    k = _K[model]
+    m = _n_contact_residuals(s)
+    cost = float(np.sum(_rho(best.fun ** 2)))
+    intervals = _intervals(model, best.x, best.jac, best.fun, k, s.n, m)
+    return Fit(model, _public(model, best.x), intervals, cost, cost + k * math.log(m), m, best.x)
+
+
+def _n_contact_residuals(s: Surfels) -> int:
+    """Contacts plus those with a direction: the data the information criterion counts."""
+    return s.n + int(np.isfinite(s.dir[:, 0]).sum())
+
+
+def _none_fit(s: Surfels) -> Fit:
+    """No object: every contact and direction unexplained, nothing inside anything."""
+    m = _n_contact_residuals(s)
+    cost = m * float(_rho(NONE_RESIDUAL ** 2))
+    return Fit("none", {}, {}, cost, cost, m)
+
+
+def perceive(s: Surfels, models=MODELS) -> Percept:
+    """Fit every model and choose by BIC; "none" with fewer than :data:`MIN_SURFELS` contacts."""
+    fits = {"none": _none_fit(s)}
+    if s.n >= MIN_SURFELS:
+        for model in models:
+            f = fit_model(model, s)
+            if f is not None:
+                fits[model] = f
+    ranked = sorted(fits.values(), key=lambda f: f.bic)
+    best = ranked[0]
+    runner = ranked[1] if len(ranked) > 1 else None
+    ratio = math.exp(min((runner.bic - best.bic) / 2.0, 700.0)) if runner else math.inf
+    return Percept(best, fits, runner.model if runner else "", ratio, s.n)
+
+
+def outline(fit: Fit, near_xy=None, n: int = 181):
+    """Points (x_mm, y_mm) of a fitted model's outline, for plots (empty for "none").
+
+    Lines and corner faces are drawn over the extent of ``near_xy`` (shape (N, 2), the
+    surfels) and 10 mm beyond; 60 mm without them.
+    """
+    x = fit.x
+    pts = np.empty((0, 2)) if near_xy is None else np.asarray(near_xy, float).reshape(-1, 2)
+    if fit.model == "circle":
+        a = np.linspace(0.0, 2 * math.pi, n)
+        return x[0] + abs(x[2]) * np.cos(a), x[1] + abs(x[2]) * np.sin(a)
+    if fit.model == "line":
+        t, d = x
+        nrm = np.array([math.cos(t), math.sin(t)])
+        tan = np.array([-nrm[1], nrm[0]])
+        s = pts @ tan if len(pts) else np.array([-50.0, 50.0])
+        s = np.array([s.min() - 10.0, s.max() + 10.0])
+        return d * nrm[0] + s * tan[0], d * nrm[1] + s * tan[1]
+    if fit.model == "corner":
+        ax, ay, a1, opening = x
+        a2 = a1 - opening
+        reach = float(np.hypot(*(pts - [ax, ay]).T).max()) + 10.0 if len(pts) else 60.0
+        return (np.array([ax + reach * math.cos(a1), ax, ax + reach * math.cos(a2)]),
+                np.array([ay + reach * math.sin(a1), ay, ay + reach * math.sin(a2)]))
+    return np.array([]), np.array([])
+
+
+def percept_record(p: Percept) -> dict:
+    """The percept as plain data: chosen model, parameters with 95 % intervals, runner-up,
+    evidence ratio (exp of half the BIC difference) and every candidate's BIC."""
+    return {
+        "model": p.best.model,
+        "object": OBJECT_OF[p.best.model],
+        "params": p.best.params,
+        "intervals_95": p.best.intervals,
+        "runner_up": p.runner_up,
+        "evidence_ratio": p.evidence_ratio,
+        "n_surfels": p.n_surfels,
+        "candidates": {m: {"bic": f.bic, "cost": f.cost, "n_residuals": f.n_residuals,
+                           "params": f.params} for m, f in p.fits.items()},
+    }

@@ -1,0 +1,188 @@
+"""Shape percepts: fits on synthetic surfels, model choice, the percept command, bad input,
+and a few simulated sweeps of the campaign (tuning seeds)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from camwhisker.cli import main
+from camwhisker.contact.percepts import MIN_SURFELS, fit_model, perceive
+from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
+from camwhisker.tables import write_csv
+
+# Contact points scatter 0.2 mm about the surface here, as the fused points of the
+# simulated box and bottle do.
+NOISE_MM = 0.2
+
+
+def _table(x, y, base_x=None):
+    """Contact-table columns for contact points (x, y), one row per point."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    r = np.hypot(x - (base_x if base_x is not None else x), y)
+    return {"t_s": np.arange(x.size) * 0.5, "x_mm": x if base_x is None else base_x,
+            "phi_deg": np.degrees(np.arctan2(np.zeros(x.size), y)), "x_hat_mm": x,
+            "r_hat_mm": r, "y_hat_mm": y}
+
+
+def _noisy(x, y, rng):
+    return x + NOISE_MM * rng.standard_normal(x.size), y + NOISE_MM * rng.standard_normal(y.size)
+
+
+def _wall(rng, angle_deg=75.0, y_end=40.0, n=30):
+    s = np.linspace(0.0, 50.0, n)
+    a = math.radians(angle_deg)
+    x, y = _noisy(s * math.cos(a), y_end + s * math.sin(a), rng)
+    return surfels_from_columns(_table(x, y, base_x=np.linspace(-30.0, -20.0, n)))
+
+
+def _cylinder(rng, cx=0.0, cy=60.0, radius=40.0, n=25):
+    parts = []
+    for i, (a0, a1) in enumerate(((180.0, 215.0), (360.0, 325.0))):
+        a = np.radians(np.linspace(a0, a1, n))
+        x, y = _noisy(cx + radius * np.cos(a), cy + radius * np.sin(a), rng)
+        base = np.linspace(-60.0, -45.0, n) * (1 if i == 0 else -1)
+        parts.append(surfels_from_columns(_table(x, y, base), table=i))
+    return merge(parts)
+
+
+def _corner(rng, apex=(0.0, 50.0), a1=75.0, a2=-30.0, n=25):
+    parts = []
+    for i, a in enumerate((a1, a2)):
+        s = np.linspace(0.0, 40.0, n)
+        u = math.radians(a)
+        x, y = _noisy(apex[0] + s * math.cos(u), apex[1] + s * math.sin(u), rng)
+        parts.append(surfels_from_columns(_table(x, y, np.full(n, -40.0)), table=i))
+    return merge(parts)
+
+
+def test_line_fit_recovers_the_wall():
+    f = fit_model("line", _wall(np.random.default_rng(1)))
+    # 30 points over 50 mm at 0.2 mm: angle SE ~0.07 deg, offset SE ~0.05 mm; 0.5 is 7 SE.
+    assert f.params["angle_deg"] == pytest.approx(75.0, abs=0.5)
+    assert f.params["distance_mm"] == pytest.approx(40.0 * math.cos(math.radians(75.0)), abs=0.5)
+
+
+def test_circle_fit_recovers_the_cylinder_from_two_short_arcs():
+    f = fit_model("circle", _cylinder(np.random.default_rng(2)))
+    # Two 35-deg arcs 80 mm apart at 0.2 mm: the radius and centre to well under 1 mm.
+    assert f.params["radius_mm"] == pytest.approx(40.0, abs=1.0)
+    assert math.hypot(f.params["center_x_mm"], f.params["center_y_mm"] - 60.0) < 1.0
+
+
+def test_corner_fit_recovers_apex_and_opening():
+    f = fit_model("corner", _corner(np.random.default_rng(3)))
+    # Two 40-mm faces at 0.2 mm: apex within 1 mm, opening (105 deg) within 2 deg.
+    assert math.hypot(f.params["apex_x_mm"], f.params["apex_y_mm"] - 50.0) < 1.0
+    assert f.params["opening_deg"] == pytest.approx(105.0, abs=2.0)
+
+
+# A circle of huge radius fits a line as well as the line does: its one extra parameter
+# costs ln(60 residuals) of BIC, an evidence ratio of sqrt(60) ~ 7.7 at the most; a line
+# cannot bend to arcs or a corner, so there the runner-up is far behind.
+@pytest.mark.parametrize("make, model, min_ratio", [(_wall, "line", 5.0),
+                                                    (_cylinder, "circle", 1e3),
+                                                    (_corner, "corner", 1e3)])
+def test_model_choice_on_clear_cases(make, model, min_ratio):
+    p = perceive(make(np.random.default_rng(4)))
+    assert p.best.model == model
+    assert p.evidence_ratio > min_ratio
+
+
+def test_scattered_points_are_no_object():
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-50, 50, 30), rng.uniform(20, 120, 30)
+    order = np.argsort(y)  # directions from neighbours exist but mean nothing
+    p = perceive(surfels_from_columns(_table(x[order], y[order])))
+    assert p.best.model == "none"
+
+
+def test_too_few_contacts_are_no_object():
+    s = _wall(np.random.default_rng(6), n=MIN_SURFELS - 1)
+    assert perceive(s).best.model == "none" and set(perceive(s).fits) == {"none"}
+
+
+def test_line_intervals_cover_the_truth_with_independent_noise():
+    # 40 walls at 0.2 mm noise: a 95 % interval misses ~2 of 40; 30 of 40 (75 %)
+    # is where a 95 % claim is clearly broken.
+    hits = 0
+    for seed in range(40):
+        lo, hi = fit_model("line", _wall(np.random.default_rng(100 + seed))).intervals["angle_deg"]
+        hits += lo <= 75.0 <= hi
+    assert hits >= 34
+
+
+def test_pose_moves_a_table_into_the_common_frame():
+    pose = Pose(10.0, -5.0, 90.0)
+    assert np.allclose(pose.apply(np.array([[1.0, 2.0]])), [[8.0, -4.0]])
+    assert np.allclose(pose.rotate(np.array([[1.0, 0.0]])), [[0.0, 1.0]])
+
+
+def _write_wall(path, rng=None):
+    rng = rng or np.random.default_rng(7)
+    s = np.linspace(0.0, 50.0, 30)
+    a = math.radians(80.0)
+    x, y = _noisy(s * math.cos(a), 40.0 + s * math.sin(a), rng)
+    write_csv(path, _table(x, y, np.linspace(-30.0, -20.0, 30)))
+
+
+def test_percept_command_writes_strict_json(tmp_path, capsys):
+    c = tmp_path / "c.csv"
+    _write_wall(c)
+    out, png = tmp_path / "p.json", tmp_path / "p.png"
+    assert main(["percept", "--contacts", str(c), "--out", str(out), "--plot", str(png)]) == 0
+
+    def refuse(name):
+        raise ValueError(f"non-strict JSON constant {name}")
+
+    doc = json.loads(out.read_text(), parse_constant=refuse)
+    assert doc["model"] == "line" and doc["object"] == "wall"
+    assert doc["params"]["angle_deg"] == pytest.approx(80.0, abs=0.5)  # as the fit test
+    lo, hi = doc["intervals_95"]["angle_deg"]
+    assert lo < doc["params"]["angle_deg"] < hi
+    assert doc["runner_up"] in ("circle", "corner", "none") and doc["evidence_ratio"] > 1.0
+    assert doc["inputs"][0]["contacts"] == str(c) and len(doc["inputs"][0]["sha256"]) == 64
+    assert doc["camwhisker"] and doc["command"].startswith("camwhisker percept")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert "wall (line) from 30 contacts" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content, message", [
+    ("", "empty file"),
+    ("t_s,x_mm,phi_deg,x_hat_mm,r_hat_mm\n", "no rows"),
+    ("t_s,x_mm,phi_deg,r_hat_mm\n0,0,0,1\n", "missing column x_hat_mm"),
+    ("t_s,x_mm,phi_deg,x_hat_mm,r_hat_mm\n0,0,zero,1,1\n", "not a number"),
+])
+def test_bad_contact_tables_are_named_and_nothing_is_written(tmp_path, capsys, content, message):
+    c = tmp_path / "c.csv"
+    c.write_text(content)
+    out = tmp_path / "p.json"
+    assert main(["percept", "--contacts", str(c), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("camwhisker percept: error: ") and str(c) in err and message in err
+    assert not out.exists()
+
+
+def test_bad_pose_is_refused(tmp_path, capsys):
+    c = tmp_path / "c.csv"
+    _write_wall(c)
+    assert main(["percept", "--contacts", str(c), "--pose", "1,2", "--out",
+                 str(tmp_path / "p.json")]) == 2
+    assert "X0,Y0,DEG" in capsys.readouterr().err
+
+
+def test_simulated_sweeps_of_each_object():
+    from camwhisker.bench.percepts import run_campaign, summarise
+
+    # Tuning seeds 0-3 and 9: wall, cylinder, corner, wall, nothing (seed % 10 picks the kind).
+    rows = run_campaign([0, 1, 2, 3, 9])
+    assert [r["kind"] for r in rows] == ["wall", "cylinder", "corner", "wall", "none"]
+    assert all(r["correct"] for r in rows)
+    s = summarise(rows)
+    # These seeds' errors (looked at while tuning), with room for a change in the
+    # simulator's numerics: radius 0.07 mm, centre 2.6 mm, apex 0.5 mm, wall angle 4.5 deg.
+    assert s["radius_err_mm"]["max"] < 1.0
+    assert s["center_err_mm"]["max"] < 3.5
+    assert s["apex_err_mm"]["max"] < 1.5
+    assert s["angle_err_deg"]["max"] < 6.0
