@@ -38,6 +38,7 @@ from scipy import stats
 
 from camwhisker.forcelog import ForceLog
 from camwhisker.mechanics.springs import Stiffness
+from camwhisker.stage import DEFAULT_OFFSET_RANGE_S, best_offset
 
 __all__ = ["SpringCalibrationError", "SpringRun", "StiffnessFit", "SpringCalibration",
            "BLOCK_S", "MIN_SPAN", "estimate_force_offset", "block_means", "calibrate_springs"]
@@ -56,17 +57,10 @@ MIN_SPAN = {"dz_mm": 0.4, "phi_deg": 2.2}
 #: has a positive mean (0.28 deg at the paper's 0.22 deg) and bends the line; 1 deg
 #: is 4.5 sd of that noise (the simulator's floor for theta too). dz is signed.
 FIT_FLOOR = {"dz_mm": -math.inf, "phi_deg": 1.0}
-# Offset search, as the stage log's (camwhisker.stage): range, coarse and fine steps.
-OFFSET_RANGE_S = 30.0
-OFFSET_COARSE_STEP_S = 0.1
-OFFSET_FINE_STEP_S = 0.004
-OFFSET_CANDIDATES = 3
 # The offset's score compares box means over this window (s) of both signal and force:
 # the same linear filter on both keeps the law, and takes the per-sample noise down
 # (a Nano17's 3.1 mN is a step of 0.06 mm of dz) while steps stay sharp.
 SCORE_BOX_S = 0.2
-# Scores within this of the best are one plateau: its middle is the estimate.
-OFFSET_PLATEAU = 1e-4
 # (signal column, force-log attribute, stiffness name, scale from slope to stiffness):
 # k_z in N/mm from mN/mm; k_phi in N mm/rad from N mm/deg.
 _PAIRS = (("dz_mm", "fz_mN", "k_z", 1e-3), ("phi_deg", "mb_Nmm", "k_phi", 180.0 / math.pi))
@@ -169,7 +163,8 @@ def _explained(signal, force, inside) -> float:
 
 
 def estimate_force_offset(signals: dict, log: ForceLog,
-                          search_s: tuple[float, float] = (-OFFSET_RANGE_S, OFFSET_RANGE_S)):
+                          search_s: tuple[float, float] = (-DEFAULT_OFFSET_RANGE_S,
+                                                            DEFAULT_OFFSET_RANGE_S)):
     """``offset_s`` (t_camera = t_force + offset_s) from the signals and the force log.
 
     Returns
@@ -195,21 +190,7 @@ def estimate_force_offset(signals: dict, log: ForceLog,
         return float(np.mean([_explained(s, _box_mean(log.t_s, f, tf, half), inside)
                               for s, f in pairs]))
 
-    lo, hi = search_s
-    coarse = np.arange(lo, hi + OFFSET_COARSE_STEP_S / 2, OFFSET_COARSE_STEP_S)
-    scores = np.array([score(o) for o in coarse])
-    interior = np.r_[True, scores[1:] >= scores[:-1]] & np.r_[scores[:-1] >= scores[1:], True]
-    peaks = np.flatnonzero(interior)
-    peaks = peaks[np.argsort(scores[peaks])[::-1][:OFFSET_CANDIDATES]]
-    best, best_scores = None, None
-    for b in coarse[peaks]:
-        fine = np.arange(b - 2 * OFFSET_COARSE_STEP_S, b + 2 * OFFSET_COARSE_STEP_S,
-                         OFFSET_FINE_STEP_S)
-        fs = np.array([score(o) for o in fine])
-        if best_scores is None or fs.max() > best_scores.max():
-            best, best_scores = fine, fs
-    top = best[best_scores >= best_scores.max() - OFFSET_PLATEAU]
-    return float(0.5 * (top.min() + top.max())), float(best_scores.max())
+    return best_offset(score, search_s)
 
 
 def block_means(signals: dict, log: ForceLog, offset_s: float, column: str, attr: str):

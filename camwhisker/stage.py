@@ -29,6 +29,7 @@ __all__ = [
     "stage_log_from_arrays",
     "detect_pauses",
     "estimate_offset",
+    "best_offset",
     "pause_medians",
     "pause_index",
     "pause_frames",
@@ -310,12 +311,21 @@ def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
 
     if pauses.t_start_s.size < 2:
         return math.nan, 0.0
+    return best_offset(score, search_s)
+
+
+def best_offset(score, search_s: tuple[float, float]) -> tuple[float, float]:
+    """The clock offset (s) in ``search_s`` that maximises ``score(offset)``, and its score.
+
+    Coarse grid, then a fine grid around the best few coarse local maxima: with the
+    coarse grid up to half a step off the truth, the true peak can score below a wrong
+    offset that shifts the pauses by whole steps (where phi(x) is a plain ramp). Near
+    the truth the score is flat up to noise: the middle of the offsets within
+    OFFSET_PLATEAU of the best is the estimate.
+    """
     lo, hi = search_s
     coarse = np.arange(lo, hi + OFFSET_COARSE_STEP_S / 2, OFFSET_COARSE_STEP_S)
     scores = np.array([score(o) for o in coarse])
-    # Refine around the best few coarse local maxima: with the coarse grid up to
-    # half a step off the truth, the true peak can score below a wrong offset
-    # that shifts the pauses by whole steps (where phi(x) is a plain ramp).
     interior = np.r_[True, scores[1:] >= scores[:-1]] & np.r_[scores[:-1] >= scores[1:], True]
     peaks = np.flatnonzero(interior)
     peaks = peaks[np.argsort(scores[peaks])[::-1][:OFFSET_CANDIDATES]]
@@ -326,12 +336,8 @@ def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
         fs = np.array([score(o) for o in fine])
         if best_scores is None or fs.max() > best_scores.max():
             best_fine, best_scores = fine, fs
-    fine, fscores = best_fine, best_scores
-    # Near the truth the score is flat up to noise; take the middle of the offsets
-    # within OFFSET_PLATEAU of the best.
-    top = fine[fscores >= fscores.max() - OFFSET_PLATEAU]
-    offset = float(0.5 * (top.min() + top.max()))
-    return offset, float(fscores.max())
+    top = best_fine[best_scores >= best_scores.max() - OFFSET_PLATEAU]
+    return float(0.5 * (top.min() + top.max())), float(best_scores.max())
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,8 @@ import dataclasses
 import json
 import math
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -216,9 +218,12 @@ def test_batch_over_many_inputs_adds_the_force_columns(video, tmp_path, capsys):
         (tmp_path / sub).mkdir()
         shutil.copy(video["video"], tmp_path / sub / "n.avi")
     dest = tmp_path / "dest"
-    assert main(["batch", str(tmp_path / "a"), str(tmp_path / "b"), "--sensor",
-                 str(video["sensor"]), "--dest", str(dest), "--springs", str(springs),
-                 "--jobs", "2", "--quiet"]) == 0  # fmt: skip
+    # A fresh process, as a user runs it: its workers fork from a parent with no threads.
+    cmd = [sys.executable, "-m", "camwhisker.cli", "batch", str(tmp_path / "a"),
+           str(tmp_path / "b"), "--sensor", str(video["sensor"]), "--dest", str(dest),
+           "--springs", str(springs), "--jobs", "2", "--quiet"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
     for sub in ("a", "b"):
         with open(dest / sub / "n.signals.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
