@@ -179,7 +179,9 @@ class VideoSource:
     def __iter__(self) -> Iterator[Frame]:
         """The frames in order. Where a read fails before the container's last frame
         (a corrupt stretch), reading goes on; each frame lost is a :class:`Frame`
-        without an image (event ``"gap"``), and :attr:`problem` names them.
+        without an image (event ``"gap"``), each decoded after it from the broken
+        references, up to the next key frame, has event ``"damaged"``, and
+        :attr:`problem` names them.
 
         A failed read is retried while the container says frames remain: FFmpeg
         skips the undecodable packets and picks up after them.
@@ -191,6 +193,7 @@ class VideoSource:
         # and from then on frames are placed by their times.
         ended = broken = False
         lost: list[int] = []
+        damaged_to = None  # the first key frame after the first lost frame
         try:
             while True:
                 ok, image = cap.read()
@@ -205,7 +208,10 @@ class VideoSource:
                 for k in range(i, index):
                     lost.append(k)
                     yield Frame(k, self.time_of(k), None, "gap")
-                yield Frame(index, self.time_of(index), image)
+                if lost and damaged_to is None:
+                    damaged_to = self._next_key(lost[0]) or math.inf
+                damaged = bool(lost) and lost[0] < index < damaged_to
+                yield Frame(index, self.time_of(index), image, "damaged" if damaged else "")
                 i, fails, read = index + 1, 0, read + 1
         finally:
             cap.release()
@@ -232,7 +238,7 @@ class VideoSource:
             if end - 1 > lost[0] and (key is None or key > lost[0] + 1):
                 upto = f"frame {key - 1}" if key is not None else "the end"
                 out.append(f"frames {lost[0] + 1} to {upto} were decoded from damaged "
-                           "references (before the next key frame): check them")
+                           "references (before the next key frame): their rows are untrusted")
         if ended and known and end < known:
             out.append(f"video ended after {end} of {known} frames (truncated or corrupt); "
                        "the readable part was processed")

@@ -14,6 +14,8 @@ Events (a :class:`~camwhisker.sources.Frame`'s ``event``):
   use if the features are not found there);
 - ``"redetect"``: the features are found again before the update;
 - ``"gap"``: no frame came (no image); an untrusted row, the state stays.
+- ``"damaged"``: decoded from references a corrupt stretch broke; tracked, so the
+  state follows the plate, but an untrusted row.
 
 The rest reference is not one frame's noise. From the rest frame (and from
 each re-zero) on, the frames are tracked against that frame's reference while
@@ -35,6 +37,7 @@ warning, and every reference is recorded (:class:`RestRecord`) for the sidecar.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import math
@@ -55,9 +58,10 @@ __all__ = ["REST_FRAMES", "EVENTS", "GAP_REASON", "RestRecord", "at_rest", "stre
 log = logging.getLogger(__name__)
 
 #: Events a frame can carry (a session's timestamps file's ``event`` column).
-EVENTS = ("", "rezero", "redetect", "gap")
+EVENTS = ("", "rezero", "redetect", "gap", "damaged")
 #: Reason written in a row for which no frame came (the error is in the log and sidecar).
 GAP_REASON = "no frame: the read failed (camera) or the frame could not be decoded"
+DAMAGED_REASON = "decoded from references a corrupt stretch broke (before the next key frame)"
 #: ... and the longest span it covers (s, where frames have times): the light drifts
 #: over seconds, and a reference averaged over a drift is no frame's.
 REST_SPAN_S = 1.0
@@ -272,6 +276,11 @@ def _step(fe, frame, sensor, options, rest_index, strict, warm_up):
         return FrameResult.untrusted(i, GAP_REASON), None
     if i < rest_index:
         return FrameResult.untrusted(i, "before the rest frame"), None
+    if frame.event == "damaged":  # such a frame can read ok and be degrees off
+        if fe is not None:
+            with contextlib.suppress(ValueError):
+                fe.update(image, i)
+        return FrameResult.untrusted(i, DAMAGED_REASON), None
     if fe is None or frame.event == "rezero":
         what = "rest frame" if fe is None else "re-zero failed"
         try:

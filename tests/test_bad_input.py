@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.stream import GAP_REASON
+from camwhisker.stream import DAMAGED_REASON, GAP_REASON
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_frames"
@@ -287,6 +287,12 @@ def test_every_readable_frame_is_processed(corpus, runs):
     assert len(garbage) == 90  # the container's count: every frame has its row
     assert len(decoded) == info["decodable"]["garbage.mp4"]
     assert all(r["ok"] == "0" for r in garbage if r["note"] == GAP_REASON)
+    # Frames decoded from the broken references (to the next key frame) are untrusted:
+    # one of them used to read ok with phi 1.57 deg off.
+    damaged = [r for r in garbage if r["note"] == DAMAGED_REASON]
+    assert damaged and all(r["ok"] == "0" for r in damaged)
+    first_lost = min(int(r["frame"]) for r in garbage if r["note"] == GAP_REASON)
+    assert min(int(r["frame"]) for r in damaged) > first_lost
     truncated = _rows(out / "truncated.csv")
     assert len(truncated) == info["decodable"]["truncated.avi"]
     live = _rows(out / "truncated.live.csv")

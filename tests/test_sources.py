@@ -152,6 +152,8 @@ def test_reading_goes_on_past_a_corrupt_stretch(tmp_path):
     lost = [f.index for f in frames if f.image is None]
     assert lost == src.lost_frames == [12] and src.frames_read == 29
     assert [f.event for f in frames if f.image is None] == ["gap"]
+    # No key frame after the stretch: every frame decoded after it is marked damaged.
+    assert [f.event for f in frames[13:]] == ["damaged"] * 17 and frames[11].event == ""
     np.testing.assert_allclose(frames[13].t_s, 13 / 30.0, atol=1e-6)
     assert "frames 12 of 30 could not be decoded" in src.problem
     assert "frames 13 to the end were decoded from damaged references" in src.problem
