@@ -11,14 +11,12 @@ force sensor's clock is offset from the camera's; ``offset_s`` always means
 
 from __future__ import annotations
 
-import csv
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from camwhisker.tables import write_csv
+from camwhisker.tables import read_log, write_csv
 
 __all__ = ["ForceLogError", "ForceLog", "read_force_log", "write_force_log", "FORCE_COLUMNS"]
 
@@ -43,16 +41,6 @@ class ForceLog:
     source: str
 
 
-def _number(cell: str, where: str) -> float:
-    try:
-        value = float(cell)
-    except ValueError:
-        raise ForceLogError(f"{where}: not a number: {cell!r}") from None
-    if not math.isfinite(value):
-        raise ForceLogError(f"{where}: not a finite number: {cell!r}")
-    return value
-
-
 def read_force_log(path: str | Path) -> ForceLog:
     """Read and validate a force log CSV.
 
@@ -65,30 +53,9 @@ def read_force_log(path: str | Path) -> ForceLog:
         file and the 1-based row (the header is row 1) and column.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ForceLogError(f"{path}: cannot read force log ({exc.strerror})") from exc
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise ForceLogError(f"{path}: empty file, expected header t_s,fz_mN")
-    header = [h.strip() for h in rows[0]]
-    for need in FORCE_COLUMNS[:2]:
-        if need not in header:
-            raise ForceLogError(f"{path}: row 1: missing column {need} (header: "
-                                f"{', '.join(header)})")
-    cols = {name: header.index(name) for name in FORCE_COLUMNS if name in header}
-    data = {name: [] for name in cols}
-    row_of = []
-    for i, row in enumerate(rows[1:], start=2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise ForceLogError(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
-        for name, j in cols.items():
-            data[name].append(_number(row[j].strip(), f"{path}: row {i}, column {name}"))
-        row_of.append(i)
-    t = np.array(data["t_s"], float)
+    data, row_of = read_log(path, FORCE_COLUMNS[:2], FORCE_COLUMNS[2:], "force log",
+                            ForceLogError)  # fmt: skip
+    t = data["t_s"]
     if t.size < 2:
         raise ForceLogError(f"{path}: needs at least 2 samples, got {t.size}")
     dt = np.diff(t)
@@ -103,12 +70,12 @@ def read_force_log(path: str | Path) -> ForceLog:
         k = gap[0]
         raise ForceLogError(f"{path}: row {row_of[k + 1]}, column t_s: gap of {dt[k]:.3f} s "
                             f"(more than {MAX_GAP_S:g} s without a sample)")
-    mb = np.array(data["mb_Nmm"], float) if "mb_Nmm" in data else None
+    mb = data.get("mb_Nmm")
     if mb is not None and (mb < 0).any():
         k = int(np.flatnonzero(mb < 0)[0])
         raise ForceLogError(f"{path}: row {row_of[k]}, column mb_Nmm: negative ({mb[k]!r}); "
                             "it is the bending moment's magnitude")
-    return ForceLog(t_s=t, fz_mN=np.array(data["fz_mN"], float), mb_Nmm=mb, source=str(path))
+    return ForceLog(t_s=t, fz_mN=data["fz_mN"], mb_Nmm=mb, source=str(path))
 
 
 def write_force_log(path: str | Path, log: ForceLog) -> None:

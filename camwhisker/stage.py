@@ -13,12 +13,13 @@ of phi and dz over the frames of the pause; :func:`pause_medians` does that.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from camwhisker.tables import read_log
 
 __all__ = [
     "StageLogError",
@@ -88,16 +89,6 @@ class StageLog:
         return np.where((t >= self.t_s[0]) & (t <= self.t_s[-1]), x, np.nan)
 
 
-def _number(cell: str, where: str) -> float:
-    try:
-        value = float(cell)
-    except ValueError:
-        raise StageLogError(f"{where}: not a number: {cell!r}") from None
-    if not math.isfinite(value):
-        raise StageLogError(f"{where}: not a finite number: {cell!r}")
-    return value
-
-
 def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog:
     """Read and validate a stage log CSV.
 
@@ -116,29 +107,7 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
         The message names the file and the 1-based row (the header is row 1).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise StageLogError(f"{path}: cannot read stage log ({exc.strerror})") from exc
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise StageLogError(f"{path}: empty file, expected header t_s,x_mm")
-    header = [h.strip() for h in rows[0]]
-    for need in ("t_s", "x_mm"):
-        if need not in header:
-            raise StageLogError(f"{path}: row 1: missing column {need} (header: "
-                                f"{', '.join(header)})")
-    cols = {name: header.index(name) for name in ("t_s", "x_mm", "r_mm", "dz_mm")
-            if name in header}
-    data = {name: [] for name in cols}
-    for i, row in enumerate(rows[1:], start=2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise StageLogError(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
-        for name, j in cols.items():
-            data[name].append(_number(row[j].strip(), f"{path}: row {i}, column {name}"))
-    arrays = {k: np.array(v, float) for k, v in data.items()}
+    arrays, _ = read_log(path, ("t_s", "x_mm"), ("r_mm", "dz_mm"), "stage log", StageLogError)
     return stage_log_from_arrays(arrays["t_s"], arrays["x_mm"], arrays.get("r_mm"),
                                  source=str(path), max_gap_s=max_gap_s, first_row=2,
                                  dz_mm=arrays.get("dz_mm"))

@@ -17,7 +17,7 @@ import numpy as np
 
 from camwhisker.atomic import atomic_write_text
 
-__all__ = ["TableError", "read_columns", "write_csv", "format_cell"]
+__all__ = ["TableError", "read_columns", "read_log", "write_csv", "format_cell"]
 
 
 class TableError(ValueError):
@@ -68,6 +68,45 @@ def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> di
                 raise TableError(
                     f"{path}: row {i}, column {name}: not a number: {cell!r}") from None
     return {k: np.array(v, float) for k, v in cols.items()}
+
+
+def read_log(path: str | Path, required: tuple[str, ...], optional: tuple[str, ...], what: str,
+             error: type[Exception]) -> tuple[dict, list[int]]:  # fmt: skip
+    """A logged CSV's columns (``required``, and ``optional`` where present) as float
+    arrays, every cell a finite number, blank rows skipped; and each value's 1-based
+    row (the header is row 1). Errors are ``error`` naming the file, row and column;
+    ``what`` names the file's kind ("stage log")."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from exc
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise error(f"{path}: empty file, expected header {','.join(required)}")
+    header = [h.strip() for h in rows[0]]
+    for need in required:
+        if need not in header:
+            raise error(f"{path}: row 1: missing column {need} (header: {', '.join(header)})")
+    cols = {name: header.index(name) for name in required + optional if name in header}
+    data = {name: [] for name in cols}
+    row_of = []
+    for i, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise error(f"{path}: row {i}: {len(row)} cells, header has {len(header)}")
+        for name, j in cols.items():
+            cell, where = row[j].strip(), f"{path}: row {i}, column {name}"
+            try:
+                value = float(cell)
+            except ValueError:
+                raise error(f"{where}: not a number: {cell!r}") from None
+            if not math.isfinite(value):
+                raise error(f"{where}: not a finite number: {cell!r}")
+            data[name].append(value)
+        row_of.append(i)
+    return {k: np.array(v, float) for k, v in data.items()}, row_of
 
 
 def format_cell(value, digits: int = 6) -> str:

@@ -45,9 +45,7 @@ REQUIRED_COLUMNS = ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm")
 #: Columns used where the table has them (camwhisker contact writes them).
 OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "z_combined", "phi_pause_deg", "mf_outside")
 # Above this |Z| (in the combined spread of GM and MF) the surfel takes the MF point:
-# the paper reads Z < 0.5 as "expected". On the tuning sweeps (seeds 0-39) it took the
-# wall angle error from 2.8 to 1.5 deg (median) and the apex error from 10.6 to 1.8 mm
-# (95th percentile) against the fused point alone.
+# the paper reads Z < 0.5 as "expected", and beyond it the fused point leans on a broken GM.
 Z_SWITCH = 0.5
 
 
