@@ -44,6 +44,14 @@ covariance with the residuals' scores summed over blocks of ``BLOCK_FRAMES``
 parameter whose SE exceeds ``SE_LIMIT`` times its build tolerance
 (``tolerances``) is not determined by the sweep: it is held at its nominal
 value, the worst first, and the rest fitted again.
+
+Both leave out what no residual shows: a tracking error that grows smoothly with
+the tilt, which the fit takes into the geometry. Each point is given one per
+coordinate, c1 a/PHI0 + c2 b/PHI0 + c3 (a^2 + b^2)/PHI0^2 with each c of SD
+``SYSTEMATIC_PX`` (measured on tuning builds), and the geometry's linear response
+to them adds to every variance. Which parameters to hold is decided without it:
+holding one does not remove that error, it passes it to the parameters correlated
+with the held one and adds its own (up to its tolerance).
 """
 
 from __future__ import annotations
@@ -92,6 +100,11 @@ CORNER_SHIFT_UNMEASURED_MM = 0.03
 #: Frames whose residuals the sandwich SE lets correlate freely: 1 s at 30 fps, longer
 #: than the tracking errors take to drift.
 BLOCK_FRAMES = 30
+#: SD (px) of a point's tilt-dependent tracking error at PHI0 of tilt, per term: the
+#: tracked-minus-true points of tuning builds 0-4 regressed on the terms, the RMS
+#: coefficient (0.074 px) less the regressions' own noise (0.021 px), in quadrature.
+SYSTEMATIC_PX = 0.071
+SYSTEMATIC_PHI0_RAD = math.radians(20.0)
 #: The frame-to-frame residual correlation used for the noise SD is capped here.
 MAX_FRAME_CORRELATION = 0.95
 #: The residuals' SD (px) assumed before the first fit measures it, and the
@@ -215,6 +228,7 @@ class _Normal:
     weight: np.ndarray  # (F, 13)
     bg_frame: np.ndarray  # (F, n): each frame's share of bg
     leverage: np.ndarray  # (F, 13): each point's share of its frame's pose (two coordinates)
+    systematic: np.ndarray  # (13, 2, 3, n): the reduced score's response to each bias term
 
 
 def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
@@ -254,6 +268,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     weight = np.zeros((n_f, TIP + 1))
     leverage = np.zeros((n_f, TIP + 1))
     d_shift = np.zeros((TIP + 1, 2, shifts.size))
+    systematic = np.zeros((TIP + 1, 2, 3, n))
     cost = 0.0
     q5 = np.zeros(5)
     for f in np.flatnonzero(p.valid.any(axis=1)):
@@ -284,6 +299,10 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
             # The hat matrix's diagonal: how much of each residual the pose absorbs.
             hat = np.einsum("ij,jk,ik->i", jp, np.linalg.pinv(V[f]), jp)
             leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
+            # What of the geometry's rows the pose cannot absorb, per pixel of bias.
+            reduced = (jg - jp @ np.linalg.pinv(V[f]) @ W[f].T) * sw[:, None]
+            systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
+                                       _bias_terms(q[f]))  # fmt: skip
     # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
     is_shift = p.free >= n_geo
     k = p.free[is_shift] - n_geo
@@ -291,7 +310,13 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     U[is_shift, is_shift] += 1.0
     bg[is_shift] -= x
     cost += float(x @ x)
-    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+
+
+def _bias_terms(q3: np.ndarray) -> np.ndarray:
+    """The tilt-dependent tracking error's terms at pose (dz, a, b), shape (3,)."""
+    a, b = q3[1:3] / SYSTEMATIC_PHI0_RAD
+    return np.array([a, b, a * a + b * b])
 
 
 def _reduced(ne: _Normal, lam: float, moving: np.ndarray):
@@ -363,13 +388,15 @@ def _noise(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[float, np.ndar
     return sigma, noise
 
 
-def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> np.ndarray:
+def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """SE of the free parameters (their units) from the undamped reduced system, whose
     residuals are in units of their noise SD: the larger of the model's covariance
     S^-1 and the sandwich S^-1 M S^-1 with the residuals' scores summed over blocks
-    of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across)."""
+    of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across),
+    and that plus the variance from the tilt-dependent errors (``SYSTEMATIC_PX``)."""
     if not len(p.free):
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0)
     S, _, vinv = _reduced(ne, 0.0, moving)
     score = ne.bg_frame - np.einsum("fij,fj->fi", ne.W @ vinv, ne.bp)  # each frame's share
     # A block never spans two videos, and each video's rest frames are one block.
@@ -382,8 +409,10 @@ def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray) -> np.ndarray
     is_shift = p.free >= len(GEOMETRY_NAMES)
     meat[is_shift, is_shift] += 1.0  # the prior: an observation of unit variance
     s_inv = np.linalg.inv(S)
-    var = np.maximum(np.diag(s_inv), np.diag(s_inv @ meat @ s_inv))
-    return np.sqrt(np.clip(var, 0.0, None)) * p.tol[p.free]
+    var = np.clip(np.maximum(np.diag(s_inv), np.diag(s_inv @ meat @ s_inv)), 0.0, None)
+    response = s_inv @ ne.systematic.reshape(-1, S.shape[0]).T  # (n, 13 * 2 * 3)
+    var_sys = SYSTEMATIC_PX**2 * np.sum(response**2, axis=1)
+    return np.sqrt(var) * p.tol[p.free], np.sqrt(var + var_sys) * p.tol[p.free]
 
 
 def _correlation_inflation(residual: np.ndarray) -> float:
@@ -415,15 +444,17 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
         if np.abs(noise / p.noise_px - 1).max() > NOISE_RTOL and passes < _NOISE_PASSES:
             p.noise_px = noise  # the weights were off: fit again with the measured SDs
             continue
-        se_free = _standard_errors(ne, p, moving)
+        se_data, se_free = _standard_errors(ne, p, moving)
         n_free_geo = int(np.count_nonzero(p.free < n_geo))
-        ratio = se_free[:n_free_geo] / p.tol[p.free[:n_free_geo]]
+        # By what the sweep's data say: holding does not remove the tilt-dependent error,
+        # it passes it to the parameters correlated with the held one, and adds its own.
+        ratio = se_data[:n_free_geo] / p.tol[p.free[:n_free_geo]]
         if not len(ratio) or ratio.max() <= se_limit:
             return g, q, ne, se_free, sigma, n_iter
         worst = int(np.argmax(ratio))
         i = int(p.free[worst])
         held[GEOMETRY_NAMES[i]] = (
-            f"not determined by the sweep (SE {se_free[worst]:.3g} > {se_limit} x tolerance "
+            f"not determined by the sweep (SE {se_data[worst]:.3g} > {se_limit} x tolerance "
             f"{p.tol[i]:.3g}): held at nominal"
         )
         g[i] = nominal[i]
