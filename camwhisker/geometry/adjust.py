@@ -144,6 +144,9 @@ class Adjustment:
         The nominal sensor with the fitted geometry.
     nominal, value, se : ndarray, shape (len(GEOMETRY_NAMES),)
         Nominal and fitted values, standard errors (NaN where held).
+    se_data : ndarray, shape (len(GEOMETRY_NAMES),)
+        The SEs without the tilt-dependent tracking error: what the sweep's data
+        say, which decides what is held and when the rounds are stable.
     held : dict
         Held parameter name -> why.
     q : ndarray, shape (F, 5)
@@ -167,6 +170,7 @@ class Adjustment:
     nominal: np.ndarray
     value: np.ndarray
     se: np.ndarray
+    se_data: np.ndarray
     held: dict
     q: np.ndarray
     residual_uv: np.ndarray
@@ -434,7 +438,8 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
     used; then hold the free geometry parameter worst determined (SE above
     se_limit tolerances) at nominal and fit again, until none is; ``held``,
     ``p.free`` and ``p.noise_px`` are updated. Returns g, q, the normal
-    equations, the free SEs, sigma and the iterations."""
+    equations, the free SEs (with and without the tilt-dependent error), sigma and
+    the iterations."""
     n_geo, n_iter, passes = len(nominal), 0, 0
     while True:
         g, q, ne, it = _solve(p, g, q, moving)
@@ -450,7 +455,7 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
         # it passes it to the parameters correlated with the held one, and adds its own.
         ratio = se_data[:n_free_geo] / p.tol[p.free[:n_free_geo]]
         if not len(ratio) or ratio.max() <= se_limit:
-            return g, q, ne, se_free, sigma, n_iter
+            return g, q, ne, (se_free, se_data), sigma, n_iter
         worst = int(np.argmax(ratio))
         i = int(p.free[worst])
         held[GEOMETRY_NAMES[i]] = (
@@ -568,17 +573,18 @@ def adjust_geometry(
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
-    g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
+    g, q, ne, se_pair, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
     n_iter += it
-    se = np.full(len(g), np.nan)
-    se[p.free] = se_free
-    g, shifts, se = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2), se[:n_geo]
+    se, se_data = np.full((2, n_geo), np.nan)
+    geo = p.free < n_geo
+    se[p.free[geo]], se_data[p.free[geo]] = se_pair[0][geo], se_pair[1][geo]
+    g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
     q5 = np.zeros((len(q), 5))
     q5[:, :3] = q
     q5[~used] = np.nan
     return Adjustment(
-        with_geometry(sensor, g), nominal, g, se, held, q5, ne.residual, used, sigma, n_iter,
-        shifts, p.noise_px, _warnings(q5, held, fixed),
+        with_geometry(sensor, g), nominal, g, se, se_data, held, q5, ne.residual, used, sigma,
+        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed),
     )  # fmt: skip
 
 

@@ -3,9 +3,10 @@
 For ``BUILD.toml``::
 
     BUILD.toml          the fitted sensor file (only keys the sensor file knows)
-    BUILD.report.json   every parameter's nominal and fitted value, SE, held or
-                        fitted; residual RMS per point and per frame; each
-                        video's corners' offsets at rest; frames used;
+    BUILD.report.json   every parameter's nominal and fitted value, SE (and the
+                        SE from the data alone, ``se_data``), held or fitted;
+                        residual RMS per point and per frame; each video's
+                        corners' offsets at rest; frames used;
                         warnings; version, inputs, command
     BUILD.report.png    residuals per point and per frame, parameter shifts in SE
 
@@ -58,7 +59,8 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
     nominal_g, tol = geometry_vector(nominal), tolerances(nominal)
     params = [
         {"name": name, "nominal": _num(nominal_g[i]), "fitted": _num(adj.value[i]),
-         "se": _num(adj.se[i]), "tolerance": _num(tol[i]), "held": name in adj.held,
+         "se": _num(adj.se[i]), "se_data": _num(adj.se_data[i]), "tolerance": _num(tol[i]),
+         "held": name in adj.held,
          "why_held": _why_held(cal, name)}
         for i, name in enumerate(GEOMETRY_NAMES)
     ]  # fmt: skip

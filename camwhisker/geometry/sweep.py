@@ -306,11 +306,13 @@ def calibrate_sensor(
 
 
 def _stable(before: Adjustment, after: Adjustment) -> bool:
-    """No fitted parameter moved by more than ``STABLE_SE`` of its SE, none changed hold."""
+    """No fitted parameter moved by more than ``STABLE_SE`` of its SE from the data,
+    none changed hold."""
     if set(before.held) != set(after.held):
         return False
-    free = np.isfinite(after.se)
-    return bool(np.all(np.abs(after.value - before.value)[free] <= STABLE_SE * after.se[free]))
+    free = np.isfinite(after.se_data)
+    moved = np.abs(after.value - before.value)[free]
+    return bool(np.all(moved <= STABLE_SE * after.se_data[free]))
 
 
 def intrinsics_from_chessboard(
