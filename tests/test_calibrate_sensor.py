@@ -457,3 +457,57 @@ def test_calibrate_sensor_cli_names_bad_input(tmp_path, capsys):
                "--pattern", "9by6"])  # fmt: skip
     assert rc == 2
     assert "--pattern must be like 9x6" in capsys.readouterr().err
+
+
+def test_known_dz_steps_fix_the_scale_without_a_length(build):
+    # Every third moving frame's dz known (a stage's pauses), no length given: the
+    # square's side is fitted, and must land within 3 SE of the build's.
+    q = sweep_poses(90)
+    pts = model_points(build, q, seed=3)
+    rest = np.arange(90) < N_REST
+    known = np.full(90, np.nan)
+    known[N_REST::3] = q[N_REST::3, 0]
+    fixed = {f"plate.{k}": 0.0 for k in OPTIONAL_PLATE_KEYS}
+    adj = adjust_geometry(pts, Sensor(), rest, fixed=fixed, known_dz_mm=known)
+    i = GEOMETRY_NAMES.index("plate.square_side_mm")
+    assert "plate.square_side_mm" not in adj.held
+    assert abs(adj.value[i] - build.plate.square_side_mm) < 3 * adj.se[i]
+    # Off nominal (5.0 mm) by more than its SE: the steps, not the start, set it.
+    assert abs(adj.value[i] - Sensor().plate.square_side_mm) > adj.se[i]
+    assert not any("no known length" in w for w in adj.warnings)
+    with pytest.raises(ValueError, match="known_dz_sd_mm must be positive"):
+        adjust_geometry(pts, Sensor(), rest, known_dz_mm=known, known_dz_sd_mm=0.0)
+
+
+def test_a_stage_log_of_dz_steps_gives_each_pause_its_dz():
+    from camwhisker.geometry.sweep import TrackedSweep, known_dz_from_stage
+    from camwhisker.mechanics import simulate_runs
+    from camwhisker.mechanics.experiment import FRONT_END_NOISE
+    from camwhisker.stage import StageLogError, stage_log_from_arrays
+
+    run = simulate_runs("test2", 3, noise=FRONT_END_NOISE)[0]
+    n = run.signals["t_s"].size
+    tracked = TrackedSweep(np.zeros((n, 13, 2)), np.column_stack([run.signals["dz_mm"],
+                           np.zeros((n, 4))]), run.signals["ok"].astype(bool), np.zeros(n, bool),
+                           np.zeros(n, int), run.signals["t_s"], np.zeros((1, 12, 2)))  # fmt: skip
+    log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"], source="steps.csv",
+                                dz_mm=run.stage["dz_mm"])  # fmt: skip
+    known, sd = known_dz_from_stage(tracked, 0, log)
+    has = np.isfinite(known)
+    truth = np.interp(run.signals["t_s"], run.truth["t_s"], run.truth["dz_mm"])
+    # The frames inside pauses, each pause's known dz the plate's (the stage is exact).
+    assert has.sum() > 0.4 * n
+    assert np.max(np.abs(known[has] - truth[has])) < 1e-6
+    assert np.all(sd[has] > 0)
+    no_dz = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"], source="steps.csv")
+    with pytest.raises(StageLogError, match="steps.csv: no dz_mm column"):
+        known_dz_from_stage(tracked, 0, no_dz)
+
+
+def test_calibrate_sensor_cli_needs_a_scale(tmp_path, capsys):
+    from camwhisker.cli import main
+
+    rc = main(["calibrate-sensor", str(tmp_path / "none.avi"), "--out", str(tmp_path / "b.toml")])
+    assert rc == 2
+    assert "give --square-side-mm or --dz-steps" in capsys.readouterr().err
+    assert not (tmp_path / "b.toml").exists()

@@ -26,13 +26,18 @@ def add_calibrate_sensor(sub) -> None:
         description="Fit the camera intrinsics and the plate geometry of a hand-made sensor to "
         "videos of a free sweep (each starting with ~10 frames at rest, then the whisker "
         "pushed in all directions, phi up to ~30 deg), with the square's side measured with "
-        "calipers fixing the scale. Beside OUT: OUT.report.json and OUT.report.png (every "
+        "calipers, or videos of known axial steps with their stage logs, fixing the scale. "
+        "Beside OUT: OUT.report.json and OUT.report.png (every "
         "parameter's value and standard error, residuals per point and per frame, warnings).",
     )
     p.add_argument("videos", nargs="+", metavar="VIDEO", help="sweep videos, each from rest")
     sensor_arg(p, "the nominal sensor file to start from; default: Table I values")
-    p.add_argument("--square-side-mm", type=float, required=True, metavar="L",
+    p.add_argument("--square-side-mm", type=float, metavar="L",
                    help="the square's side measured with calipers (mm)")  # fmt: skip
+    p.add_argument("--dz-steps", nargs=2, action="append", default=[], metavar=("VIDEO", "LOG"),
+                   help="a video of known axial steps (the paper's test 2, from rest) and its "
+                   "stage log with a dz_mm column (docs/sensor.md section 7); repeatable; "
+                   "fixes the scale with or without --square-side-mm")  # fmt: skip
     p.add_argument("--out", required=True, metavar="BUILD.toml", help="fitted sensor file")
     p.add_argument("--chessboard", metavar="DIR",
                    help="folder of chessboard images: intrinsics from them, held")  # fmt: skip
@@ -84,14 +89,19 @@ def _run_calibrate_sensor(args) -> int:
     from camwhisker.geometry.sweep import calibrate_sensor
     from camwhisker.sensor import load_sensor
     from camwhisker.sources import check_frame_size, open_source
+    from camwhisker.stage import read_stage_log
     from camwhisker.vision.tracker import FrontEndOptions
 
     if args.rounds < 1:
         raise CommandError(f"--rounds must be >= 1, got {args.rounds}")
+    if args.square_side_mm is None and not args.dz_steps:
+        raise CommandError("give --square-side-mm or --dz-steps VIDEO LOG: the images alone "
+                           "do not fix the scale")  # fmt: skip
+    dz_steps = [(video, read_stage_log(log)) for video, log in args.dz_steps]
     sensor = load_sensor(args.sensor)
     intrinsics = _chessboard(args, sensor) if args.chessboard else None
     options = FrontEndOptions(features=feature_hints(args, sensor))
-    sources = [open_source(v) for v in args.videos]
+    sources = [open_source(v) for v in [*args.videos, *(v for v, _ in dz_steps)]]
     for source in sources:
         check_frame_size(source, sensor)
     n_frames = sum(len(s) for s in sources)
@@ -106,10 +116,11 @@ def _run_calibrate_sensor(args) -> int:
 
     try:
         cal = calibrate_sensor(args.videos, sensor, args.square_side_mm, intrinsics,
-                               args.rounds, bar.update, on_round, options)  # fmt: skip
+                               args.rounds, bar.update, on_round, options, dz_steps)  # fmt: skip
     finally:
         bar.close()
     inputs = {"videos": [str(v) for v in args.videos], "square_side_mm": args.square_side_mm,
+              "dz_steps": [{"video": v, "stage_log": log} for v, log in args.dz_steps],
               "chessboard": args.chessboard, "intrinsics_from_chessboard": intrinsics,
               "features": args.features}  # fmt: skip
     paths = write_calibration(cal, sensor, args.out, inputs, command_line(args))

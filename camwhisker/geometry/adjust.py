@@ -17,7 +17,8 @@ Gauges, and what holds them:
 - The lateral shift (sx, sy) is held at zero: a free shift lets the depth of
   the rotation centre trade off against the features' depths.
 - The overall scale is invisible in the images: one known length (the
-  square's side, measured with calipers) must be held at its value.
+  square's side, measured with calipers) must be held at its value, or frames
+  with a known dz (a stage's axial steps) given: a prior on their poses.
 
 The tracked corners: a tracked corner is the plate point that its rest
 template is centred on, the detected corner, which lies off the true corner
@@ -117,6 +118,8 @@ MIN_NOISE_DOF = 20
 _NOISE_PASSES = 4
 #: Points a frame needs for its pose (3 unknowns) to be checked by the others.
 MIN_POINTS = 4
+#: SD of a known dz (mm) per stage pause: a stage's step error.
+KNOWN_DZ_SD_MM = 0.001
 #: Parameters no sweep determines, always held at nominal, and why.
 ALWAYS_HELD = {
     "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
@@ -215,6 +218,8 @@ class _Problem:
     free: np.ndarray  # indices into the geometry, then the shifts
     huber_px: float
     noise_px: np.ndarray  # (13,) each point's residuals' SD per coordinate: their weight
+    known_dz: np.ndarray  # (F,) a known dz (mm) per frame, NaN where none
+    known_dz_sd: np.ndarray  # (F,) its SD per frame (mm)
 
 
 @dataclass
@@ -300,6 +305,11 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
         if not p.rest[f]:
             jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
             V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
+            if np.isfinite(p.known_dz[f]):  # a prior on the pose's dz, in units of its SD
+                r_dz = (p.known_dz[f] - q[f, 0]) / p.known_dz_sd[f]
+                V[f][0, 0] += p.known_dz_sd[f] ** -2
+                bp[f][0] += r_dz / p.known_dz_sd[f]
+                cost += r_dz**2
             # The hat matrix's diagonal: how much of each residual the pose absorbs.
             hat = np.einsum("ij,jk,ik->i", jp, np.linalg.pinv(V[f]), jp)
             leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
@@ -513,6 +523,8 @@ def adjust_geometry(
     video: np.ndarray | None = None,
     huber_px: float = HUBER_PX,
     se_limit: float = SE_LIMIT,
+    known_dz_mm: np.ndarray | None = None,
+    known_dz_sd_mm: np.ndarray | float = KNOWN_DZ_SD_MM,
 ) -> Adjustment:
     """Fit the geometry and per-frame poses to tracked points over a sweep.
 
@@ -539,6 +551,9 @@ def adjust_geometry(
         Each frame's video, 0 ... V - 1 (its rest templates); default all 0.
     huber_px, se_limit : float
         See ``HUBER_PX`` and ``SE_LIMIT``.
+    known_dz_mm, known_dz_sd_mm : ndarray, shape (F,), optional; float or ndarray
+        A frame's known dz (mm; NaN where unknown), such as a stage's axial steps, and
+        its SD: a prior on the frame's pose that fixes the scale without a length.
 
     Returns
     -------
@@ -547,7 +562,8 @@ def adjust_geometry(
     points_uv, rest, video, corner_offsets_uv, fixed = _checked(
         points_uv, rest, video, corner_offsets_uv, fixed
     )
-    n_frames, n_videos = len(points_uv), len(corner_offsets_uv)
+    known_dz, known_sd = _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames := len(points_uv))
+    n_videos = len(corner_offsets_uv)
     valid = np.isfinite(points_uv).all(axis=-1)
     used = valid.sum(axis=1) >= MIN_POINTS
     if not (rest & used).any():
@@ -569,26 +585,36 @@ def adjust_geometry(
     held = {name: "held at the given value" for name in fixed}
     held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
     p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior,
-                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, NOISE_START_PX))  # fmt: skip
+                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, NOISE_START_PX),
+                 known_dz, known_sd)  # fmt: skip
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
     g, q, ne, se_pair, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
     n_iter += it
     se, se_data = np.full((2, n_geo), np.nan)
-    geo = p.free < n_geo
-    se[p.free[geo]], se_data[p.free[geo]] = se_pair[0][geo], se_pair[1][geo]
+    se[p.free[p.free < n_geo]], se_data[p.free[p.free < n_geo]] = (
+        e[p.free < n_geo] for e in se_pair)
     g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
-    q5 = np.zeros((len(q), 5))
-    q5[:, :3] = q
-    q5[~used] = np.nan
+    q5 = np.where(used[:, None], np.pad(q, ((0, 0), (0, 2))), np.nan)
     return Adjustment(
         with_geometry(sensor, g), nominal, g, se, se_data, held, q5, ne.residual, used, sigma,
-        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed),
+        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, np.isfinite(known_dz[moving]).any()),
     )  # fmt: skip
 
 
-def _warnings(q5: np.ndarray, held: dict, fixed: dict) -> list[str]:
+def _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames: int):
+    """The known dz and its SD as (F,) arrays; ValueError naming what is malformed."""
+    known = np.full(n_frames, np.nan) if known_dz_mm is None else np.asarray(known_dz_mm, float)
+    sd = np.broadcast_to(np.asarray(known_dz_sd_mm, float), known.shape).copy()
+    if known.shape != (n_frames,):
+        raise ValueError(f"known_dz_mm must give one value (or NaN) per frame, {n_frames}")
+    if not np.all(sd[np.isfinite(known)] > 0):
+        raise ValueError("known_dz_sd_mm must be positive where a dz is known")
+    return known, sd
+
+
+def _warnings(q5: np.ndarray, held: dict, fixed: dict, known_dz: bool) -> list[str]:
     """What the user should know about the sweep and the gauge."""
     out = []
     phi_max = float(np.degrees(np.nanmax(np.hypot(q5[:, 1], q5[:, 2]))))
@@ -598,12 +624,12 @@ def _warnings(q5: np.ndarray, held: dict, fixed: dict) -> list[str]:
             "the depths and the distortion are poorly determined; sweep to ~30 deg"
         )
     lengths = [n for n in GEOMETRY_NAMES if n.endswith("_mm")]
-    if not any(n in fixed for n in lengths):
+    if not known_dz and not any(n in fixed for n in lengths):
         scale_held = [n for n in lengths if n in held]
         out.append(
             "no known length: the overall scale is not determined by images; "
             + (f"held {', '.join(scale_held)} at nominal" if scale_held else "the fit is unscaled")
-            + " (give the square's side measured with calipers)"
+            + " (give the square's side measured with calipers, or known dz steps)"
         )
     for name, why in held.items():
         if name not in fixed:

@@ -21,7 +21,7 @@ images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import islice
 from pathlib import Path
@@ -30,11 +30,19 @@ import cv2
 import numpy as np
 
 from camwhisker.camera import INTRINSIC_NAMES
-from camwhisker.geometry.adjust import Adjustment, adjust_geometry
+from camwhisker.geometry.adjust import KNOWN_DZ_SD_MM, Adjustment, adjust_geometry
 from camwhisker.model import TIP, PlateModel
 from camwhisker.polygon import polygon_centroid
 from camwhisker.sensor import Sensor
 from camwhisker.sources import open_source
+from camwhisker.stage import (
+    StageLog,
+    StageLogError,
+    detect_pauses,
+    estimate_offset,
+    log_pause_medians,
+    pause_frames,
+)
 from camwhisker.stream import track
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import edge_corners
@@ -83,6 +91,7 @@ class TrackedSweep:
     ok : ndarray of bool, shape (F,)
     rest : ndarray of bool, shape (F,); the leading frames at rest of each video
     video : ndarray of int, shape (F,); which video each frame came from
+    t_s : ndarray, shape (F,); each frame's time in its video (s)
     corner_offsets_uv : ndarray, shape (V, 12, 2); each video's tracked corners minus
         the true ones at rest (:func:`rest_corner_offsets`), NaN where not measured
     """
@@ -92,6 +101,7 @@ class TrackedSweep:
     ok: np.ndarray
     rest: np.ndarray
     video: np.ndarray
+    t_s: np.ndarray
     corner_offsets_uv: np.ndarray
 
 
@@ -217,7 +227,8 @@ def track_sweep(
     """
     parts, offsets = [], []
     for k, video in enumerate(videos):
-        images = (f.image for f in open_source(video))
+        times: list[float] = []
+        images = _images_noting_times(video, times)
         results = []
         for r in track(images, sensor, options):
             results.append(r)
@@ -231,20 +242,57 @@ def track_sweep(
         images = [f.image for f in islice(open_source(video), int(rest.sum()))]
         offsets.append(rest_corner_offsets(images, pts[rest], sensor, options))
         parts.append((pts, _q_from_results(results), np.array([r.ok for r in results]),
-                      rest, np.full(len(results), k)))  # fmt: skip
+                      rest, np.full(len(results), k), np.array(times[: len(results)])))  # fmt: skip
     return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
                         np.array(offsets))  # fmt: skip
+
+
+def _images_noting_times(video: str | Path, times: list) -> Iterator[np.ndarray]:
+    """The video's images, each frame's time appended to ``times`` as it passes."""
+    for frame in open_source(video):
+        times.append(frame.t_s)
+        yield frame.image
+
+
+def known_dz_from_stage(tracked: TrackedSweep, k: int, log: StageLog
+                        ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each frame's known dz (mm; NaN where none) in video ``k`` from its stage log of
+    known axial steps (the paper's test 2), and its SD (mm): the log's median dz over
+    each pause for the trusted frames inside it, the clocks aligned on the front end's
+    dz; each pause counts as one step of SD ``KNOWN_DZ_SD_MM``.
+
+    Raises
+    ------
+    StageLogError
+        The log has no dz_mm column, or its clock cannot be aligned with the video's.
+    """
+    if log.dz_mm is None:
+        raise StageLogError(f"{log.source}: no dz_mm column: known dz steps need it")
+    sel = np.flatnonzero(tracked.video == k)
+    t, dz = tracked.t_s[sel], tracked.q[sel, 0]
+    offset_s, _ = estimate_offset(log, t, dz)  # dz in phi's place: the one signal that moves
+    if not np.isfinite(offset_s):
+        raise StageLogError(f"{log.source}: its pauses cannot be aligned with the video's dz")
+    pauses = detect_pauses(log)
+    applied = log_pause_medians(log, log.dz_mm, pauses)
+    known, sd = np.full((2, len(tracked.video)), np.nan)
+    for frames, value in zip(pause_frames(t, tracked.ok[sel], pauses, offset_s), applied,
+                             strict=True):  # fmt: skip
+        known[sel[frames]] = value
+        sd[sel[frames]] = KNOWN_DZ_SD_MM * np.sqrt(len(frames))
+    return known, sd
 
 
 def calibrate_sensor(
     videos: Sequence[str | Path],
     sensor: Sensor,
-    square_side_mm: float,
+    square_side_mm: float | None,
     intrinsics: dict | None = None,
     rounds: int = MAX_ROUNDS,
     on_frame: Callable[[], None] | None = None,
     on_round: Callable[[int, Adjustment], None] | None = None,
     options: FrontEndOptions | None = None,
+    dz_steps: Sequence[tuple[str | Path, StageLog]] = (),
 ) -> Calibration:
     """Fit a build's geometry to its sweep videos, starting from the nominal ``sensor``.
 
@@ -254,8 +302,9 @@ def calibrate_sensor(
         Sweep videos, each starting at rest.
     sensor : Sensor
         The nominal sensor file.
-    square_side_mm : float
-        The square's side measured with calipers: fixes the scale.
+    square_side_mm : float or None
+        The square's side measured with calipers: fixes the scale. None: the scale
+        comes from ``dz_steps``.
     intrinsics : dict, optional
         ``[camera]`` keys (fx_px, fy_px, cx_px, cy_px, distortion) from a separate
         calibration: held at these values.
@@ -266,22 +315,18 @@ def calibrate_sensor(
     options : FrontEndOptions, optional
         How the front end tracks the sweep (``features``: rough rest positions);
         its corners without their apex (``SWEEP_APEX_MASK_PX``).
+    dz_steps : sequence of (path, StageLog)
+        Videos of known axial steps (the paper's test 2), each with its stage log
+        (a ``dz_mm`` column): tracked with the sweep, their pauses' dz known.
 
     Returns
     -------
     Calibration
     """
-    if not square_side_mm > 0:
-        raise ValueError(f"square_side_mm must be positive, got {square_side_mm}")
     if rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds}")
-    start = sensor.replace(plate={"square_side_mm": float(square_side_mm)})
-    fixed = {SQUARE_SIDE: float(square_side_mm)}
-    if intrinsics:
-        start = start.replace(camera=intrinsics)
-        cam = start.camera
-        values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
-        fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
+    start, fixed = _start(sensor, square_side_mm, intrinsics, bool(dz_steps))
+    videos = [*videos, *(v for v, _ in dz_steps)]
     options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX)
     current, previous, ok_fraction = start, None, []
     for k in range(rounds):
@@ -293,9 +338,14 @@ def calibrate_sensor(
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
+        known_dz, known_sd = np.full((2, len(pts)), np.nan)
+        for j, (_, log) in enumerate(dz_steps):
+            known, sd = known_dz_from_stage(tracked, len(videos) - len(dz_steps) + j, log)
+            has = np.isfinite(known)
+            known_dz[has], known_sd[has] = known[has], sd[has]
         adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q, corner_shifts=True,
-                              corner_offsets_uv=tracked.corner_offsets_uv,
-                              video=tracked.video)  # fmt: skip
+                              corner_offsets_uv=tracked.corner_offsets_uv, video=tracked.video,
+                              known_dz_mm=known_dz, known_dz_sd_mm=known_sd)  # fmt: skip
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
@@ -303,6 +353,28 @@ def calibrate_sensor(
             break
         previous = adj
     return Calibration(adj, tracked, ok_fraction, radius_px)
+
+
+def _start(sensor: Sensor, square_side_mm: float | None, intrinsics: dict | None,
+           dz_steps: bool) -> tuple[Sensor, dict]:  # fmt: skip
+    """The adjustment's starting sensor and its fixed parameters: the square's side,
+    the intrinsics where given."""
+    if square_side_mm is None and not dz_steps:
+        raise ValueError("give the square's side (square_side_mm) or known dz steps: "
+                         "the images alone do not fix the scale")  # fmt: skip
+    fixed = {}
+    if square_side_mm is not None:
+        if not square_side_mm > 0:
+            raise ValueError(f"square_side_mm must be positive, got {square_side_mm}")
+        fixed[SQUARE_SIDE] = float(square_side_mm)
+    start = sensor.replace(plate={"square_side_mm": fixed.get(SQUARE_SIDE,
+                                                              sensor.plate.square_side_mm)})
+    if intrinsics:
+        start = start.replace(camera=intrinsics)
+        cam = start.camera
+        values = [cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px, *cam.distortion]
+        fixed.update({f"camera.{n}": v for n, v in zip(INTRINSIC_NAMES, values, strict=True)})
+    return start, fixed
 
 
 def _stable(before: Adjustment, after: Adjustment) -> bool:
