@@ -593,13 +593,14 @@ def adjust_geometry(
     g, q, ne, se_pair, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
     n_iter += it
     se, se_data = np.full((2, n_geo), np.nan)
-    se[p.free[p.free < n_geo]], se_data[p.free[p.free < n_geo]] = (
-        e[p.free < n_geo] for e in se_pair)
+    geo = p.free[p.free < n_geo]  # the free geometry comes first, then the shifts
+    se[geo], se_data[geo] = se_pair[0][: len(geo)], se_pair[1][: len(geo)]
     g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
     q5 = np.where(used[:, None], np.pad(q, ((0, 0), (0, 2))), np.nan)
+    scaled_by_dz = bool(np.nan_to_num(known_dz)[moving].any())
     return Adjustment(
         with_geometry(sensor, g), nominal, g, se, se_data, held, q5, ne.residual, used, sigma,
-        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, np.isfinite(known_dz[moving]).any()),
+        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, scaled_by_dz),
     )  # fmt: skip
 
 
@@ -615,7 +616,8 @@ def _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames: int):
 
 
 def _warnings(q5: np.ndarray, held: dict, fixed: dict, known_dz: bool) -> list[str]:
-    """What the user should know about the sweep and the gauge."""
+    """What the user should know about the sweep and the gauge (``known_dz``: a
+    moving frame's dz, not zero, is known, which fixes the scale)."""
     out = []
     phi_max = float(np.degrees(np.nanmax(np.hypot(q5[:, 1], q5[:, 2]))))
     if phi_max < PHI_MIN_SWEEP_DEG:
