@@ -361,7 +361,7 @@ ONSET_FIT_PAUSES = 3
 
 
 def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
-    """Stage position of first contact, from pause medians.
+    """Stage position of first contact, from pause medians or from frames of a continuous sweep.
 
     Fits phi = a (x - x0) through the pauses with :data:`CONTACT_PHI_DEG` <= phi <
     :data:`ONSET_PHI_MAX_DEG` before phi first leaves that range (or the first
@@ -373,7 +373,7 @@ def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     phi = np.asarray(phi_deg, float)
     order = np.argsort(travel_sign * x, kind="stable")
     x, phi = x[order], phi[order]
-    finite = np.isfinite(phi)
+    finite = np.isfinite(phi) & np.isfinite(x)
     x, phi = x[finite], phi[finite]
     hit = np.flatnonzero(phi >= CONTACT_PHI_DEG)
     if hit.size == 0:
@@ -384,7 +384,7 @@ def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     use = np.arange(first, first + n_linear)
     if use.size < 2:
         use = hit[:ONSET_FIT_PAUSES]
-    if use.size < 2:
+    if use.size < 2 or np.ptp(x[use]) == 0:  # frames at one position carry no slope
         return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))
     slope, intercept = np.polyfit(x[use], phi[use], 1)
     if slope * travel_sign <= 0:

@@ -149,7 +149,11 @@ def _run_contact(args) -> int:
     defined = int((cols["r_hat_mm"] == cols["r_hat_mm"]).sum())
     onset = (f"first contact at x = {run.x_contact_mm:.2f} mm"
              if run.x_contact_mm == run.x_contact_mm else "no contact found")
-    print(f"offset {run.offset_s:+.3f} s ({'estimated' if run.offset_estimated else 'given'}), "
+    how = "given"
+    if run.offset_estimated:
+        how = ("estimated from pauses" if run.paused
+               else f"estimated from motion, se {run.offset_se_s:.3f} s")
+    print(f"offset {run.offset_s:+.3f} s ({how}), "
           f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
     if defined == 0:
         print(f"camwhisker contact: problem: {args.signals}: no row has a contact estimate "

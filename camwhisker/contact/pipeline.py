@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from camwhisker.clock import estimate_offset_motion
 from camwhisker.contact.fusion import fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
@@ -43,6 +44,11 @@ class Calibration:
     provenance: dict
 
 
+# A run with fewer pauses than this is aligned and its onset found from the motion:
+# the rests before and after a sweep are two pauses that only bracket it.
+MIN_PAUSES = 3
+
+
 @dataclass(frozen=True)
 class RunAnalysis:
     """One run on the camera clock: offset, pause medians, contact onset."""
@@ -54,6 +60,8 @@ class RunAnalysis:
     x_contact_mm: float
     travel_sign: float
     dx_mm: np.ndarray  # per pause, NaN before contact
+    paused: bool = True  # False: offset and onset from continuous motion
+    offset_se_s: float = math.nan  # standard error of an offset from motion; NaN otherwise
 
 
 def analyse_run(signals: dict, log: StageLog, offset_s: float | None = None) -> RunAnalysis:
@@ -71,20 +79,32 @@ def analyse_run(signals: dict, log: StageLog, offset_s: float | None = None) -> 
         raise ValueError(f"{signals.get('source', '<signals>')}: no row is ok (ok = 0 in all "
                          f"{ok.size} rows): nothing to estimate contact from")
     estimated = offset_s is None
-    score = math.nan
-    if estimated:
-        offset_s, score = estimate_offset(log, signals["t_s"], signals["phi_deg"],
-                                          signals["dz_mm"])
+    score, se = math.nan, math.nan
+    paused = detect_pauses(log).t_start_s.size >= MIN_PAUSES
+    t = np.asarray(signals["t_s"], float)
+    phi = np.where(ok, np.asarray(signals["phi_deg"], float), np.nan)
+    dz = np.where(ok, np.asarray(signals["dz_mm"], float), np.nan)
+    if estimated and paused:
+        offset_s, score = estimate_offset(log, t, phi, dz)
         if not math.isfinite(offset_s):
             raise ValueError(f"{log.source}: cannot estimate the clock offset (too few pauses)")
-    pauses = pause_medians(log, signals["t_s"], signals["phi_deg"], signals["dz_mm"],
-                           signals["ok"], offset_s)
+    elif estimated:
+        e = estimate_offset_motion(log, t, [phi, dz])
+        if not e:
+            raise ValueError(f"{log.source}: cannot estimate the clock offset: phi does not "
+                             f"follow the stage position (explained share {e.score:.2f}); "
+                             f"give it with --offset-s")
+        offset_s, score, se = e.offset_s, e.score, e.se_s
+    pauses = pause_medians(log, t, phi, dz, ok, offset_s)
     sign = log.travel_sign
-    x0 = contact_onset_x(pauses.x_mm, pauses.phi_deg, sign)
+    if paused:
+        x0 = contact_onset_x(pauses.x_mm, pauses.phi_deg, sign)
+    else:
+        x0 = contact_onset_x(log.x_at(t - offset_s), phi, sign)
     dx = _travel(pauses.x_mm, x0, sign)
     return RunAnalysis(offset_s=float(offset_s), offset_score=float(score),
                        offset_estimated=estimated, pauses=pauses, x_contact_mm=x0,
-                       travel_sign=sign, dx_mm=dx)
+                       travel_sign=sign, dx_mm=dx, paused=paused, offset_se_s=float(se))
 
 
 def _travel(x_mm, x0, sign):

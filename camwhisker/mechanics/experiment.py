@@ -47,6 +47,7 @@ __all__ = [
     "PAPER_COMPLIANT_RADII_MM",
     "PAPER_C",
     "StageProtocol",
+    "continuous_protocol",
     "NoiseModel",
     "PAPER_NOISE",
     "FRONT_END_NOISE",
@@ -105,6 +106,14 @@ class StageProtocol:
     stage_rate_hz: float = 20.0
     fps: float = 30.0
     offset_range_s: tuple[float, float] = (3.0, 8.0)  # |offset|, sign drawn at random
+
+
+def continuous_protocol(speed_mm_s: float, **kwargs) -> StageProtocol:
+    """A stage that sweeps at a constant speed without pausing (a rest at each end only)."""
+    if not speed_mm_s > 0:
+        raise ValueError(f"speed_mm_s must be positive, got {speed_mm_s}")
+    step = kwargs.pop("step_mm", StageProtocol.step_mm)
+    return StageProtocol(step_mm=step, move_s=step / speed_mm_s, pause_s=(0.0, 0.0), **kwargs)
 
 
 @dataclass(frozen=True)
@@ -219,8 +228,9 @@ def _schedule(n_steps, x_start, protocol: StageProtocol, rng):
     for k in range(n_steps):
         t.append(t[-1] + protocol.move_s)
         x.append(x_start + (k + 1) * protocol.step_mm)
-        t.append(t[-1] + rng.uniform(*protocol.pause_s))
-        x.append(x[-1])
+        if protocol.pause_s[1] > 0:  # a continuous protocol has no breakpoint to pause at
+            t.append(t[-1] + rng.uniform(*protocol.pause_s))
+            x.append(x[-1])
     t.append(t[-1] + protocol.rest_s)
     x.append(x[-1])
     return np.array(t), np.array(x)
