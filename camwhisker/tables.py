@@ -24,13 +24,16 @@ class TableError(ValueError):
     """A table that cannot be used; the message names the file, row and column."""
 
 
-def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> dict:
+def read_columns(path: str | Path, columns: tuple[str, ...] | None = None,
+                 optional: tuple[str, ...] = ()) -> dict:
     """Numeric columns of a CSV with a header into float arrays (empty cell -> NaN).
 
     Parameters
     ----------
     columns : tuple of str, optional
         The columns to read (others, e.g. free-text notes, are ignored); all if None.
+    optional : tuple of str
+        With ``columns``: also read these where the header has them.
 
     Raises
     ------
@@ -50,7 +53,8 @@ def read_columns(path: str | Path, columns: tuple[str, ...] | None = None) -> di
         if need not in header:
             raise TableError(f"{path}: row 1: missing column {need} (header: "
                              f"{', '.join(header)})")
-    idx = {name: header.index(name) for name in (columns or header)}
+    wanted = header if columns is None else (*columns, *(c for c in optional if c in header))
+    idx = {name: header.index(name) for name in wanted}
     cols = {name: [] for name in idx}
     for i, row in enumerate(reader, start=2):
         if not row:
@@ -113,6 +117,8 @@ def format_cell(value, digits: int = 6) -> str:
     """A CSV cell: empty for NaN/None, integers plain, floats with ``digits`` significant digits."""
     if value is None:
         return ""
+    if isinstance(value, str):  # a text column (the contact table's doubt)
+        return value
     if isinstance(value, bool | np.bool_):
         return "1" if value else "0"
     if isinstance(value, int | np.integer):

@@ -94,7 +94,7 @@ def test_contact_rows_one_per_signal_row_and_empty_while_moving():
     calib = calibration()
     run = simulate_runs("compliant", 32)[0]
     log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
-    cols, analysis = contact_rows(run.signals, log, calib)
+    cols, analysis = contact_rows(run.signals, log, calib, mode="pause")
     n = run.signals["t_s"].size
     assert all(cols[c].shape == (n,) for c in CONTACT_COLUMNS)
     moving = np.isnan(cols["pause"])

@@ -187,7 +187,7 @@ def _contact(out: Path, runs, calib, signals: dict, logs: dict) -> tuple[dict, l
     front_end = []
     for i, r in enumerate(runs):
         key = r.video.stem
-        cols, _ = contact_rows(signals[key], logs[key], calib)
+        cols, _ = contact_rows(signals[key], logs[key], calib, mode="pause")
         write_csv(out / "contact" / f"{r.video.stem}.csv", cols)
         truth = read_columns(r.contact_truth)
         ev = evaluate_run(

@@ -75,7 +75,7 @@ def sweep_surfels(sweep, calib, rng):
         if sweep.kind == "none":
             run.signals = _quiet(run.signals, rng)
             offset = run.offset_s  # nothing to align the clocks on: the user gives it
-        cols, _ = contact_rows(run.signals, _log(run, False), calib, offset)
+        cols, _ = contact_rows(run.signals, _log(run, False), calib, offset, mode="pause")
         parts.append(surfels_from_columns(cols, Pose(*run_spec.pose), i, f"<sweep run{i}>"))
     return merge(parts)
 

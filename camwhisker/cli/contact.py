@@ -126,6 +126,9 @@ def add_contact(sub) -> None:
                    help="calibration file written by camwhisker calibrate")
     p.add_argument("--offset-s", type=float,
                    help="known clock offset (t_camera = t_stage + offset); default: estimated")
+    p.add_argument("--per", choices=("frame", "pause"), default="frame",
+                   help="estimates from each frame (default; moving or paused) or, as in the "
+                        "paper, from the medians of the stage pause the frame lies in")
     p.add_argument("--out", required=True, metavar="C.csv",
                    help="contact table to write, one row per signal row")
     springs_arg(p)
@@ -142,7 +145,8 @@ def _run_contact(args) -> int:
     calib = read_calibration(args.calib)
     signals = read_signal_table(args.signals)
     springs = springs_of(args)
-    cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s)
+    cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s,
+                             mode=args.per)
     if springs is not None:
         cols.update(springs.columns(cols["dz_mm"], cols["phi_deg"]))
     write_csv(args.out, cols)

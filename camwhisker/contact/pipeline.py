@@ -17,6 +17,7 @@ from camwhisker.contact.fusion import fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
 from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.smooth import local_line
 from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
 from camwhisker.stage import (
     PauseTable,
@@ -28,7 +29,8 @@ from camwhisker.stage import (
     pause_medians,
 )
 
-__all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_rows"]
+__all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_rows", "base_speed",
+           "doubt", "MODES"]
 
 
 @dataclass(frozen=True)
@@ -158,23 +160,61 @@ CONTACT_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_gm_mm", "r_mf_
                    "x_hat_mm", "r_hat_mm")
 #: Diagnostics written after the contract's columns.
 EXTRA_COLUMNS = ("y_hat_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm",
-                 "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm", "pause", "ok")
+                 "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm", "r_hat_pause_mm",
+                 "pause", "speed_mm_s", "doubt", "ok")
 # Estimates that a frame takes from the stage pause it lies in.
 _PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "z_combined",
               "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm")
+#: How the estimates of a row are made: from the frame itself, or from its pause's medians.
+MODES = ("frame", "pause")
+# Base travel per frame above which a row is "fast": a clock error of one frame
+# (the alignment's target) then moves dx by more than 0.2 mm, a fifth of the
+# 1 mm steps the calibration is made of. At 30 frames/s: 6 mm/s.
+FAST_MM_PER_FRAME = 0.2
+# Rows closer than this to the contact onset are "onset": dx is small against the
+# onset's own uncertainty (a fifth of a step, tests/test_stage.py), and the
+# whisker has not yet settled into a bend that eq. (8) describes.
+ONSET_DX_MM = 1.0
+# Half-width (s) of the local line through phi and dz behind a frame's estimates:
+# about as many frames as the paper's pause medians (1 s at 30 frames/s), over a
+# time short enough that the base's starts and stops blur little.
+SMOOTH_HALF_S = 0.2
+
+
+def base_speed(log: StageLog, t_stage_s) -> np.ndarray:
+    """Base speed (mm/s, >= 0) at stage-clock times: the log's slope there; NaN outside it."""
+    t = np.asarray(t_stage_s, float)
+    v = np.abs(np.diff(log.x_mm) / np.diff(log.t_s))
+    k = np.clip(np.searchsorted(log.t_s, t, side="right") - 1, 0, v.size - 1)
+    return np.where((t >= log.t_s[0]) & (t <= log.t_s[-1]), v[k], np.nan)
+
+
+def doubt(speed_mm_s, dx_mm, frame_s: float) -> np.ndarray:
+    """Why the quasi-static estimate of a row is doubtful: "", "fast", "onset" or "fast;onset"."""
+    fast = np.asarray(speed_mm_s, float) * frame_s > FAST_MM_PER_FRAME
+    dx = np.asarray(dx_mm, float)
+    onset = np.isfinite(dx) & (dx < ONSET_DX_MM)
+    reasons = np.array(["", "fast", "onset", "fast;onset"], dtype=object)
+    return reasons[fast.astype(int) + 2 * onset.astype(int)]
 
 
 def contact_rows(signals: dict, log: StageLog, calib: Calibration,
-                 offset_s: float | None = None) -> tuple[dict, RunAnalysis]:
+                 offset_s: float | None = None, mode: str = "frame") -> tuple[dict, RunAnalysis]:
     """One row per signal row (docs/sensor.md section 7) plus extra columns.
 
-    ``x_mm`` is the stage position at the frame time and ``dx_mm`` the travel
-    since the contact onset; ``phi_deg`` and ``dz_mm`` are the frame's own
-    values. The estimates (r_gm_mm ... r_hat_mm) are those of the stage pause
-    the frame lies in, computed from the pause medians as in the paper ("all
-    data were collected during pauses"); frames while the stage moves, outside
-    the log, or untrusted get empty estimate cells.
+    ``x_mm`` is the stage position at the frame time (interpolated in the log
+    after clock alignment) and ``dx_mm`` the travel since the contact onset;
+    ``phi_deg`` and ``dz_mm`` are the frame's own values. With ``mode``
+    "frame" the estimates (r_gm_mm ... r_hat_mm) are the frame's own, moving
+    or paused; rows where the quasi-static model is doubtful are kept and
+    named in ``doubt``. With "pause" they are those of the stage pause the
+    frame lies in, from the pause medians as in the paper ("all data were
+    collected during pauses"), and rows while the stage moves are empty.
+    Either way ``r_hat_pause_mm`` holds the pause's estimate. Untrusted rows
+    and rows outside the log get empty estimate cells.
     """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     run = analyse_run(signals, log, offset_s)
     t = np.asarray(signals["t_s"], float)
     x = log.x_at(t - run.offset_s)
@@ -186,17 +226,30 @@ def contact_rows(signals: dict, log: StageLog, calib: Calibration,
     idx = pause_index(t, detect_pauses(log), run.offset_s, 0.0)
     inside = (idx >= 0) & ok
     k = np.clip(idx, 0, None)
+    frame_s = float(np.median(np.diff(t))) if t.size > 1 else 0.0
 
     def per_frame(values):
         v = np.asarray(values, float)
         return np.where(inside, v[k], np.nan) if v.size else np.full(t.shape, np.nan)
 
     cols = {"t_s": t, "x_mm": x, "dx_mm": dx, "phi_deg": phi, "dz_mm": dz}
-    for name in _PER_PAUSE:
-        cols[name] = per_frame(pe[name])
-    cols["mf_outside"] = np.where(inside, np.asarray(pe["mf_outside"], bool)[k], False).astype(int)
+    if mode == "pause":
+        for name in _PER_PAUSE:
+            cols[name] = per_frame(pe[name])
+        mf_out = np.where(inside, np.asarray(pe["mf_outside"], bool)[k], False)
+    else:
+        h = int(round(SMOOTH_HALF_S / frame_s)) if frame_s > 0 else 0
+        own = estimate(calib, x, dx, local_line(phi, h), local_line(dz, h), run.travel_sign)
+        for name in _PER_PAUSE:
+            cols[name] = np.where(ok & np.isfinite(x), own[name], np.nan)
+        mf_out = np.asarray(own["mf_outside"], bool) & ok
+    cols["mf_outside"] = mf_out.astype(int)
     cols["phi_pause_deg"] = per_frame(run.pauses.phi_deg)
     cols["dz_pause_mm"] = per_frame(run.pauses.dz_mm)
+    cols["r_hat_pause_mm"] = per_frame(pe["r_hat_mm"])
     cols["pause"] = np.where(idx >= 0, idx, np.nan)
+    speed = base_speed(log, t - run.offset_s)
+    cols["speed_mm_s"] = speed
+    cols["doubt"] = doubt(speed, dx, frame_s)
     cols["ok"] = ok.astype(int)
     return {name: cols[name] for name in CONTACT_COLUMNS + EXTRA_COLUMNS}, run

@@ -177,8 +177,7 @@ def read_surfels(paths: list[str | Path], poses: list[Pose] | None = None) -> Su
                          f"{len(poses)} poses)")
     parts = []
     for i, (path, pose) in enumerate(zip(paths, poses, strict=True)):
-        cols = read_columns(path, REQUIRED_COLUMNS)
-        header = read_columns(path)  # the optional columns, where the table has them
-        cols.update({k: header[k] for k in OPTIONAL_COLUMNS if k in header})
+        # Only the columns used: a contact table also holds text (doubt).
+        cols = read_columns(path, REQUIRED_COLUMNS, OPTIONAL_COLUMNS)
         parts.append(surfels_from_columns(cols, pose, i, str(path)))
     return merge(parts)
