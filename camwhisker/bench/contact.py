@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from camwhisker.bench.frames import evaluate_frames, format_frames
 from camwhisker.calibrate import CalibrationRun, calibrate
 from camwhisker.contact.pipeline import Calibration, analyse_run, estimate, pause_estimates
 from camwhisker.contact.shape import reconstruct
@@ -138,14 +139,18 @@ def benchmark(calib: Calibration, n: int = 100_000, repeats: int = 5, seed: int 
 
 
 def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
-              n_timing: int = 100_000, noise_levels: dict | None = None) -> dict:
+              n_timing: int = 100_000, noise_levels: dict | None = None,
+              speeds_mm_s: tuple = (1.0, 2.5, 5.0)) -> dict:
     """Calibrate on rigid runs of ``seed``, evaluate all kinds on ``seed + 1``, per noise level.
 
     Each level of ``noise_levels`` (default :data:`~camwhisker.mechanics.experiment.NOISE_LEVELS`:
     the paper's noise and our front end's) gets its own calibration (unless
     ``calib`` is given) and evaluation, as a sensor with that noise would.
 
-    Returns {"levels": {level: {"noise", "summaries", "calib", "evaluations"}},
+    Per level also the per-frame scores (:mod:`camwhisker.bench.frames`) of paused
+    runs and of continuous sweeps at each of ``speeds_mm_s``.
+
+    Returns {"levels": {level: {"noise", "summaries", "calib", "evaluations", "frames"}},
     "timing": benchmark}. With ``figures_dir``, writes fig8_errors.png and
     fig9_shapes.png (first level) there.
     """
@@ -154,8 +159,9 @@ def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
     for name, noise in levels.items():
         cal = calib or calibrate_simulated(seed, noise=noise)
         evs = {k: evaluate_kind(cal, k, seed + 1, noise=noise) for k in EVAL_KINDS}
+        frames = [evaluate_frames(cal, seed + 1, v, noise=noise) for v in (None, *speeds_mm_s)]
         out["levels"][name] = {"noise": noise, "summaries": {k: summary(e) for k, e in evs.items()},
-                               "calib": cal, "evaluations": evs}
+                               "calib": cal, "evaluations": evs, "frames": frames}
     first = next(iter(out["levels"].values()))
     out["timing"] = benchmark(first["calib"], n=n_timing)
     if figures_dir is not None:
@@ -202,6 +208,9 @@ def format_report(result: dict) -> str:
                 f"{s['z_combined_auc']:>8.3f}{s['z_combined_hit']:>7.2f}"
                 f"{s['z_combined_false']:>6.2f}{s['p_bad_auc']:>8.3f}{s['p_bad_hit']:>7.2f}"
                 f"{s['p_bad_false']:>6.2f}")
+        lines.append("  per frame (contact --per frame; frames in contact, true phi >= 2 deg;"
+                     " offset estimated, error in frames):")
+        lines += ["    " + line for line in format_frames(level["frames"])]
         calib = level["calib"]
         lines.append("  calibration (rigid), Table II style: phi bin  n  mu_GM sigma_GM  mu_MF"
                      f" sigma_MF  [GM model: {calib.gm.kind}]")

@@ -43,13 +43,23 @@ def add_contact_bench(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated runs")
     p.add_argument("--samples", type=int, default=100_000, help="samples for the timing")
     p.add_argument("--figures", metavar="DIR", help="write Fig. 8 and Fig. 9 style PNGs here")
+    p.add_argument("--speeds", default="1,2.5,5", metavar="V,...",
+                   help="base speeds (mm/s) of the continuous sweeps scored per frame, "
+                        "beside the paused runs (default 1,2.5,5; empty: paused only)")
     p.set_defaults(func=_run_contact_bench)
 
 
 def _run_contact_bench(args) -> int:
     from camwhisker.bench.contact import format_report, run_bench
 
-    result = run_bench(args.seed, figures_dir=args.figures, n_timing=args.samples)
+    try:
+        speeds = tuple(float(v) for v in args.speeds.split(",") if v.strip())
+    except ValueError:
+        raise CommandError(f"--speeds: not a list of numbers: {args.speeds!r}") from None
+    if any(not v > 0 for v in speeds):
+        raise CommandError(f"--speeds: speeds must be positive, got {args.speeds!r}")
+    result = run_bench(args.seed, figures_dir=args.figures, n_timing=args.samples,
+                       speeds_mm_s=speeds)
     print(format_report(result))
     if args.figures:
         print(f"wrote figures to {args.figures}")
