@@ -53,8 +53,10 @@ REFINE_S = 1.5
 REFINE_MARGIN_S = 0.2
 # Half-window (s) around each event in which f(x) is linear: covers the search.
 WINDOW_S = 2.0
-# Half-window (s) of the second pass, which searches half of it either side.
-SHORT_WINDOW_S = 0.6
+# Half-window of the second pass in base travel (mm); it searches half of it either side.
+SHORT_WINDOW_MM = 3.0
+# ... but never shorter than this (s): the first pass is good to about a tenth of it.
+SHORT_WINDOW_MIN_S = 0.3
 # Half-width (s) of the parabola fitted around the fine minimum.
 PARABOLA_HALF_S = 0.05
 
@@ -140,7 +142,24 @@ def motion_events(log: StageLog) -> np.ndarray:
     return np.array([0.5 * (log.t_s[r[0]] + log.t_s[r[-1]]) for r in runs])
 
 
+def event_speeds(log: StageLog, events) -> np.ndarray:
+    """The base's larger speed (mm/s) either side of each event, one stage sample away."""
+    v = np.abs(np.diff(log.x_mm) / np.diff(log.t_s))
+    out = []
+    for tau in np.atleast_1d(events):
+        k = np.searchsorted(log.t_s, tau)
+        out.append(max(v[max(k - 2, 0)], v[min(k + 1, v.size - 1)]))
+    return np.array(out)
+
+
 def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
+    """See :func:`_local_chi2_each`; ``half_s`` one value or one per event."""
+    half = np.broadcast_to(np.asarray(half_s, float), np.shape(events))
+    return sum((_local_chi2_each(log, t, y, var, [tau], offset0, offsets, h)
+                for tau, h in zip(events, half, strict=True)), np.zeros(offsets.size))
+
+
+def _local_chi2_each(log: StageLog, t, y, var, events, offset0, offsets, half_s):
     """chi-square of a quadratic f(x) fitted in a window around each event, per offset.
 
     The frames of each window are fixed (camera time around event + offset0), so
@@ -224,11 +243,14 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
              for c in costs)
     if not np.any(lc > 0):
         return OffsetEstimate(first, math.nan, explained)
-    # Second pass in short windows: less of phi's curvature in x to bias the line.
+    # Second pass in windows of a fixed travel: little of phi's curvature in x to bias
+    # the line, and as many frames as that travel gives at the event's speed.
     second = float(grid[int(np.argmin(lc))])
-    grid = np.arange(second - SHORT_WINDOW_S / 2, second + SHORT_WINDOW_S / 2, FINE_STEP_S)
-    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, second, grid, SHORT_WINDOW_S)
-             for c in costs)
+    half = np.clip(SHORT_WINDOW_MM / np.maximum(event_speeds(log, events), 1e-9),
+                   SHORT_WINDOW_MIN_S, WINDOW_S)
+    reach = 0.5 * float(np.min(half))
+    grid = np.arange(second - reach, second + reach, FINE_STEP_S)
+    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, second, grid, half) for c in costs)
     i = int(np.argmin(lc))
     near = np.abs(grid - grid[i]) <= PARABOLA_HALF_S
     a2, a1, _ = np.polyfit(grid[near] - grid[i], lc[near], 2)
