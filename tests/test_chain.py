@@ -85,7 +85,7 @@ def test_bottle_swept_from_both_sides(chain):
     """The bottle's two runs travel +x and -x: each is reconstructed on its own side."""
     _, out = chain
     for name, side in (("bottle_left", -1.0), ("bottle_right", 1.0)):
-        rows = read_columns(out / "contact" / f"{name}.csv")
+        rows = read_columns(out / "contact" / f"{name}.csv", ("x_hat_mm",))  # doubt is text
         x_hat = rows["x_hat_mm"][np.isfinite(rows["x_hat_mm"])]
         assert x_hat.size >= 20 and np.all(side * x_hat > 35.0), name
 

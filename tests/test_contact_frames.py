@@ -91,3 +91,29 @@ def test_frame_table_round_trip_with_doubt(tmp_path):
     # per defined row (the reader keeps a row per pause where the table has pauses).
     defined = int(np.isfinite(cols["x_hat_mm"]).sum())
     assert defined > 100 and 50 <= s.n <= defined
+
+
+def test_simulate_continuous_then_contact_cli(tmp_path, capsys):
+    from camwhisker.calibrate import write_calibration
+    from camwhisker.cli import main
+    from camwhisker.stage import detect_pauses, read_stage_log
+    from camwhisker.tables import read_columns
+
+    out = tmp_path / "sim"
+    assert main(["simulate-stage", "--kind", "compliant", "--seed", "35", "--out", str(out),
+                 "--speed-mm-s", "5"]) == 0
+    stage = out / "c55_stage.csv"
+    # A sweep without pauses: only the rests before and after are >= 1 s still.
+    assert detect_pauses(read_stage_log(stage)).t_start_s.size == 2
+    calib = tmp_path / "c.toml"
+    write_calibration(calib, calibration())
+    capsys.readouterr()
+    assert main(["contact", "--signals", str(out / "c55_signals.csv"), "--stage", str(stage),
+                 "--calib", str(calib), "--out", str(tmp_path / "c.csv")]) == 0
+    assert "estimated from motion" in capsys.readouterr().out
+    cols = read_columns(tmp_path / "c.csv", ("r_gm_mm", "speed_mm_s"))
+    moving = cols["speed_mm_s"] > 4.9
+    # Rows while the base moves carry estimates (about 40 mm at 5 mm/s: ~240 frames).
+    assert np.isfinite(cols["r_gm_mm"][moving]).sum() > 150
+    assert main(["simulate-stage", "--kind", "test2", "--out", str(tmp_path / "t2"),
+                 "--speed-mm-s", "5"]) == 2

@@ -42,6 +42,9 @@ def add_simulate_stage(sub) -> None:
     p.add_argument("--noise-dz-mm", type=float, default=PAPER_NOISE_DZ_MM,
                    help=f"per-frame dz noise (default: the paper's; our front end's target: "
                         f"{FRONT_END_NOISE_DZ_MM})")
+    p.add_argument("--speed-mm-s", type=float, metavar="V",
+                   help="sweep at this constant base speed without pausing (a rest before "
+                        "and after only); default: the paper's 1 mm steps with >= 1 s pauses")
     sensor_arg(p, _SENSOR_HELP)
     p.add_argument("--springs", metavar="FILE",
                    help="test1 and test2: the suspension's stiffness behind the simulated "
@@ -57,7 +60,17 @@ def _run_simulate(args) -> int:
 
     l_w = load_sensor(args.sensor).whisker.length_mm
     noise = NoiseModel(phi_deg=args.noise_phi_deg, dz_mm=args.noise_dz_mm)
-    runs = simulate_runs(args.kind, args.seed, mech=WhiskerMechanics(length_mm=l_w), noise=noise)
+    sim = {}
+    if args.speed_mm_s is not None:
+        from camwhisker.mechanics.experiment import continuous_protocol
+
+        if args.kind in FORCE_KINDS:
+            raise CommandError(f"--speed-mm-s: {args.kind} follows the paper's stepped protocol")
+        if not args.speed_mm_s > 0:
+            raise CommandError(f"--speed-mm-s: must be positive, got {args.speed_mm_s:g}")
+        sim["protocol"] = continuous_protocol(args.speed_mm_s)
+    runs = simulate_runs(args.kind, args.seed, mech=WhiskerMechanics(length_mm=l_w), noise=noise,
+                         **sim)
     force_logs = None
     if args.kind in FORCE_KINDS:
         stiffness = springs_of(args) or suspension_stiffness()
