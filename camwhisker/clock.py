@@ -12,10 +12,16 @@ fit fails there. Same convention as :mod:`camwhisker.stage`:
 
     t_camera = t_stage + offset_s.
 
-The minimum is found on a coarse grid, then a fine grid around the best few
-coarse minima; a parabola through the fine cost near its minimum gives the
-estimate and, as for any least-squares fit of one parameter, its standard
-error 1 / sqrt(a) from the curvature a of the chi-square.
+That cost is flat for an offset that makes the base stop later than it did:
+phi levelling off looks like a function of x too. So the minimum on a coarse,
+then a fine grid only brackets the offset; near every change of the base's
+speed (:func:`motion_events`) f is then fitted as a line in x, in windows of
+the camera signal fixed around the event (first 2 s, then 3 mm of travel
+either side), and the summed chi-square is minimised over the offset. A
+parabola through it near its minimum gives the estimate and, as for any
+least-squares fit of one parameter, its standard error 1 / sqrt(a) from the
+chi-square's curvature a. A sweep at constant speed is pinned by its stop
+alone: a slow one is as good as the noise over the stop allows.
 """
 
 from __future__ import annotations
@@ -153,21 +159,16 @@ def event_speeds(log: StageLog, events) -> np.ndarray:
 
 
 def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
-    """See :func:`_local_chi2_each`; ``half_s`` one value or one per event."""
-    half = np.broadcast_to(np.asarray(half_s, float), np.shape(events))
-    return sum((_local_chi2_each(log, t, y, var, [tau], offset0, offsets, h)
-                for tau, h in zip(events, half, strict=True)), np.zeros(offsets.size))
+    """chi-square of a line f(x) fitted in a window around each event, per trial offset.
 
-
-def _local_chi2_each(log: StageLog, t, y, var, events, offset0, offsets, half_s):
-    """chi-square of a quadratic f(x) fitted in a window around each event, per offset.
-
-    The frames of each window are fixed (camera time around event + offset0), so
+    ``half_s``: the window's half-width (s), one value or one per event. The
+    frames of each window are fixed (camera time around event + offset0), so
     every trial offset is scored on the same frames.
     """
+    halves = np.broadcast_to(np.asarray(half_s, float), np.shape(events))
     out = np.zeros(offsets.size)
-    for tau in events:
-        w = np.abs(t - (tau + offset0)) <= half_s
+    for tau, half in zip(events, halves, strict=True):
+        w = np.abs(t - (tau + offset0)) <= half
         if w.sum() < 8:
             continue
         yw = y[w]
