@@ -167,10 +167,12 @@ def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
     """
     halves = np.broadcast_to(np.asarray(half_s, float), np.shape(events))
     out = np.zeros(offsets.size)
+    dof = 0
     for tau, half in zip(events, halves, strict=True):
         w = np.abs(t - (tau + offset0)) <= half
         if w.sum() < 8:
             continue
+        dof += int(w.sum()) - 2
         yw = y[w]
         x = log.x_at(t[w][None, :] - offsets[:, None])  # shape (n_offsets, n_frames)
         x = x - np.nanmean(x)
@@ -182,7 +184,7 @@ def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
         coef = np.linalg.solve(ata, aty[..., None])[..., 0]
         r = yw[None, :] - np.einsum("oni,oi->on", basis, coef)
         out += np.where(valid, np.sum(r * r, axis=1), np.sum((yw - yw.mean()) ** 2)) / var
-    return out
+    return out, dof
 
 
 def estimate_offset_motion(log: StageLog, t_camera_s, signals,
@@ -240,7 +242,7 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
     events = motion_events(log)
     # The spline's error is one-sided (late): search mostly before its estimate.
     grid = np.arange(first - REFINE_S, first + REFINE_MARGIN_S, FINE_STEP_S)
-    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, first - 0.5 * REFINE_S, grid, WINDOW_S)
+    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, first - 0.5 * REFINE_S, grid, WINDOW_S)[0]
              for c in costs)
     if not np.any(lc > 0):
         return OffsetEstimate(first, math.nan, explained)
@@ -251,12 +253,17 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
                    SHORT_WINDOW_MIN_S, WINDOW_S)
     reach = 0.5 * float(np.min(half))
     grid = np.arange(second - reach, second + reach, FINE_STEP_S)
-    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, second, grid, half) for c in costs)
+    parts = [_local_chi2(log, c.t, c.y, c.var, events, second, grid, half) for c in costs]
+    lc = sum(p[0] for p in parts)
+    dof = sum(p[1] for p in parts)
     i = int(np.argmin(lc))
     near = np.abs(grid - grid[i]) <= PARABOLA_HALF_S
     a2, a1, _ = np.polyfit(grid[near] - grid[i], lc[near], 2)
     if a2 > 0 and abs(a1 / (2 * a2)) <= PARABOLA_HALF_S:
-        offset, se = grid[i] - a1 / (2 * a2), 1.0 / math.sqrt(a2)
+        # A line that misfits (phi's own kinks near the event) widens the se by the
+        # reduced chi-square, as for any least-squares fit whose model is short.
+        inflate = max(float(lc[i]) / dof, 1.0) if dof > 0 else 1.0
+        offset, se = grid[i] - a1 / (2 * a2), math.sqrt(inflate / a2)
     else:
         offset, se = grid[i], math.nan
     return OffsetEstimate(float(offset), float(se), explained)
