@@ -12,8 +12,9 @@ rest frames, :mod:`camwhisker.stream`), so the rest offset is already zero, and
 theta is not needed (it is left empty below 0.6 deg, far above the rest noise,
 so the vector's components cannot be formed there anyway). dz is left out: a
 lateral contact, the one a robot whisker meets, moves dz only to second order in
-phi (the beam's shortening) while its noise is as large relative to it, and mixing
-mm with degrees would need a scale the paper does not give.
+phi (the beam's shortening), so dz leaves its noise long after phi does and would
+add only its own false alarms; and mixing mm with degrees would need a scale the
+paper does not give.
 
 eta comes from the recording's own rest frames (the rest segment the stream
 averaged for its reference, recorded in the sidecar): ``ETA_FACTOR`` times the
