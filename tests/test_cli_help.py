@@ -27,7 +27,7 @@ def test_every_option_has_help_and_its_default_shown():
             shown = any(a.default is v for v in (None, False)) or "default" in (a.help or "")
             if not shown and f"(default: {a.default})" not in text:
                 no_default.append(f"{name} {flag}")
-    assert len(commands) == 21  # with calibrate-springs, percept, percept-bench
+    assert len(commands) == 22  # with calibrate-springs, percept, percept-bench, belief
     assert missing == [] and no_default == []
 
 

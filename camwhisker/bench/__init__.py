@@ -11,4 +11,5 @@ The library never imports this package; the command line and the tests do.
 - :mod:`~camwhisker.bench.contact`    ``camwhisker contact-bench``: the contact back end
 - :mod:`~camwhisker.bench.throughput` batch throughput with 1 and 2 worker processes
 - :mod:`~camwhisker.bench.chain`      ``camwhisker chain``: a filmed experiment against its truth
+- :mod:`~camwhisker.bench.belief`     contact belief (eq. 1): onset error, false contacts at rest
 """

@@ -8,6 +8,7 @@ import sys
 from camwhisker import __version__
 from camwhisker.cli import (
     batch,
+    belief,
     bench,
     calibrate_sensor,
     contact,
@@ -34,6 +35,7 @@ _COMMANDS = [
     contact.add_calibrate,
     calibrate_sensor.add_calibrate_sensor,
     contact.add_contact,
+    belief.add_belief,
     springs.add_calibrate_springs,
     percept.add_percept,
     validate.add_validate,
