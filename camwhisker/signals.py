@@ -133,12 +133,14 @@ class SignalWriter:
         self.close()
 
 
-def write_signals(path: str | Path, rows: Iterable[tuple[float, FrameResult]]) -> tuple[int, int]:
-    """Write (t_s, result) rows as the signal table; returns (rows, rows ok).
+def write_signals(path: str | Path, rows: Iterable[tuple[float, FrameResult]],
+                  springs: Stiffness | None = None) -> tuple[int, int]:  # fmt: skip
+    """Write (t_s, result) rows as the signal table (the forces too where ``springs`` is
+    given); returns (rows, rows ok).
 
     ``path`` is written directly; wrap it in an atomic path for safety.
     """
-    with SignalWriter(path) as writer:
+    with SignalWriter(path, springs=springs) as writer:
         for t_s, r in rows:
             writer.write(t_s, r)
     return writer.rows, writer.rows_ok

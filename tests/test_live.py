@@ -111,14 +111,18 @@ def test_opencv_capture_latest_mode(tmp_path, sensor):
 
 
 def test_recorded_session_reprocesses_to_the_same_rows(tmp_path, sensor):
-    """Every-frame mode through cv2.VideoCapture, recorded, with UDP and JSON lines."""
+    """Every-frame mode through cv2.VideoCapture, recorded, with UDP and JSON lines, and
+    the forces (the spring model): live, replay and batch write the same table."""
+    from camwhisker.mechanics.springs import suspension_stiffness
+
+    springs = suspension_stiffness()
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(1.0)
     stdout = io.StringIO()
     out, avi = tmp_path / "live.csv", tmp_path / "session.avi"
     config = LiveConfig(mode="every", record=avi, udp_port=rx.getsockname()[1], jsonl=True,
-                        controls=False)  # fmt: skip
+                        controls=False, springs=springs)  # fmt: skip
     session = LiveSession(cv2.VideoCapture(str(CLIP)), sensor, out, config, stdout)
     rep = session.run()
     assert rep.rows == CLIP_FRAMES and rep.grabber["dropped"] == 0
@@ -126,10 +130,10 @@ def test_recorded_session_reprocesses_to_the_same_rows(tmp_path, sensor):
     stamps = read_timestamps(timestamps_path(avi))
     assert [s["video_frame"] for s in stamps] == list(range(CLIP_FRAMES))
 
-    again = reprocess_session(avi, sensor, tmp_path / "again.csv")
+    again = reprocess_session(avi, sensor, tmp_path / "again.csv", springs=springs)
     assert again.read_bytes() == out.read_bytes()
 
-    batch = run_batch(avi, sensor, tmp_path / "batch.csv", progress=False)
+    batch = run_batch(avi, sensor, tmp_path / "batch.csv", progress=False, springs=springs)
     assert batch.frames == CLIP_FRAMES and batch.problems == []
     assert (tmp_path / "batch.csv").read_bytes() == out.read_bytes()  # t_s too: the session's
     assert json.loads(batch.sidecar.read_text())["time_source"].startswith("session timestamps")
@@ -145,7 +149,13 @@ def test_recorded_session_reprocesses_to_the_same_rows(tmp_path, sensor):
         assert m["ok"] == int(r["ok"])
         if m["ok"]:
             assert math.isclose(m["phi_deg"], float(r["phi_deg"]), abs_tol=1e-5)
+            # The forces as the table has them (5 significant digits), F_z = k_z dz.
+            assert math.isclose(m["fz_mN"], float(r["fz_mN"]), rel_tol=1e-4)
+            assert math.isclose(float(r["fz_mN"]), 1e3 * springs.k_z_n_per_mm
+                                * float(r["dz_mm"]), rel_tol=1e-3, abs_tol=1e-3)  # fmt: skip
     meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["springs"]["k_z_n_per_mm"] == springs.k_z_n_per_mm
+    assert meta["columns"][-2:] == ["fz_mN", "mb_Nmm"]
     assert meta["udp"]["sent"] == CLIP_FRAMES
     assert meta["recording"]["frames"] == CLIP_FRAMES
 

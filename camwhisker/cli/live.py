@@ -11,6 +11,8 @@ from camwhisker.cli.common import (
     features_arg,
     mode_arg,
     sensor_arg,
+    springs_arg,
+    springs_of,
 )
 from camwhisker.sensor import load_sensor
 
@@ -72,6 +74,7 @@ def add_live(sub) -> None:
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)
+    springs_arg(p)
     p.set_defaults(func=_run_live)
 
 
@@ -113,6 +116,7 @@ def _run_live(args) -> int:
         controls=False if args.no_keys else None,
         max_frames=args.frames,
         duration_s=args.duration,
+        springs=springs_of(args),
     )
     report = LiveSession(capture, sensor, args.out, config).run()
     print(LiveSession.summary(report), file=sys.stderr)
@@ -129,6 +133,7 @@ def add_replay(sub) -> None:
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)
+    springs_arg(p)
     p.set_defaults(func=_run_replay)
 
 
@@ -138,6 +143,6 @@ def _run_replay(args) -> int:
 
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
-    out = reprocess_session(args.session, sensor, args.out, options)
+    out = reprocess_session(args.session, sensor, args.out, options, springs_of(args))
     print(out)
     return 0

@@ -78,8 +78,9 @@ class LiveProcessor:
 
 
 def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
-                      options: FrontEndOptions | None = None) -> Path:  # fmt: skip
-    """Process a recorded session again: the same rows as the live table.
+                      options: FrontEndOptions | None = None, springs=None) -> Path:  # fmt: skip
+    """Process a recorded session again: the same rows as the live table (with the
+    forces where ``springs``, a Stiffness, is given, as live had it).
 
     Raises
     ------
@@ -93,7 +94,7 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
     rows = stream(source, sensor, options, strict=False)
     out_csv = Path(out_csv)
     with atomic_path(out_csv) as tmp:
-        write_signals(tmp, ((frame.t_s, r) for frame, r in rows))
+        write_signals(tmp, ((frame.t_s, r) for frame, r in rows), springs)
     return out_csv
 
 
@@ -119,6 +120,7 @@ class LiveConfig:
     jsonl : print one JSON line per frame on stdout.
     controls : read r/d/q keys from stdin (None: when stdin is a terminal).
     max_frames, duration_s : stop after so many rows / seconds (None: no limit).
+    springs : the suspension's stiffness (Stiffness): adds the forces to every row.
     """
 
     mode: str = "latest"
@@ -135,6 +137,7 @@ class LiveConfig:
     max_reconnects: int = MAX_RECONNECTS
     backoff_s: float = BACKOFF_S
     handle_signals: bool = True
+    springs: object = None  # camwhisker.mechanics.springs.Stiffness
 
 
 @dataclass
@@ -252,7 +255,7 @@ class LiveSession:
         prepare = MjpgRoundTrip(cfg.jpeg_quality) if cfg.record else decode_only
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
-        writer = SignalWriter(self.out_csv, flush=True)
+        writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs)
         recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
         udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
         controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
@@ -341,7 +344,8 @@ class LiveSession:
             shape = None if item.image is None else item.image.shape
             recorder.write(frame.index, item.seq, frame.t_s, item.jpeg, shape, frame.event)
         if self.config.jsonl or udp is not None:
-            msg = result_message(item.seq, frame.t_s, r, 1e3 * (done - item.t_s))
+            msg = result_message(item.seq, frame.t_s, r, 1e3 * (done - item.t_s),
+                                 self.config.springs)  # fmt: skip
             if self.config.jsonl and not self._stdout_closed:
                 try:
                     print(msg, file=self.stdout, flush=True)
@@ -392,6 +396,7 @@ class LiveSession:
             "capture (monotonic clock, from the first frame)",
             (rep.rows, rep.rows_ok), rep.problems, cfg.options, self.sensor,
             rest=self.rest_log,
+            springs=cfg.springs,
             mode=cfg.mode,
             rows_without_frame=rep.gaps,
             stopped_by=rep.stopped_by,

@@ -11,6 +11,7 @@ import math
 import socket
 
 from camwhisker import jsonfile
+from camwhisker.signals import FORCE_COLUMNS
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]
@@ -23,16 +24,24 @@ def _num(x: float, digits: int) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), digits)
 
 
-def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float) -> str:
-    """One frame's result as compact JSON (a line on stdout, a UDP datagram)."""
+def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
+                   springs=None) -> str:  # fmt: skip
+    """One frame's result as compact JSON (a line on stdout, a UDP datagram); with
+    ``springs`` (a Stiffness) the forces too, as the table's columns."""
     ok = bool(r.ok)
-    return jsonfile.dumps({
+    msg = {
         "frame": r.frame, "seq": seq, "t_s": _num(t_s, 6),
         "dz_mm": _num(r.dz_mm, 5) if ok else None,
         "phi_deg": _num(r.phi_deg, 5) if ok else None,
         "theta_deg": _num(r.theta_deg, 3) if ok else None,
         "ok": int(ok), "latency_ms": _num(latency_ms, 3), "note": r.reason,
-    }, separators=(",", ":"))  # fmt: skip
+    }  # fmt: skip
+    if springs is not None:
+        for key, value in zip(FORCE_COLUMNS, (springs.fz_mN(r.dz_mm), springs.mb_Nmm(r.phi_deg)),
+                              strict=True):  # fmt: skip
+            # The table's 5 significant digits, so a message and its row agree.
+            msg[key] = float(f"{value:.5g}") if ok and math.isfinite(value) else None
+    return jsonfile.dumps(msg, separators=(",", ":"))
 
 
 class UdpSender:
