@@ -108,8 +108,14 @@ def run_batch(
     rest: list = []
     rows = stream(source, sensor, options, rest_index, strict=not session, rest_log=rest)
     rows = _checking_rest(rows, rest_check_path(report.out_csv), PlateModel(sensor), report)
-    report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source), progress,
-                                                   springs)
+    try:
+        report.frames, report.frames_ok = _write_table(report.out_csv, rows, len(source),
+                                                       progress, springs)  # fmt: skip
+    except BaseException as exc:
+        # Stopped (Ctrl-C, SIGTERM): the check image of a table never written goes too.
+        if not isinstance(exc, Exception) and report.rest_check is not None:
+            report.rest_check.unlink(missing_ok=True)
+        raise
     if source.problem:
         report.problems.append(source.problem)
     if report.frames <= rest_index:

@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import pytest
 
 from camwhisker.atomic import atomic_path, remove_stale_temps
@@ -30,6 +31,7 @@ VIDEOS = 40  # as in the issue; at ~0.3 s a video on 2 workers, the run lasts ~1
 STOP_S = 5.0  # the issue's bound from SIGINT to exit; the stop itself takes ~0.2 s
 ORPHAN_S = 10.0  # the issue's bound for workers to be gone after kill -9 of the parent
 START_S = 120.0  # time for a first output on a loaded machine; only a bound on waiting
+LONG_FRAMES = 3000  # ~20 s of batch on 2 cores: the stop lands well inside it
 SUMMARY = re.compile(r"(\d+) videos: (\d+) done, (\d+) already complete, (\d+) failed, (\d+) left")
 
 
@@ -242,3 +244,34 @@ def test_task_interrupted_leaves_nothing_half_done(videos, tmp_path, monkeypatch
     with pytest.raises(KeyboardInterrupt):
         campaign.BatchTask(Sensor())(videos[0], tmp_path / f"c.signals{suffix}")
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_sigterm_to_a_single_output_run_leaves_nothing(tmp_path):
+    # One input, --out: the run is in this process (no workers). A long input (the
+    # sample's frames over and over) so the stop lands while the table is written.
+    video = tmp_path / "long.avi"
+    cap = cv2.VideoCapture(str(SAMPLE))
+    frames = [cap.read()[1] for _ in range(SAMPLE_FRAMES)]
+    cap.release()
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (w, h))
+    for i in range(LONG_FRAMES):
+        writer.write(frames[i % SAMPLE_FRAMES])
+    writer.release()
+    out = tmp_path / "out" / "long.csv"
+    out.parent.mkdir()
+    cmd = [sys.executable, "-m", "camwhisker.cli", "batch", str(video), "--out", str(out),
+           "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    _wait_for(lambda: _temps(out.parent) != [], "table being written")
+    t0 = time.monotonic()
+    os.kill(proc.pid, signal.SIGTERM)
+    try:
+        _, stderr = proc.communicate(timeout=STOP_S)
+    finally:
+        proc.kill()
+    assert time.monotonic() - t0 < STOP_S
+    assert proc.returncode == 130, stderr
+    # Nothing of the unfinished run: no temporary, no table, no sidecar, no check image.
+    assert sorted(p.name for p in out.parent.iterdir()) == []

@@ -92,11 +92,13 @@ def _run_batch(args) -> int:
     if len(args.video) != 1 or args.dest:
         raise CommandError("--out takes a single input; for many use --dest (or neither)")
     from camwhisker.batch import run_batch
+    from camwhisker.workers import stop_signals_interrupt
 
-    report = run_batch(
-        args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet,
-        springs=springs_of(args),
-    )
+    with stop_signals_interrupt():  # SIGTERM unwinds as Ctrl-C does: no temporary file left
+        report = run_batch(
+            args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet,
+            springs=springs_of(args),
+        )
     outputs = ", ".join(str(p) for p in (report.out_csv, report.sidecar, report.rest_check) if p)
     print(f"{report.frames} frames, {report.frames_ok} ok -> {outputs}")
     for problem in report.problems:
