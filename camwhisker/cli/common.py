@@ -24,7 +24,7 @@ EXIT_CODES = {
     1: "finished, but something failed: named on stderr (a video that could not be "
        "processed, frames lost, no row ok); what was done is written",
     2: "usage or bad input: the file, key, row or frame named on stderr; nothing written",
-    130: "interrupted (Ctrl-C)",
+    130: "interrupted (Ctrl-C; batch also by SIGTERM)",
 }
 
 
