@@ -337,7 +337,7 @@ class FrontEnd:
         FeaturesNotFound
             Naming what was not found.
         """
-        self._check_frame(frame)
+        self._check_frame(frame, rest=True)
         self.rest = self._measure_rest(frame, rest_uv)
         self.q = np.zeros(5)
         self._q_hist = [np.zeros(5)]
@@ -589,9 +589,11 @@ class FrontEnd:
         return self._result(fit, measured, quality, n_corners, ok, reason)
 
     # ---------------------------------------------------------------- helpers
-    def _check_frame(self, frame: np.ndarray) -> None:
+    def _check_frame(self, frame: np.ndarray, rest: bool = False) -> None:
         cam = self.sensor.camera
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        # A rest frame may be the float mean of several (vision.rest.mean_image).
+        kinds = (np.uint8, np.float32) if rest else (np.uint8,)
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype not in kinds:
             raise ValueError(
                 f"expected a uint8 BGR frame (H, W, 3), got {frame.dtype} {frame.shape}"
             )
