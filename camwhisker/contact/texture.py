@@ -29,6 +29,7 @@ import numpy as np
 from camwhisker.contact.ringing import Ringing, fit_ringing, mode_gain
 
 __all__ = ["TextureError", "TextureEstimate", "tip_push_mm", "estimate_texture", "stage_speed",
+           "texture_record",
            "REST_S", "MIN_RING_S"]
 
 # The recording's first REST_S are at rest: the baseline and its noise (as batch's zero).
@@ -127,7 +128,8 @@ def _segments(t, u, fps: float, source: str):
 
 
 def _extrema_times(t, y, prominence: float):
-    """Times of maxima and minima (parabolic sub-frame refinement) standing out by ``prominence``."""
+    """Times of maxima and minima standing out by ``prominence``, refined between frames
+    by a parabola."""
     from scipy.signal import find_peaks
 
     out = []
@@ -275,3 +277,12 @@ def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
     se_mode = amplitude * abs(float(mode_gain(f_tex, shifted) / mode_gain(f_tex, ringing)) - 1.0)
     return TextureEstimate(True, "resolved", gap, gap_se, amplitude, math.hypot(se_fit, se_mode),
                            limits, ringing, details, trace)
+
+
+def texture_record(est: TextureEstimate) -> dict:
+    """The estimate as plain JSON fields: null where not resolved, the limits always."""
+    return {"resolved": est.resolved, "reason": est.reason, "gap_mm": est.gap_mm,
+            "gap_se_mm": est.gap_se_mm, "amplitude_mm": est.amplitude_mm,
+            "amplitude_se_mm": est.amplitude_se_mm, "limits": est.limits,
+            "natural_hz": est.ringing.natural_hz, "natural_se_hz": est.ringing.natural_se_hz,
+            "details": est.details}
