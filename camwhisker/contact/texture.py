@@ -50,6 +50,10 @@ MIN_INTERVALS = 3
 # HARMONIC_SIGMA standard errors above zero.
 MAX_HARMONICS = 4
 HARMONIC_SIGMA = 3.0
+# The extrema's filter: a corner this many times the texture's periodogram peak.
+TIGHT_RATIO = 2.0
+# A waveform must stand this many standard errors above zero to be a texture.
+MIN_SNR = 5.0
 # Extrema intervals more irregular than this are not one texture.
 MAX_INTERVAL_CV = 0.25
 # The analysis skips this many ringing time constants (and filter settling times, 1 / fc)
@@ -206,17 +210,35 @@ def _limits(speed, fps, cutoff_hz, sigma_f, ringing):
             "natural_hz": ringing.natural_hz}
 
 
-def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
-                     speed_se_mm_s: float = 0.0) -> TextureEstimate:
-    """Gap and amplitude of the texture slid over in ``signals`` (a read signal table).
+def _lowpass(u, corner: float, fps: float):
+    """A Butterworth low-pass, forward and backward (no delay)."""
+    from scipy.signal import butter, sosfiltfilt
 
-    Raises
-    ------
-    TextureError
-        A speed <= 0, too few ok rows, no rest at the start, no contact, no free ringing.
-    """
-    from scipy.signal import butter, sosfiltfilt, sosfreqz
+    return sosfiltfilt(butter(BUTTER_ORDER, corner, fs=fps, output="sos"), u)
 
+
+def _noise_share(corners, fps: float) -> float:
+    """The share of white noise's sigma that passes the low-passes at ``corners`` in turn."""
+    from scipy.signal import butter, sosfreqz
+
+    passed = np.ones(4096)
+    for corner in corners:
+        sos = butter(BUTTER_ORDER, corner, fs=fps, output="sos")
+        passed *= np.abs(sosfreqz(sos, worN=4096, fs=fps)[1]) ** 4  # |B|^2, twice
+    return math.sqrt(float(np.mean(passed)))
+
+
+def _texture_peak_hz(t, y, fps: float, corner: float) -> float:
+    """The periodogram's peak (Hann, zero-padded) between two cycles per window and the corner."""
+    from scipy.signal import periodogram
+
+    f, p = periodogram(y, fs=fps, window="hann", nfft=8 * y.size, detrend="linear")
+    band = (f >= 2.0 / (t[-1] - t[0])) & (f <= corner)
+    return float(f[band][np.argmax(p[band])]) if band.any() else corner
+
+
+def _prepare(signals, speed_mm_s, length_mm, speed_se_mm_s):
+    """Tip push, contact, ringing, the corner below the mode, limits and the analysed stretch."""
     source = signals.get("source", "<signals>")
     if not (speed_mm_s > 0 and math.isfinite(speed_mm_s)):
         raise TextureError(f"speed_mm_s must be positive, got {speed_mm_s:g}")
@@ -226,33 +248,54 @@ def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
     sigma, i0, i1, ring0 = _segments(t, u, fps, source)
     ringing = fit_ringing(t[ring0:], u[ring0:], source)
     cutoff = min(CUTOFF_RATIO * ringing.natural_hz, NYQUIST_SHARE * 0.5 * fps)
-    sos = butter(BUTTER_ORDER, cutoff, fs=fps, output="sos")
-    y = sosfiltfilt(sos, u)
-    _, b = sosfreqz(sos, worN=4096, fs=fps)
-    power = np.abs(b) ** 4  # forward and backward: the magnitude squared, twice
-    sigma_f = sigma * math.sqrt(float(np.mean(power)))
+    y = _lowpass(u, cutoff, fps)
+    sigma_f = sigma * _noise_share([cutoff], fps)
     limits = _limits(speed_mm_s, fps, cutoff, sigma_f, ringing)
-    edge = EDGE_TAU * max(1.0 / (2 * math.pi * ringing.natural_hz * max(ringing.damping, 1e-3)),
-                          1.0 / cutoff)
+    tau = 1.0 / (2 * math.pi * ringing.natural_hz * max(ringing.damping, 1e-3))
+    edge = EDGE_TAU * max(tau, 1.0 / cutoff)
     win = (t >= t[i0] + edge) & (t <= t[i1 - 1] - edge)
     details = {"fps": fps, "speed_mm_s": speed_mm_s, "speed_se_mm_s": speed_se_mm_s,
                "rows_filled": filled, "rest_sigma_mm": sigma, "filtered_sigma_mm": sigma_f,
                "contact_s": [float(t[i0]), float(t[i1 - 1])], "ring_from_s": float(t[ring0]),
                "damping": ringing.damping, "damping_se": ringing.damping_se,
-               "natural_se_hz": ringing.natural_se_hz}
+               "natural_se_hz": ringing.natural_se_hz, "edge_s": edge}
     trace = {"t_s": t, "u_mm": u, "filtered_mm": y, "window": win, "ring0": ring0}
+    return ringing, limits, details, trace
+
+
+def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
+                     speed_se_mm_s: float = 0.0) -> TextureEstimate:
+    """Gap and amplitude of the texture slid over in ``signals`` (a read signal table).
+
+    The seed's filter (corner :data:`CUTOFF_RATIO` of the natural frequency) first; then,
+    for the extrema, a second corner at :data:`TIGHT_RATIO` times the periodogram's peak
+    (a slow texture keeps less noise).
+
+    Raises
+    ------
+    TextureError
+        A speed <= 0, too few ok rows, no rest at the start, no contact, no free ringing.
+    """
+    ringing, limits, details, trace = _prepare(signals, speed_mm_s, length_mm, speed_se_mm_s)
+    t, u, y, win = trace["t_s"], trace["u_mm"], trace["filtered_mm"], trace["window"]
+    fps, cutoff = details["fps"], limits["cutoff_hz"]
 
     def unresolved(why):
         return TextureEstimate(False, why, None, None, None, None, limits, ringing, details, trace)
 
     if win.sum() < 8:
-        return unresolved(f"the contact ({t[i1 - 1] - t[i0]:.2f} s) is too short: "
-                          f"{2 * edge:.2f} s go to its edges")
-    tw, yw = t[win], y[win]
-    yw = yw - np.polyval(np.polyfit(tw, yw, 1), tw)
-    maxima, minima = _extrema_times(tw, yw, PROMINENCE_SIGMA * sigma_f)
+        return unresolved(f"the contact ({np.ptp(details['contact_s']):.2f} s) is too short: "
+                          f"{2 * details['edge_s']:.2f} s go to its edges")
+    tw = t[win]
+    yw = y[win] - np.polyval(np.polyfit(tw, y[win], 1), tw)
+    tight = TIGHT_RATIO * _texture_peak_hz(tw, yw, fps, cutoff)
+    sigma_t = details["filtered_sigma_mm"]
+    if tight < cutoff:  # else the seed's filter is as tight as it gets
+        yw = _lowpass(yw, tight, fps)
+        sigma_t = details["rest_sigma_mm"] * _noise_share([cutoff, tight], fps)
+    maxima, minima = _extrema_times(tw, yw, PROMINENCE_SIGMA * sigma_t)
     details.update(n_maxima=int(maxima.size), n_minima=int(minima.size),
-                   window_s=[float(tw[0]), float(tw[-1])])
+                   tight_hz=min(tight, cutoff), window_s=[float(tw[0]), float(tw[-1])])
     trace.update(maxima=maxima, minima=minima)
     beyond = (f"finer than {limits['gap_min_mm']:.3g} mm at {speed_mm_s:g} mm/s (the whisker's "
               f"mode at {ringing.natural_hz:.2f} Hz: corner {cutoff:.2f} Hz; Nyquist at "
@@ -261,22 +304,23 @@ def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
     if min(maxima.size, minima.size) < MIN_INTERVALS + 1:
         return unresolved(f"no periodic ridges above the noise: the texture is {beyond}")
     period, period_se, cv = _period(maxima, minima)
-    details["interval_cv"] = cv
     f_tex = 1.0 / period
-    details["texture_hz"] = f_tex
+    details.update(interval_cv=cv, texture_hz=f_tex)
     if cv > MAX_INTERVAL_CV or f_tex > cutoff:
         return unresolved(f"the extrema are not one texture (interval spread {cv:.0%}): the "
                           f"texture is {beyond}")
-    gap = speed_mm_s * period
-    gap_se = math.hypot(speed_mm_s * period_se, speed_se_mm_s * period)
     amplitude, se_fit, n_harm = _harmonics(tw, u[win], f_tex, cutoff, ringing)
-    details["harmonics"] = n_harm
+    details.update(harmonics=n_harm, amplitude_snr=amplitude / se_fit)
+    if amplitude < MIN_SNR * se_fit:
+        return unresolved(f"the ridges' waveform is within the noise ({amplitude:.3g} +- "
+                          f"{se_fit:.2g} mm): the texture is {beyond}")
     # The mode's gain through the fitted frequency and damping, one standard error off.
     shifted = Ringing(ringing.natural_hz + ringing.natural_se_hz, 0.0,
                       ringing.damping + ringing.damping_se, 0.0)
     se_mode = amplitude * abs(float(mode_gain(f_tex, shifted) / mode_gain(f_tex, ringing)) - 1.0)
-    return TextureEstimate(True, "resolved", gap, gap_se, amplitude, math.hypot(se_fit, se_mode),
-                           limits, ringing, details, trace)
+    gap_se = math.hypot(speed_mm_s * period_se, speed_se_mm_s * period)
+    return TextureEstimate(True, "resolved", speed_mm_s * period, gap_se, amplitude,
+                           math.hypot(se_fit, se_mode), limits, ringing, details, trace)
 
 
 def texture_record(est: TextureEstimate) -> dict:
