@@ -129,3 +129,19 @@ def test_cli_simulates_estimates_and_names_bad_input(tmp_path, capsys):
     assert main(["texture", "--signals", str(sim / "signals.csv"), "--speed-mm-s", "0",
                  "--out", str(out2)]) == 2
     assert "--speed-mm-s" in capsys.readouterr().err and not out2.exists()
+
+
+def test_bundled_sample_regenerates_and_resolves(tmp_path):
+    from pathlib import Path
+
+    bundled = Path(__file__).resolve().parents[1] / "sample_frames" / "texture"
+    assert main(["simulate-texture", "--out", str(tmp_path)]) == 0  # the defaults make it
+    for name in ("signals.csv", "stage.csv", "truth.csv"):
+        assert (tmp_path / name).read_bytes() == (bundled / name).read_bytes(), name
+    out = tmp_path / "t.json"
+    assert main(["texture", "--signals", str(bundled / "signals.csv"), "--speed-mm-s", "1",
+                 "--stage", str(bundled / "stage.csv"), "--out", str(out)]) == 0
+    record = json.loads(out.read_text())
+    # The README's numbers: gap 1.001 +- 0.0008 mm, amplitude 0.1007 +- 0.0021 mm (truth 1, 0.1).
+    assert record["gap_mm"] == pytest.approx(1.001, abs=0.0005)
+    assert record["amplitude_mm"] == pytest.approx(0.1007, abs=0.0005)

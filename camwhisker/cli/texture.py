@@ -27,7 +27,7 @@ def add_simulate_texture(sub) -> None:
     p.add_argument("--gap-mm", type=float, default=1.0, help="the ridges' spacing")
     p.add_argument("--amplitude-mm", type=float, default=0.1,
                    help="the ridges' height, peak to valley")
-    p.add_argument("--speed-mm-s", type=float, default=2.0, metavar="V",
+    p.add_argument("--speed-mm-s", type=float, default=1.0, metavar="V",
                    help="the base's sliding speed")
     p.add_argument("--fps", type=float, default=120.0, help="the camera's frame rate")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise and the clock offset")

@@ -183,7 +183,7 @@ def plot_texture(est, path, how: str = "") -> None:
     ax.set_title(title)
     ax.set_xlabel("t (s)")
     ax.set_ylabel("u (mm)")
-    ax.legend(fontsize=7, ncols=3, loc="upper right")
+    ax.legend(fontsize=7, ncols=3, loc="center")
     ring = slice(tr["ring0"], None)
     ax2.plot(t[ring], u[ring], "-", color="k", lw=0.8)
     ax2.set_title(f"free ringing: first mode {est.ringing.natural_hz:.3f} ± "
