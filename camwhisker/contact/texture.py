@@ -201,11 +201,12 @@ def _harmonics(t, u, f_hz, cutoff_hz, ringing: Ringing):
 
 
 def _limits(speed, fps, cutoff_hz, sigma_f, ringing):
-    nyquist_gap = 2.0 * speed / fps
-    mode_gap = speed / cutoff_hz
-    return {"gap_min_mm": max(nyquist_gap, mode_gap), "nyquist_gap_min_mm": nyquist_gap,
-            "mode_gap_min_mm": mode_gap,
-            "binding": "nyquist" if nyquist_gap >= mode_gap else "mode",
+    """The finest gap (the corner's: the mode's, or Nyquist's where it holds the corner down)
+    and the smallest amplitude the extrema can show."""
+    mode_corner = CUTOFF_RATIO * ringing.natural_hz
+    return {"gap_min_mm": speed / cutoff_hz, "nyquist_gap_min_mm": 2.0 * speed / fps,
+            "mode_gap_min_mm": speed / mode_corner,
+            "binding": "nyquist" if cutoff_hz < mode_corner else "mode",
             "amplitude_min_mm": PROMINENCE_SIGMA * sigma_f, "cutoff_hz": cutoff_hz,
             "natural_hz": ringing.natural_hz}
 
