@@ -145,3 +145,18 @@ def test_bundled_sample_regenerates_and_resolves(tmp_path):
     # The README's numbers: gap 1.001 +- 0.0008 mm, amplitude 0.1015 +- 0.002 mm (truth 1, 0.1).
     assert record["gap_mm"] == pytest.approx(1.001, abs=0.0005)
     assert record["amplitude_mm"] == pytest.approx(0.1015, abs=0.0005)
+
+
+def test_bench_takes_the_smallest_gap_with_every_larger_one_resolved():
+    from camwhisker.bench.texture import _smallest, run_cell
+
+    def rows(*errors):
+        return [{"gap_error": e} for e in errors]
+
+    # 0.5 is within 10 % but 0.7 above it is not: the smallest is 1.0, not 0.5.
+    cells = {0.3: rows(None), 0.5: rows(0.01), 0.7: rows(0.01, 0.2), 1.0: rows(0.0, -0.09),
+             2.0: rows(0.05)}
+    assert _smallest(cells, cells, "gap_error") == 1.0
+    row = run_cell(2.0, 0.1, 3.0, 120.0, 5)
+    assert row["resolved"] and abs(row["gap_error"]) < 0.02  # 2 %: the bench's worst is 1.8 %
+    assert row["nyquist_gap_min_mm"] == pytest.approx(2 * 3.0 / 120.0, rel=1e-4)
