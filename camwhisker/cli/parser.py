@@ -17,6 +17,7 @@ from camwhisker.cli import (
     percept,
     springs,
     synth,
+    texture,
     validate,
 )
 from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
@@ -32,12 +33,14 @@ _COMMANDS = [
     synth.add_experiment,
     bench.add_chain,
     contact.add_simulate_stage,
+    texture.add_simulate_texture,
     contact.add_calibrate,
     calibrate_sensor.add_calibrate_sensor,
     contact.add_contact,
     belief.add_belief,
     springs.add_calibrate_springs,
     percept.add_percept,
+    texture.add_texture,
     validate.add_validate,
     bench.add_contact_bench,
     percept.add_percept_bench,

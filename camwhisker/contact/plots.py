@@ -7,6 +7,7 @@
 - :func:`plot_shapes`: reconstructed contact points coloured by Z with the
   true outline and the percept's fitted one (Fig. 9).
 - :func:`plot_percept`: the surfels of a percept and its fitted outline.
+- :func:`plot_texture`: the tip's push while sliding, filtered, its extrema, the ringing.
 
 Every figure carries a footer and PNG metadata saying how it was made.
 """
@@ -25,7 +26,8 @@ from camwhisker import __version__  # noqa: E402
 from camwhisker.atomic import atomic_write_bytes  # noqa: E402
 from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
 
-__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "save_figure"]
+__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "plot_texture",
+           "save_figure"]
 
 
 #: Share of the figure's height kept above the axes for the provenance line.
@@ -159,3 +161,33 @@ def plot_percept(xy_mm, dirs, free_xy_mm, fit_xy, label: str, path, how: str = "
     ax.set_title(label)
     fig.legend(loc="outside lower center", ncols=2, fontsize=8)
     save_figure(fig, path, how or "percept")
+
+
+def plot_texture(est, path, how: str = "") -> None:
+    """The tip's push over the recording, the low-passed signal with its extrema in the
+    analysed stretch, and the free ringing the natural frequency comes from."""
+    tr = est.trace
+    t, u, y, win = tr["t_s"], tr["u_mm"], tr["filtered_mm"], tr["window"]
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 6), layout="constrained")
+    ax.plot(t, u, "-", color="0.7", lw=0.7, label="tip's push u (signals)")
+    ax.plot(t, y, "-", color="C0", lw=1.0, label=f"low-passed ({est.limits['cutoff_hz']:.2f} Hz)")
+    if win.any():
+        ax.axvspan(t[win][0], t[win][-1], color="C2", alpha=0.08, label="analysed")
+    for key, mark in (("maxima", "^"), ("minima", "v")):
+        times = tr.get(key, np.zeros(0))
+        if len(times):
+            ax.plot(times, np.interp(times, t, y), mark, color="C3", ms=4, label=key)
+    title = (f"gap {est.gap_mm:.3g} ± {est.gap_se_mm:.2g} mm, amplitude {est.amplitude_mm:.3g} ± "
+             f"{est.amplitude_se_mm:.2g} mm" if est.resolved
+             else f"not resolved: gap >= {est.limits['gap_min_mm']:.3g} mm needed")
+    ax.set_title(title)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("u (mm)")
+    ax.legend(fontsize=7, ncols=3, loc="center")
+    ring = slice(tr["ring0"], None)
+    ax2.plot(t[ring], u[ring], "-", color="k", lw=0.8)
+    ax2.set_title(f"free ringing: first mode {est.ringing.natural_hz:.3f} ± "
+                  f"{est.ringing.natural_se_hz:.2g} Hz, damping ratio {est.ringing.damping:.3f}")
+    ax2.set_xlabel("t (s)")
+    ax2.set_ylabel("u (mm)")
+    save_figure(fig, path, how or "texture")

@@ -11,7 +11,7 @@ from camwhisker.forcelog import ForceLog, write_force_log
 from camwhisker.mechanics.experiment import StageRun
 from camwhisker.tables import write_csv
 
-__all__ = ["write_runs"]
+__all__ = ["write_runs", "write_texture_run"]
 
 TRUTH_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_mm", "contact_x_mm",
                  "contact_y_mm", "in_contact", "slipping")
@@ -75,3 +75,24 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
     manifest = out / "experiment.toml"
     atomic_write_text(manifest, "\n".join(lines))
     return manifest
+
+
+def write_texture_run(run, out_dir: str | Path, command: str = "") -> list[Path]:
+    """Write a texture run (:func:`camwhisker.mechanics.texture.simulate_texture`) as
+    ``signals.csv`` (docs/sensor.md section 6), ``stage.csv`` (stage clock),
+    ``truth.csv`` and ``texture.json`` (how it was made, the surface, speed, frame rate,
+    the whisker's mode, the true clock offset); no time stamp, so the same command
+    writes the same files. Returns the paths."""
+    from camwhisker.jsonfile import dumps
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / name for name in ("signals.csv", "stage.csv", "truth.csv", "texture.json")]
+    sig = run.signals
+    write_csv(paths[0], {k: sig[k] for k in ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg",
+                                             "ok")}, digits=8)
+    write_csv(paths[1], run.stage, digits=10)
+    write_csv(paths[2], run.truth, digits=8)
+    record = {"camwhisker": __version__, "command": command, **run.info}
+    atomic_write_text(paths[3], dumps(record, indent=1) + "\n")
+    return paths

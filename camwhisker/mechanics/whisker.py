@@ -76,6 +76,8 @@ class WhiskerMechanics:
     youngs_modulus_n_per_mm2: float = 3000.0
     k_phi_nmm_per_rad: float = 0.7456
     k_z_n_per_mm: float = 1.2e-4
+    # A stiff polymer's density (nylon, PLA: 1.1-1.25 g/cm^3), in the N-mm-s unit system.
+    density_t_per_mm3: float = 1.2e-9
 
     @property
     def ei0_nmm2(self) -> float:
@@ -91,6 +93,11 @@ class WhiskerMechanics:
     def beta_per_mm(self) -> float:
         """Rotational base stiffness over base bending stiffness, k_phi / EI0 (1/mm)."""
         return self.k_phi_nmm_per_rad / self.ei0_nmm2
+
+    def area_mm2(self, s_mm):
+        """Cross-section A(s) = pi R0^2 (1 - s / L_a)^2 along the arc length."""
+        r0 = 0.5 * self.base_diameter_mm
+        return math.pi * r0**2 * (1.0 - np.asarray(s_mm) / self.apex_mm) ** 2
 
     def ei_nmm2(self, s_mm):
         """Bending stiffness EI(s) = EI0 (1 - s / L_a)^4 along the arc length."""
