@@ -49,6 +49,7 @@ __all__ = [
     "StageProtocol",
     "continuous_protocol",
     "NoiseModel",
+    "measure_signals",
     "PAPER_NOISE",
     "FRONT_END_NOISE",
     "NOISE_LEVELS",
@@ -289,7 +290,7 @@ def simulate_run(
     clean = signal_arrays_from(steps, used, x_cam)
     theta_deg = theta_deg_for(travel_sign)
     truth = _truth(steps, used, x_first, t_cam, x_cam, clean, travel_sign)
-    signals = _measure(clean["phi_deg"], clean["dz_mm"], theta_deg, noise, rng)
+    signals = measure_signals(clean["phi_deg"], clean["dz_mm"], theta_deg, noise, rng)
     signals = {"frame": np.arange(n_frames), "t_s": t_cam, **signals}
     return StageRun(
         name=name, kind=kind, scene=lab_scene, offset_s=offset_s, travel_sign=travel_sign,
@@ -368,7 +369,7 @@ def signal_arrays(run: StageRun, fps: float):
     return {"t_s": t, "phi_deg": out["phi_deg"], "dz_mm": out["dz_mm"], "theta_deg": theta}
 
 
-def _measure(phi_deg, dz_mm, theta_deg, noise: NoiseModel, rng):
+def measure_signals(phi_deg, dz_mm, theta_deg, noise: NoiseModel, rng):
     """Add the front end's noise: isotropic on the 2D tilt vector, Gaussian on dz."""
     n = phi_deg.size
     th = math.radians(theta_deg)

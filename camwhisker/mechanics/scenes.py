@@ -33,7 +33,7 @@ from camwhisker.mechanics.whisker import (
     solve_elastica,
 )
 
-__all__ = ["PegScene", "BoxScene", "CircleScene", "Sweep", "sweep", "SLIP_TOL_MM"]
+__all__ = ["PegScene", "BoxScene", "CircleScene", "Sweep", "sweep", "SLIP_TOL_MM", "wrap_angle"]
 
 # The contact point counts as slipping once it has moved this far along the
 # object since first contact: a third of the paper's 3 mm GM precision.
@@ -44,7 +44,7 @@ SLIP_SEARCH_MM = 0.5
 SLIP_BISECT_ITERATIONS = 10
 
 
-def _wrap(angle: float) -> float:
+def wrap_angle(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
@@ -79,7 +79,7 @@ class PegScene:
             return (
                 (st["xc"] - self.x_mm - give) / length,
                 (st["yc"] - self.r_mm) / length,
-                _wrap(u[2] - (st["bc"] + 0.5 * math.pi)),  # frictionless: force normal
+                wrap_angle(u[2] - (st["bc"] + 0.5 * math.pi)),  # frictionless: force normal
             )
 
         return residuals
@@ -163,8 +163,8 @@ class _FrictionContact:
             edge = math.atan2(ny - mu * ty, nx - mu * tx)  # load on the cone's edge
             return (
                 self.signed_distance(st["xc"], st["yc"]) / length,
-                _wrap(u[2] - (st["bc"] + 0.5 * math.pi)),  # normal to the whisker
-                _wrap(u[2] - edge),
+                wrap_angle(u[2] - (st["bc"] + 0.5 * math.pi)),  # normal to the whisker
+                wrap_angle(u[2] - edge),
             )
 
         return residuals
@@ -272,8 +272,8 @@ class CircleScene:
             normal = st["bc"] + 0.5 * math.pi  # the whisker's normal, toward -x at rest
             return (
                 (math.hypot(ax, ay) - radius) / length,  # on the circle
-                _wrap(math.atan2(ay, ax) - normal),  # tangent to it there
-                _wrap(u[2] - normal),  # frictionless: load along the normal
+                wrap_angle(math.atan2(ay, ax) - normal),  # tangent to it there
+                wrap_angle(u[2] - normal),  # frictionless: load along the normal
             )
 
         return residuals

@@ -37,11 +37,11 @@ from camwhisker.mechanics.experiment import (
     FRONT_END_NOISE,
     NoiseModel,
     StageProtocol,
-    _measure,
+    measure_signals,
     theta_deg_for,
 )
 from camwhisker.mechanics.mode import first_mode_hz
-from camwhisker.mechanics.scenes import _wrap
+from camwhisker.mechanics.scenes import wrap_angle
 from camwhisker.mechanics.whisker import WhiskerMechanics, solve_elastica
 
 __all__ = ["TextureSurface", "TextureProtocol", "TextureRun", "MODE_DAMPING", "FRAME_RATES",
@@ -123,7 +123,7 @@ def _tip_constraint(mech: WhiskerMechanics, y_surface_mm: float, load_angle_rad:
     def residuals(st, u):
         return ((st["yc"] - y_surface_mm) / length,  # the tip on the surface
                 u[3] - 1.0,  # the contact at the tip
-                _wrap(u[2] - load_angle_rad))  # sliding: the load on the friction cone's edge
+                wrap_angle(u[2] - load_angle_rad))  # sliding: the load on the friction cone's edge
 
     return residuals
 
@@ -225,7 +225,7 @@ def simulate_texture(surface: TextureSurface, protocol: TextureProtocol, seed: i
     phi_deg = np.degrees(np.abs(phi_rad))
     theta = theta_deg_for(1.0)
     signals = {"frame": np.arange(n_frames), "t_s": t_cam,
-               **_measure(phi_deg, dz_mm, theta, protocol.noise, rng)}
+               **measure_signals(phi_deg, dz_mm, theta, protocol.noise, rng)}
     magnitude = rng.uniform(*stage.offset_range_s)
     offset_s = float(magnitude if rng.random() < 0.5 else -magnitude)
     t_stage = np.arange(-1.0, t_end + 1.0, 1.0 / stage.stage_rate_hz)
