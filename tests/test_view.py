@@ -18,6 +18,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from camwhisker.bench.view import headless_chromium, quit_chromium
@@ -195,3 +196,34 @@ def test_a_taken_port_is_an_error_that_writes_nothing(tmp_path, sensor):
     finally:
         run.finish()
     assert not (tmp_path / "b.csv").exists()
+
+
+def test_state_figures_from_published_rows():
+    """Rows handed over as the loop does: the state has each once, in order, with the frame
+    rate from their times and the latency percentiles of the last STATS_ROWS."""
+    from camwhisker.live.view import STATS_ROWS, LiveView
+    from camwhisker.model import PlateModel
+    from camwhisker.sources import Frame
+    from camwhisker.vision.tracker import FrameResult
+
+    commands = []
+    view = LiveView(PlateModel(load_sensor(SAMPLES / "nominal.sensor.toml")), commands.append)
+    view.start()
+    try:
+        n = 2 * STATS_ROWS
+        for i in range(n):  # 25 frames/s; latency i ms
+            view.publish(Frame(i, i / 25.0, None, ""), FrameResult.untrusted(i, "test"), float(i),
+                         dropped=i // 10)  # fmt: skip
+        state = _until(lambda: (s := view.state_after(n - 2))["rows"] and s, "the last row")
+        assert [r[0] for r in state["rows"]] == [n - 1]
+        assert state["fps"] == 25.0  # (STATS_ROWS - 1) frames over (STATS_ROWS - 1) / 25 s
+        recent = np.arange(n - STATS_ROWS, n, dtype=float)
+        assert state["latency_p50_ms"] == pytest.approx(np.percentile(recent, 50), abs=0.005)
+        assert state["latency_p99_ms"] == pytest.approx(np.percentile(recent, 99), abs=0.005)
+        assert state["dropped"] == (n - 1) // 10 and state["recording"] is None
+        assert [r[0] for r in view.state_after(-1)["rows"]] == list(range(n))
+        assert view.pictures == 0  # no page asked for one
+        status, _ = _request(view.url + "command/rezero", "POST")
+        assert status == 200 and commands == ["rezero"]
+    finally:
+        view.close()

@@ -185,18 +185,21 @@ class LiveView:
     def _render_loop(self) -> None:
         drawn, drawn_at = -1, -math.inf
         while not self._stop.wait(TICK_S):
-            new = self._take_rows()
+            with self._changed:  # the requests read the history under this lock
+                if self._take_rows():
+                    self._changed.notify_all()
             latest = self._latest
             now = time.monotonic()
-            if new:
-                with self._changed:
-                    self._changed.notify_all()
             if (latest is None or latest.frame.index == drawn or latest.frame.image is None
                     or now - self._asked_at > CLIENT_IDLE_S
                     or now - drawn_at < 1.0 / MAX_VIEW_FPS):  # fmt: skip
                 continue
-            data = self.render(latest)
             drawn, drawn_at = latest.frame.index, now
+            try:
+                data = self.render(latest)
+            except (ValueError, cv2.error) as exc:  # a frame it cannot draw: the next one
+                log.warning("view: frame %d not drawn: %s", latest.frame.index, exc)
+                continue
             with self._changed:
                 self._picture = (latest.frame.index, data)
                 self.pictures += 1
@@ -213,7 +216,10 @@ class LiveView:
             n += 1
             r, event, index = p.result, p.frame.event, p.frame.index
             if is_rest_row(r, event, self._placement is not None):
-                self._placement = Placement.from_rest(self.model, r)
+                try:
+                    self._placement = Placement.from_rest(self.model, r)
+                except ValueError as exc:  # a rest row without every point: keep the last
+                    log.warning("view: %s", exc)
             if event in ("rezero", "redetect"):
                 self._events.append({"frame": index, "event": event, "ok": bool(r.ok)})
             if None not in (p.recording, self._recording) and p.recording != self._recording:
