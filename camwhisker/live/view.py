@@ -9,12 +9,12 @@ the session the commands its keys send (re-zero, re-detect, start/stop
 recording).
 
 The loop pays for none of it: :meth:`LiveView.publish` stores a reference to
-the row (no copy, no drawing, no encoding) and appends its numbers to a
-bounded queue. A render thread of the view looks for a new row every
-``TICK_S``; it draws and encodes the newest one, at most ``MAX_VIEW_FPS``
-times a second and only while a page asks for pictures. It draws just after a
-row is published, so while the loop waits for its next frame. Each request
-runs on its own thread: a slow or closed browser holds only that thread.
+the row (no copy, no drawing, no encoding), appends it to a bounded queue and
+wakes the view's render thread. That thread moves the rows to the plots'
+history and draws and encodes the newest frame, at most ``MAX_VIEW_FPS`` times
+a second and only while a page asks for pictures: just after a row, so while
+the loop waits for its next frame. Each connection has its own thread: a slow
+or closed browser holds only that thread.
 
 Endpoints: ``GET /`` the page; ``GET /frame.jpg?after=N`` the newest picture
 (waits up to ``WAIT_S`` for one newer than frame N; its frame in the
@@ -53,16 +53,14 @@ log = logging.getLogger(__name__)
 DEFAULT_VIEW_HOST = "127.0.0.1"
 #: Commands the page may send (LiveSession.command's names).
 COMMANDS = ("rezero", "redetect", "record")
-#: How often the render thread looks for a new row (s): a picture follows its row
-#: within this, while the loop, done with the row, waits for the next frame.
-TICK_S = 0.005
-#: Most pictures drawn per second: enough to watch; each costs a few ms of a core.
-MAX_VIEW_FPS = 15.0
+#: Most pictures drawn per second: enough to watch; each costs a few ms of a core
+#: here and in the browser.
+MAX_VIEW_FPS = 10.0
 #: JPEG quality of the pictures: the overlay's 1 px lines stay sharp.
 VIEW_JPEG_QUALITY = 80
-#: Pictures are at most this wide (px), the page's width for them: a 720p frame's
-#: encoding, transfer and the browser's decoding cost ~0.4x as much.
-VIEW_WIDTH_PX = 800
+#: Pictures are at most this wide (px), the page's width for them: half a 720p
+#: frame, whose encoding, transfer and decoding in the browser cost ~1/4 as much.
+VIEW_WIDTH_PX = 640
 #: Nothing is drawn once no page has asked for a picture for this long (s).
 CLIENT_IDLE_S = 2.0
 #: Longest a request waits for a newer picture or row (s).
@@ -142,6 +140,7 @@ class LiveView:
         self._picture: tuple[int, bytes] | None = None
         self._asked_at = -math.inf
         self._changed = threading.Condition()
+        self._new_row = threading.Event()
         self._stop = threading.Event()
         self._threads = [
             threading.Thread(target=self.server.serve_forever, args=(0.1,),
@@ -151,6 +150,10 @@ class LiveView:
         ]  # fmt: skip
         self.pictures = 0
         self.requests = 0
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
 
     @property
     def url(self) -> str:
@@ -164,6 +167,7 @@ class LiveView:
     def close(self) -> None:
         """Stop serving; open requests end within ``WAIT_S``."""
         self._stop.set()
+        self._new_row.set()
         with self._changed:
             self._changed.notify_all()
         if self._threads[0].is_alive():
@@ -176,15 +180,21 @@ class LiveView:
     # ------------------------------------------------------ the loop's side
     def publish(self, frame: Frame, result: FrameResult, latency_ms: float, dropped: int,
                 recording: bool | None = None) -> None:  # fmt: skip
-        """Hand over a row (called by the loop): a reference stored, a bounded append."""
+        """Hand over a row (called by the loop): a reference stored, a bounded append,
+        the render thread woken."""
         p = Published(frame, result, latency_ms, dropped, recording)
         self._inbox.append(p)
         self._latest = p
+        self._new_row.set()
 
     # ---------------------------------------------------- the render thread
     def _render_loop(self) -> None:
         drawn, drawn_at = -1, -math.inf
-        while not self._stop.wait(TICK_S):
+        while True:
+            self._new_row.wait()
+            self._new_row.clear()
+            if self._stop.is_set():
+                return
             with self._changed:  # the requests read the history under this lock
                 if self._take_rows():
                     self._changed.notify_all()
@@ -235,7 +245,7 @@ class LiveView:
         height, width = image.shape[:2]
         if width > VIEW_WIDTH_PX:
             size = (VIEW_WIDTH_PX, round(height * VIEW_WIDTH_PX / width))
-            image = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR)  # AREA: 6x slower
+            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, VIEW_JPEG_QUALITY])
         if not ok:  # pragma: no cover - JPEG encoding of a uint8 image does not fail
             raise OSError("JPEG encoding of the view failed")
@@ -288,6 +298,17 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         """The page's requests (see the module's notes)."""
 
+        protocol_version = "HTTP/1.1"  # keep-alive: one thread per page, not per request
+        timeout = 10.0  # an idle connection's thread ends (the page asks every 0.2 s)
+
+        def _closed(self) -> bool:
+            """After the session: 503, and the connection closed."""
+            if not view.stopped:
+                return False
+            self.close_connection = True
+            self._json(503, {"error": "the session has ended"})
+            return True
+
         def log_message(self, fmt, *args):  # the terminal is the session's
             log.debug("view: " + fmt, *args)
 
@@ -314,6 +335,8 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
             view.requests += 1
             url = urlsplit(self.path)
             try:
+                if self._closed():
+                    return
                 if url.path in ("/", "/index.html"):
                     self._send(200, view.page, "text/html; charset=utf-8")
                 elif url.path == "/frame.jpg":
@@ -333,6 +356,8 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
             view.requests += 1
             name = urlsplit(self.path).path.removeprefix("/command/")
             try:
+                if self._closed():
+                    return
                 if name not in COMMANDS:
                     self._json(404, {"error": f"unknown command {name!r}"})
                     return
