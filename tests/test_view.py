@@ -227,3 +227,16 @@ def test_state_figures_from_published_rows():
         assert status == 200 and commands == ["rezero"]
     finally:
         view.close()
+
+
+def test_bench_text_compares_each_open_session_with_the_closed_one_before():
+    from camwhisker.bench.view import text
+
+    def arm(p99, sessions):
+        summary = {"p50_ms": 1.0, "p99_ms": p99, "max_ms": 9.0, "n": 100}
+        return {"processing": summary, "end_to_end": summary, "session_p99_ms": sessions,
+                "pictures": 0}  # fmt: skip
+
+    out = text({"closed": arm(4.0, [4.0, 5.0]), "open": arm(4.2, [4.4, 4.5])}, 4, 100)
+    assert "processing p99 rise with the view open: +5.0 %" in out  # 4.2 / 4.0
+    assert "median 1.00, range 0.90-1.10" in out  # 4.4 / 4.0 and 4.5 / 5.0

@@ -150,6 +150,11 @@ def text(result: dict, blocks: int, rows: int) -> str:
         closed, opened = result["closed"][key]["p99_ms"], result["open"][key]["p99_ms"]
         lines.append(f"  {key.replace('_', ' ')} p99 rise with the view open: "
                      f"{100 * (opened / closed - 1):+.1f} %")  # fmt: skip
+    # Each open session against the closed one before it: the machine's drift cancels.
+    opened, closed = (np.array(result[a]["session_p99_ms"]) for a in ("open", "closed"))
+    pairs = opened / closed
+    lines.append(f"  processing p99, open session / the closed one before it: median "
+                 f"{np.median(pairs):.2f}, range {pairs.min():.2f}-{pairs.max():.2f}")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -76,11 +76,13 @@ _PAGE = Path(__file__).with_name("view.html")
 
 @dataclass(frozen=True)
 class Published:
-    """One row as the loop hands it over: its frame (with the image, by reference),
-    its result, its capture-to-result latency, the drops so far and whether the
-    session is recording (None: no recording configured)."""
+    """One row as the loop hands it over (no image: the queue of them holds none): its
+    frame's index, time and event, its result, its capture-to-result latency, the
+    drops so far and whether the session is recording (None: no recording configured)."""
 
-    frame: Frame
+    index: int
+    t_s: float
+    event: str
     result: FrameResult
     latency_ms: float
     dropped: int
@@ -93,7 +95,7 @@ def _num(x: float, digits: int) -> float | None:
 
 def _row_numbers(p: Published) -> list:
     r, ok = p.result, bool(p.result.ok)
-    return [p.frame.index, _num(p.frame.t_s, 4), _num(r.dz_mm, 5) if ok else None,
+    return [p.index, _num(p.t_s, 4), _num(r.dz_mm, 5) if ok else None,
             _num(r.phi_deg, 4) if ok else None, _num(r.theta_deg, 2) if ok else None,
             int(ok), _num(p.latency_ms, 2)]  # fmt: skip
 
@@ -129,8 +131,8 @@ class LiveView:
             raise OSError(f"--view {host}:{port}: cannot serve there: {exc.strerror}") from exc
         self.server.daemon_threads = True  # a hung browser never holds the process at exit
         self.host, self.port = self.server.server_address[:2]
-        #: The newest row (a reference the loop swaps) and the rows not yet taken.
-        self._latest: Published | None = None
+        #: The newest row with its image (a reference the loop swaps), the rows not yet taken.
+        self._latest: tuple[np.ndarray | None, Published] | None = None
         self._inbox: collections.deque[Published] = collections.deque(maxlen=HISTORY_ROWS)
         self._history: collections.deque[list] = collections.deque(maxlen=HISTORY_ROWS)
         self._events: list[dict] = []
@@ -182,9 +184,9 @@ class LiveView:
                 recording: bool | None = None) -> None:  # fmt: skip
         """Hand over a row (called by the loop): a reference stored, a bounded append,
         the render thread woken."""
-        p = Published(frame, result, latency_ms, dropped, recording)
+        p = Published(frame.index, frame.t_s, frame.event, result, latency_ms, dropped, recording)
         self._inbox.append(p)
-        self._latest = p
+        self._latest = (frame.image, p)
         self._new_row.set()
 
     # ---------------------------------------------------- the render thread
@@ -198,20 +200,19 @@ class LiveView:
             with self._changed:  # the requests read the history under this lock
                 if self._take_rows():
                     self._changed.notify_all()
-            latest = self._latest
+            image, p = self._latest
             now = time.monotonic()
-            if (latest is None or latest.frame.index == drawn or latest.frame.image is None
-                    or now - self._asked_at > CLIENT_IDLE_S
+            if (image is None or p.index == drawn or now - self._asked_at > CLIENT_IDLE_S
                     or now - drawn_at < 1.0 / MAX_VIEW_FPS):  # fmt: skip
                 continue
-            drawn, drawn_at = latest.frame.index, now
+            drawn, drawn_at = p.index, now
             try:
-                data = self.render(latest)
+                data = self.render(image, p.result)
             except (ValueError, cv2.error) as exc:  # a frame it cannot draw: the next one
-                log.warning("view: frame %d not drawn: %s", latest.frame.index, exc)
+                log.warning("view: frame %d not drawn: %s", p.index, exc)
                 continue
             with self._changed:
-                self._picture = (latest.frame.index, data)
+                self._picture = (p.index, data)
                 self.pictures += 1
                 self._changed.notify_all()
 
@@ -224,7 +225,7 @@ class LiveView:
             except IndexError:
                 return n
             n += 1
-            r, event, index = p.result, p.frame.event, p.frame.index
+            r, event, index = p.result, p.event, p.index
             if is_rest_row(r, event, self._placement is not None):
                 try:
                     self._placement = Placement.from_rest(self.model, r)
@@ -238,10 +239,10 @@ class LiveView:
             self._recording = p.recording
             self._history.append(_row_numbers(p))
 
-    def render(self, p: Published) -> bytes:
-        """A row's frame with the overlay, at most ``VIEW_WIDTH_PX`` wide, as JPEG bytes."""
-        q = pose_vector(p.result) if self._placement is not None else None
-        image = annotate_frame(p.frame.image, p.result, self._placement, q)
+    def render(self, frame: np.ndarray, result: FrameResult) -> bytes:
+        """A frame with the overlay of its result, at most ``VIEW_WIDTH_PX`` wide, as JPEG."""
+        q = pose_vector(result) if self._placement is not None else None
+        image = annotate_frame(frame, result, self._placement, q)
         height, width = image.shape[:2]
         if width > VIEW_WIDTH_PX:
             size = (VIEW_WIDTH_PX, round(height * VIEW_WIDTH_PX / width))
@@ -278,7 +279,7 @@ class LiveView:
             rows = [row for row in self._history if row[0] > after]
             recent = list(self._history)[-STATS_ROWS:]
             events = list(self._events)
-        latest = self._latest
+        latest = self._latest[1] if self._latest is not None else None
         return {"rows": rows, "events": events, **_figures(recent),
                 "dropped": latest.dropped if latest else 0,
                 "recording": latest.recording if latest else None}  # fmt: skip
