@@ -176,7 +176,9 @@ def test_endpoints_without_a_browser(tmp_path, sensor):
         assert status == 409 and "--record" in json.loads(body)["error"]
         assert _request(url + "command/quit", "POST")[0] == 404  # the page cannot end a session
         assert _request(url + "nothing")[0] == 404
-        state = json.loads(_request(url + "state?after=-1")[1])
+        # The view takes the rows on its own thread: wait for the tenth there too.
+        state = _until(lambda: (s := json.loads(_request(url + "state?after=-1")[1]))["rows"][9:]
+                       and s, "10 rows in the state")  # fmt: skip
         assert state["recording"] is None and state["events"] == []
         frames = [r[0] for r in state["rows"]]
         assert frames[:10] == list(range(10))

@@ -375,8 +375,8 @@ class LiveSession:
         if recorder is not None and not self._record_toggles.empty():
             self._record_toggles.get_nowait()
             self.recording = not self.recording
-            rep.events.append({"frame": frame.index, "ok": True,
-                               "event": "record-start" if self.recording else "record-stop"})
+            what = "record-start" if self.recording else "record-stop"
+            rep.events.append({"frame": frame.index, "event": what, "ok": True})
         if self.view is not None:
             self.view.publish(frame, r, 1e3 * (done - item.t_s), rep.seq_gaps,
                               self.recording if recorder is not None else None)  # fmt: skip
