@@ -90,6 +90,14 @@ def _event(session, name, after=-1):
 def test_page_in_chromium_follows_the_loop_and_its_buttons_land_in_the_table(tmp_path, sensor):
     out, avi = tmp_path / "live.csv", tmp_path / "s.avi"
     run = Running(sensor, out, record=avi, duration_s=10 * WAIT_S)
+    try:
+        _check_page_and_buttons(run, out, avi)
+    finally:  # a failed check does not leave the session running
+        run.session.stop("test ended")
+        run.thread.join()
+
+
+def _check_page_and_buttons(run, out, avi):
     session = run.session
     driver = headless_chromium()
     try:
