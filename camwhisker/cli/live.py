@@ -18,6 +18,9 @@ from camwhisker.sensor import load_sensor
 
 __all__ = ["add_list_cameras", "add_live", "add_replay"]
 
+#: Port of ``--view`` given without one.
+VIEW_PORT = 8765
+
 
 def add_list_cameras(sub) -> None:
     p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
@@ -56,6 +59,15 @@ def add_live(sub) -> None:
     p.add_argument("--udp", type=int, metavar="PORT", help="one JSON datagram per frame")
     p.add_argument("--udp-host", default="127.0.0.1", help="UDP destination (default: this host)")
     p.add_argument("--jsonl", action="store_true", help="one JSON line per frame on stdout")
+    p.add_argument(
+        "--view",
+        type=int,
+        nargs="?",
+        const=VIEW_PORT,
+        metavar="PORT",
+        help=f"serve a live view to a browser (port {VIEW_PORT} if none given; 0: any free one)",
+    )
+    p.add_argument("--view-host", default="127.0.0.1", help="view address (default: this host)")
     p.add_argument(
         "--playback-fps", type=float, metavar="FPS", help="play a file at this rate, like a camera"
     )
@@ -117,6 +129,8 @@ def _run_live(args) -> int:
         max_frames=args.frames,
         duration_s=args.duration,
         springs=springs_of(args),
+        view_port=args.view,
+        view_host=args.view_host,
     )
     report = LiveSession(capture, sensor, args.out, config).run()
     print(LiveSession.summary(report), file=sys.stderr)

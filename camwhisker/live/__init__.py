@@ -8,6 +8,7 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.live.grabber`   the grabber thread: "latest" / "every", reconnects, fps
 - :mod:`~camwhisker.live.record`    recording a session (MJPG AVI + timestamps) for batch
 - :mod:`~camwhisker.live.outputs`   JSON lines, UDP (the table: :mod:`camwhisker.signals`)
+- :mod:`~camwhisker.live.view`      the page in a browser (``--view``): picture, plots, buttons
 - :mod:`~camwhisker.live.loop`      the session, reprocessing (the core: :mod:`camwhisker.stream`)
 """
 

@@ -3,7 +3,8 @@
 :class:`LiveSession` feeds the grabbed frames, with the live events (re-zero,
 re-detect, a gap where no frame came), to :func:`camwhisker.stream.stream`
 and sends each row to the outputs. It runs the grabber thread, takes commands
-(``r`` re-zero, ``d`` re-detect, ``q`` quit) from the terminal or from
+(``r`` re-zero, ``d`` re-detect, ``s`` start/stop recording, ``q`` quit) from the
+terminal, from the browser view (:mod:`camwhisker.live.view`) or from
 :meth:`LiveSession.command`, stops cleanly on Ctrl-C and SIGTERM, and writes
 the sidecar (settings, grabber counts, latency, the rest references and their
 mismatch checks; a mismatch is logged as a warning).
@@ -38,6 +39,8 @@ from camwhisker.live.capture import describe
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
 from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
+from camwhisker.live.view import DEFAULT_VIEW_HOST, LiveView
+from camwhisker.model import PlateModel
 from camwhisker.sensor import Sensor
 from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar, write_signals
 from camwhisker.sources import Frame, SessionSource, SourceError, check_frame_size
@@ -57,7 +60,7 @@ POLL_S = 0.1
 #: e.g. under low light with auto exposure the C310 halves its rate).
 FPS_MISMATCH = 0.1
 #: Keys read from a terminal.
-KEYS = {"r": "rezero", "d": "redetect", "q": "quit"}
+KEYS = {"r": "rezero", "d": "redetect", "s": "record", "q": "quit"}
 
 
 class LiveProcessor:
@@ -121,6 +124,7 @@ class LiveConfig:
     controls : read r/d/q keys from stdin (None: when stdin is a terminal).
     max_frames, duration_s : stop after so many rows / seconds (None: no limit).
     springs : the suspension's stiffness (Stiffness): adds the forces to every row.
+    view_port : serve the browser view there (0: any free port), on ``view_host``.
     """
 
     mode: str = "latest"
@@ -138,6 +142,8 @@ class LiveConfig:
     backoff_s: float = BACKOFF_S
     handle_signals: bool = True
     springs: object = None  # camwhisker.mechanics.springs.Stiffness
+    view_port: int | None = None
+    view_host: str = DEFAULT_VIEW_HOST
 
 
 @dataclass
@@ -184,6 +190,9 @@ class LiveSession:
         self.stdout = stdout or sys.stdout
         self.report = LiveReport(self.out_csv, sidecar_path(self.out_csv))
         self._commands: queue.SimpleQueue[str] = queue.SimpleQueue()
+        #: Start/stop recording requests, taken at the next row; whether it records.
+        self._record_toggles: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.recording = self.config.record is not None
         self._stop = threading.Event()
         self._stop_reason = ""
         self._stdout_closed = False
@@ -204,14 +213,27 @@ class LiveSession:
             except SourceError:
                 capture.release()
                 raise
+        #: The browser view (None without one); bound now, so a taken port writes nothing.
+        self.view: LiveView | None = None
+        if self.config.view_port is not None:
+            try:
+                self.view = LiveView(PlateModel(sensor), self.command, self.config.view_host,
+                                     self.config.view_port)  # fmt: skip
+            except OSError:
+                capture.release()
+                raise
 
     # -------------------------------------------------------------- control
     def command(self, name: str) -> None:
-        """Queue "rezero", "redetect" or "quit" (thread-safe)."""
+        """Queue "rezero", "redetect", "record" (start/stop) or "quit" (thread-safe)."""
         if name == "quit":
             self.stop("quit")
         elif name in ("rezero", "redetect"):
             self._commands.put(name)
+        elif name == "record":
+            if self.config.record is None:
+                raise ValueError("no recording: start live with --record SESSION.avi")
+            self._record_toggles.put(name)
         else:
             raise ValueError(f"unknown command {name!r}")
 
@@ -245,7 +267,10 @@ class LiveSession:
                 key = os.read(fd, 1).decode(errors="ignore").lower()
                 if key in KEYS:
                     log.info("key %r: %s", key, KEYS[key])
-                    self.command(KEYS[key])
+                    try:
+                        self.command(KEYS[key])
+                    except ValueError as exc:  # "s" without --record
+                        log.warning("%s", exc)
         finally:
             termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
@@ -272,10 +297,15 @@ class LiveSession:
         # as the session: out of the garbage collector's full passes, which would
         # otherwise walk its ~130,000 objects for ~50 ms in the middle of a frame.
         gc.freeze()
+        if self.view is not None:
+            self.view.start()
+            log.info("view at %s", self.view.url)
         grabber.start()
         if controls:
             keys.start()
-            print("camwhisker live: keys r = re-zero, d = re-detect, q = quit", file=sys.stderr)
+            record = ", s = start/stop recording" if cfg.record else ""
+            print(f"camwhisker live: keys r = re-zero, d = re-detect{record}, q = quit",
+                  file=sys.stderr)  # fmt: skip
         try:
             frames = self._frames(grabber, t_start)
             rows = stream(frames, self.sensor, cfg.options, strict=False, warm_up=True,
@@ -285,6 +315,8 @@ class LiveSession:
                 self._row(frame, r, proc_s, writer, recorder, udp, proc_ms, e2e_ms)
         finally:
             gc.unfreeze()
+            if self.view is not None:
+                self.view.close()
             grabber.stop()
             if keys.is_alive():
                 self._stop.set()
@@ -340,7 +372,15 @@ class LiveSession:
             rep.seq_gaps += item.seq - self.seqs[-1] - 1
         self.seqs.append(item.seq)
         writer.write(frame.t_s, r)
-        if recorder is not None:
+        if recorder is not None and not self._record_toggles.empty():
+            self._record_toggles.get_nowait()
+            self.recording = not self.recording
+            what = "record-start" if self.recording else "record-stop"
+            rep.events.append({"frame": frame.index, "event": what, "ok": True})
+        if self.view is not None:
+            self.view.publish(frame, r, 1e3 * (done - item.t_s), rep.seq_gaps,
+                              self.recording if recorder is not None else None)  # fmt: skip
+        if recorder is not None and self.recording:
             shape = None if item.image is None else item.image.shape
             recorder.write(frame.index, item.seq, frame.t_s, item.jpeg, shape, frame.event)
         if self.config.jsonl or udp is not None:
@@ -409,6 +449,9 @@ class LiveSession:
                 "frames": recorder.frames, "jpeg_quality": cfg.jpeg_quality},
             udp=None if udp is None else {"address": list(udp.address), "sent": udp.sent,
                                           "errors": udp.errors},
+            view=None if self.view is None else {"url": self.view.url,
+                                                 "pictures": self.view.pictures,
+                                                 "requests": self.view.requests},
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)
 
