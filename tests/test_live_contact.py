@@ -6,14 +6,17 @@ streams the base positions on loopback UDP, and holds the live rows to the
 batch commands run on the live table and the base log the session wrote:
 
 - the belief equals ``camwhisker belief``'s on every row after the rest frames;
-- GM agrees within a quarter of GM's own spread (sigma_GM)
+- x: the base log interpolated, but past the newest position live extrapolates
+  (hundredths of a mm: the sender's stamps carry the playback's jitter); the rest
+  is compared given the positions live used (a stage log of the rows' x);
+- GM agrees within a quarter of its own spread (sigma_GM)
   once live has fixed the onset (phi past 5 deg: batch uses the same frames) and
   away from the base's start and stop; within 3 sigma_GM before that (live's onset
   comes from the frames so far) and within one smoothing window of the kinks (the
   centred window, batch, and the trailing one, live, straddle them differently);
 - the fused estimate agrees as GM where both keep GM; elsewhere the bias
   corrections differ by design (batch's borrows later frames, live's cannot);
-- MF agrees within 1.5 sigma_MF: dz grows as phi^2, so the line through the
+- MF agrees within 2 sigma_MF: dz grows as phi^2, so the line through the
   later frames (batch) and the earlier ones (live) differ by their curvature
   bias, and MF reads r from small dz differences;
 - replay reproduces the live table byte for byte.
@@ -46,7 +49,13 @@ from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
 from camwhisker.mechanics.springs import suspension_stiffness
 from camwhisker.sensor import Sensor
 from camwhisker.signals import read_signal_table
-from camwhisker.stage import ONSET_PHI_MAX_DEG, read_stage_log, stage_log_from_arrays
+from camwhisker.stage import (
+    ONSET_PHI_MAX_DEG,
+    Pauses,
+    pause_index,
+    read_stage_log,
+    stage_log_from_arrays,
+)
 from camwhisker.synth.experiment import _pose_track
 from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, Scenario
 from camwhisker.synth.video import render_scenario
@@ -98,6 +107,12 @@ def test_base_track_interpolates_then_extrapolates_then_gives_up():
     assert feed.track.t_s == [0.0]  # the second arrived after the frame
     feed.advance(1.0)
     assert feed.track.t_s == [0.0, 0.1] and feed.out_of_order == 1
+
+
+def test_a_base_log_without_pauses_puts_no_frame_in_a_pause():
+    # A short live session's base log may never stand still for a pause (>= 1 s).
+    none = Pauses(np.array([]), np.array([]), np.array([]))
+    assert pause_index([0.0, 1.0, np.nan], none, 0.0, 0.1).tolist() == [-1, -1, -1]
 
 
 def test_base_datagrams_bad_ones_are_counted_not_fatal():
@@ -178,6 +193,64 @@ def _column(rows, name):
     return np.array([float(r[name]) if r[name] else np.nan for r in rows])
 
 
+def _agrees_with_the_contact_command(out, rows, run, calib) -> None:
+    """The live rows against the contact command (see the module's docstring)."""
+    n = len(rows)
+    base_log = base_log_path(out)
+    # The contact command on the live table and the base log the session wrote.
+    signals = read_signal_table(out)
+    live = {k: _column(rows, k) for k in ("x_mm", "dx_mm", "r_gm_mm", "r_hat_mm", "r_mf_mm")}
+    # x: the base log's positions interpolated to the frame time; past the newest one live
+    # extrapolates along the last segment, whose slope carries the stamps' jitter (the
+    # sender paces itself by the playback): hundredths of a mm typically, and at most the
+    # extrapolation's reach at the base's top speed.
+    dx_base = np.abs(live["x_mm"] - read_stage_log(base_log).x_at(signals["t_s"]))
+    both = np.isfinite(dx_base)
+    assert both.sum() >= n - 2
+    assert np.median(dx_base[both]) <= 0.01
+    assert dx_base[both].max() <= SPEED_MM_S * MAX_EXTRAPOLATE_S
+    # The contact command given the positions live used (a stage log of the rows' t_s and
+    # x_mm): what is left are the differences of seeing no later frame.
+    has_x = np.isfinite(live["x_mm"])
+    used = stage_log_from_arrays(signals["t_s"][has_x], live["x_mm"][has_x])
+    batch, _ = contact_rows(signals, used, calib, 0.0)
+    # dx: once live has fixed the onset (phi past ONSET_PHI_MAX_DEG), from the same frames
+    # and positions as batch: the same, to the x cells' rounding (0.1 um).
+    phi = signals["phi_deg"]
+    late = phi >= ONSET_PHI_MAX_DEG
+    assert np.nanmax(np.abs(live["dx_mm"] - batch["dx_mm"])[late]) <= 1e-3
+    # GM, rows at phi >= 2 deg without doubt, in units of sigma_GM: within a quarter of it
+    # once the onset is fixed and away from the base's kinks (what is left: the two
+    # windows' noise); within 3 sigma_GM before (live's onset comes from the frames so far)
+    # and near them (the centred window, batch, and the trailing one, live, straddle them
+    # differently).
+    half = smooth_half_frames(1 / FPS)
+    t = batch["t_s"]
+    # The base's starts and stops: where the schedule's speed changes (camera clock).
+    speed = np.diff(run.schedule_x_mm) / np.diff(run.schedule_t_s)
+    kinks = run.schedule_t_s[1:-1][np.abs(np.diff(speed)) > 1e-9]
+    assert kinks.size == 2
+    near = np.min(np.abs(t[:, None] - kinks[None, :]), axis=1) <= (half + 1) / FPS
+    near |= np.arange(n) < np.argmax(late)  # the onset not fixed yet
+    sel = (phi >= 2.0) & (batch["doubt"] == "") & np.isfinite(batch["r_gm_mm"])
+    assert sel.sum() >= 0.4 * n
+    q = np.abs(live["r_gm_mm"] - batch["r_gm_mm"]) / batch["sigma_gm_mm"]
+    assert np.all(np.isfinite(q[sel]))
+    assert (sel & ~near).sum() >= 0.2 * n
+    assert q[sel & ~near].max() <= 0.25
+    assert q[sel & near].max() <= 3.0
+    # The fusion: where both keep GM (P(GM good) >= KEEP_GM_POSTERIOR), as GM. Elsewhere
+    # they differ by their bias corrections, which differ by design: batch's bias estimate
+    # borrows the later frames too, live's has only the earlier ones.
+    p_live = _column(rows, "p_gm_good")
+    keep = sel & ~near & (p_live >= KEEP_GM_POSTERIOR) & (batch["p_gm_good"] >= KEEP_GM_POSTERIOR)
+    assert keep.sum() >= 0.1 * n
+    q = np.abs(live["r_hat_mm"] - batch["r_hat_mm"]) / batch["sigma_gm_mm"]
+    assert q[keep].max() <= 0.25
+    q = np.abs(live["r_mf_mm"] - batch["r_mf_mm"]) / batch["sigma_mf_mm"]
+    assert np.nanmedian(q[sel]) <= 0.1 and np.nanmax(q[sel]) <= 2.0
+
+
 def test_live_contact_on_a_rendered_mapping_run_agrees_with_batch(tmp_path):
     run = _run()
     video = tmp_path / "map.avi"
@@ -228,51 +301,7 @@ def test_live_contact_on_a_rendered_mapping_run_agrees_with_batch(tmp_path):
     assert _column(rows, "contact").astype(bool).tolist() == belief.flag.tolist()
     assert belief.flag.sum() > 0.4 * n  # the run does make contact
 
-    # The contact command on the live table and the base log the session wrote.
-    batch, _ = contact_rows(read_signal_table(out), read_stage_log(base_log), calib, 0.0)
-    live = {k: _column(rows, k) for k in ("x_mm", "dx_mm", "r_gm_mm", "r_hat_mm", "r_mf_mm")}
-    # x: the same interpolation between received positions; past the newest one live
-    # extrapolates along the last segment, whose slope carries the stamps' jitter (the
-    # sender's pacing by the playback): hundredths of a mm typically, and at most the
-    # extrapolation's reach at the base's top speed.
-    dx_base = np.abs(live["x_mm"] - batch["x_mm"])
-    both = np.isfinite(dx_base)
-    assert both.sum() >= n - 2
-    assert np.median(dx_base[both]) <= 0.01
-    assert dx_base[both].max() <= SPEED_MM_S * MAX_EXTRAPOLATE_S
-    # dx: the onset from the same frames (a twentieth of the 1 mm onset band).
-    phi = read_signal_table(out)["phi_deg"]
-    late = phi >= ONSET_PHI_MAX_DEG
-    assert np.nanmax(np.abs((live["dx_mm"] - batch["dx_mm"]) - (live["x_mm"] - batch["x_mm"]))
-                     [late]) <= 0.05
-    # GM, rows at phi >= 2 deg without doubt, in units of sigma_GM: close
-    # once the onset is fixed (from then on live and batch take it from the same frames)
-    # and away from the base's kinks; within 3 sigma_GM before and near them.
-    half = smooth_half_frames(1 / FPS)
-    t = batch["t_s"]
-    # The base's starts and stops: where the schedule's speed changes (camera clock).
-    speed = np.diff(run.schedule_x_mm) / np.diff(run.schedule_t_s)
-    kinks = run.schedule_t_s[1:-1][np.abs(np.diff(speed)) > 1e-9]
-    assert kinks.size == 2
-    near = np.min(np.abs(t[:, None] - kinks[None, :]), axis=1) <= (half + 1) / FPS
-    near |= np.arange(n) < np.argmax(late)  # the onset not fixed yet
-    sel = (phi >= 2.0) & (batch["doubt"] == "") & np.isfinite(batch["r_gm_mm"])
-    assert sel.sum() >= 0.4 * n
-    q = np.abs(live["r_gm_mm"] - batch["r_gm_mm"]) / batch["sigma_gm_mm"]
-    assert np.all(np.isfinite(q[sel]))
-    assert (sel & ~near).sum() >= 0.2 * n
-    assert q[sel & ~near].max() <= 0.25
-    assert q[sel & near].max() <= 3.0
-    # The fusion: where both keep GM (P(GM good) >= KEEP_GM_POSTERIOR), as GM. Elsewhere
-    # they differ by their bias corrections, which differ by design: batch's bias estimate
-    # borrows the later frames too, live's has only the earlier ones.
-    p_live = _column(rows, "p_gm_good")
-    keep = sel & ~near & (p_live >= KEEP_GM_POSTERIOR) & (batch["p_gm_good"] >= KEEP_GM_POSTERIOR)
-    assert keep.sum() >= 0.1 * n
-    q = np.abs(live["r_hat_mm"] - batch["r_hat_mm"]) / batch["sigma_gm_mm"]
-    assert q[keep].max() <= 0.25
-    q = np.abs(live["r_mf_mm"] - batch["r_mf_mm"]) / batch["sigma_mf_mm"]
-    assert np.nanmedian(q[sel]) <= 0.1 and np.nanmax(q[sel]) <= 1.5
+    _agrees_with_the_contact_command(out, rows, run, calib)
 
     # Replay with the base log: the live table again, byte for byte.
     again = tmp_path / "again.csv"
