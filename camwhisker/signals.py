@@ -101,22 +101,26 @@ class SignalWriter:
         Flush after every row, so the table can be read while it grows (live).
     springs : Stiffness, optional
         Adds the forces' columns (:data:`FORCE_COLUMNS`).
+    extra : tuple of str
+        Columns written last (live contact: :mod:`camwhisker.live.contact`).
     """
 
-    def __init__(self, path: str | Path, flush: bool = False, springs: Stiffness | None = None):
+    def __init__(self, path: str | Path, flush: bool = False, springs: Stiffness | None = None,
+                 extra: tuple[str, ...] = ()):  # fmt: skip
         self.path = Path(path)
         self.flush = flush
         self.springs = springs
         self._fh = open(self.path, "w", newline="")  # noqa: SIM115 - closed in close()
         self._csv = csv.writer(self._fh)
-        self._csv.writerow(table_columns(springs))
+        self._csv.writerow(table_columns(springs) + tuple(extra))
         if flush:
             self._fh.flush()
         self.rows = 0
         self.rows_ok = 0
 
-    def write(self, t_s: float, r: FrameResult) -> None:
-        self._csv.writerow(signal_row(t_s, r, self.springs))
+    def write(self, t_s: float, r: FrameResult, extra: list[str] = ()) -> None:
+        """One row; ``extra``: the cells of the ``extra`` columns, already formatted."""
+        self._csv.writerow(signal_row(t_s, r, self.springs) + list(extra))
         if self.flush:
             self._fh.flush()
         self.rows += 1

@@ -184,6 +184,8 @@ def detect_pauses(log: StageLog, min_pause_s: float = MIN_PAUSE_S,
 def pause_index(t_camera_s, pauses: Pauses, offset_s: float, trim_s: float):
     """Index of the pause each camera time falls in (-1 for none), ``trim_s`` in from each end."""
     t_stage = np.asarray(t_camera_s, float) - offset_s
+    if pauses.t_start_s.size == 0:  # a log that never stands still for a pause
+        return np.full(t_stage.shape, -1)
     k = np.searchsorted(pauses.t_start_s + trim_s, t_stage, side="right") - 1
     kc = np.clip(k, 0, None)
     inside = (k >= 0) & (t_stage <= pauses.t_end_s[kc] - trim_s) & np.isfinite(t_stage)

@@ -14,7 +14,16 @@ time over the passes: a frame's own cost, steadier than one pass on a machine
 whose speed drifts (a pass's slow stretch is another pass's fast one). The
 headline p50 / p99 stay those of the first pass.
 
+With ``--contact`` it also times the per-frame contact work alone, on top of
+the front end (``live --calib`` with base positions): the live loop's
+:class:`~camwhisker.live.contact.RowContact` (base positions handed over,
+belief, smoothing, onset, GM, MF, Z, fusion, eq. 12, the row's cells and the
+message's values) over the signal rows of simulated mapping runs (every rigid
+peg swept at 5 mm/s without pauses, the base streamed at 20 Hz), with a
+calibration from simulated rigid runs.
+
     python -m camwhisker.bench.live [--frames 150] [--passes N] [--video FILE --sensor FILE]
+                                    [--contact]
     camwhisker live --bench
 """
 
@@ -37,12 +46,21 @@ from camwhisker.synth.scenarios import PoseTrack, make_scenario
 from camwhisker.synth.video import render_scenario, sidecar_paths
 from camwhisker.vision.tracker import FrontEndOptions
 
-__all__ = ["BENCH_SEED", "TARGET_P99_MS", "LatencyBench", "bench_frames", "run_bench", "main"]
+__all__ = ["BENCH_SEED", "TARGET_P99_MS", "TARGET_CONTACT_P99_MS", "LatencyBench",
+           "ContactBench", "bench_frames", "bench_contact", "run_bench", "main"]
 
 #: Seed of the rendered scene (not one the front end was tuned on).
 BENCH_SEED = 3001
 #: The issue's target for closed-loop use: p99 processing latency per frame.
 TARGET_P99_MS = 4.0
+#: Issue #22's target for the contact work per frame, on top of the front end.
+TARGET_CONTACT_P99_MS = 1.0
+#: Simulation seeds of the contact bench: the mapping runs, and the calibration runs
+#: (the tests' calibration seed).
+CONTACT_RUN_SEED = 3001
+CONTACT_CALIB_SEED = 31
+#: Base speed of the mapping runs: the issue's top speed.
+CONTACT_SPEED_MM_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -182,12 +200,75 @@ def run_bench(frames: int = 150, video: Path | None = None, sensor: Sensor | Non
     return bench_frames(jpegs, used, scenario.track, threads=threads, passes=passes)
 
 
+@dataclass(frozen=True)
+class ContactBench:
+    frames: int
+    runs: int
+    wall: dict
+    cpu: dict
+
+    def text(self) -> str:
+        w, c = self.wall, self.cpu
+        verdict = "meets" if w["p99_ms"] <= TARGET_CONTACT_P99_MS else "misses"
+        return "\n".join([
+            f"live contact per frame (on top of the front end), {self.frames} frames of "
+            f"{self.runs} simulated mapping runs at {CONTACT_SPEED_MM_S:g} mm/s:",
+            f"  wall-clock: p50 {w['p50_ms']:.3f} ms, p99 {w['p99_ms']:.3f} ms, "
+            f"max {w['max_ms']:.3f} ms, mean {w['mean_ms']:.3f} ms "
+            f"({verdict} the p99 <= {TARGET_CONTACT_P99_MS:g} ms target)",
+            f"  CPU time: p50 {c['p50_ms']:.3f} ms, p99 {c['p99_ms']:.3f} ms, "
+            f"max {c['max_ms']:.3f} ms",
+        ])  # fmt: skip
+
+
+def bench_contact(fps: float = 30.0) -> ContactBench:
+    """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes)."""
+    from camwhisker.calibrate import CalibrationRun, calibrate
+    from camwhisker.live.contact import RowContact
+    from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
+    from camwhisker.sources import Frame
+    from camwhisker.stage import stage_log_from_arrays
+    from camwhisker.stream import RestRecord
+    from camwhisker.vision.tracker import FrameResult
+
+    cal_runs = [CalibrationRun(r.signals, stage_log_from_arrays(r.stage["t_s"], r.stage["x_mm"],
+                                                                r.stage["r_mm"]))
+                for r in simulate_runs("rigid", CONTACT_CALIB_SEED)]  # fmt: skip
+    calib = calibrate(cal_runs, Sensor().whisker.length_mm, command="bench")[0]
+    protocol = continuous_protocol(CONTACT_SPEED_MM_S, fps=fps)
+    runs = simulate_runs("rigid", CONTACT_RUN_SEED, protocol=protocol)
+    wall, cpu = [], []
+    nan3 = (math.nan,) * 3
+    for run in runs:
+        s = run.signals
+        contact = RowContact(calib, 1.0 / fps, base=True)
+        t_base = run.stage["t_s"] + run.offset_s  # camera clock
+        for t, x in zip(t_base, run.stage["x_mm"], strict=True):
+            contact.put(t, x, t)  # each position received when the base was there
+        rest: list = []
+        for i in range(s["t_s"].size):
+            if i == 30:  # the rest reference is built from the first 30 frames
+                rest.append(RestRecord(0, 30, None))
+            r = FrameResult(i, s["dz_mm"][i], s["phi_deg"][i], s["theta_deg"][i],
+                            bool(s["ok"][i]), nan3, nan3)
+            frame = Frame(i, float(s["t_s"][i]), None)
+            tic, tc = time.perf_counter(), time.thread_time()
+            values = contact.update(frame, r, rest)
+            contact.message(values)
+            contact.cells(values)
+            wall.append(1e3 * (time.perf_counter() - tic))
+            cpu.append(1e3 * (time.thread_time() - tc))
+    return ContactBench(len(wall), len(runs), latency_summary(wall), latency_summary(cpu))
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=150, help="frames of the rendered clip")
     p.add_argument("--video", type=Path, help="time this video instead of a rendered clip")
     p.add_argument("--threads", type=int, default=1, help="OpenCV threads (default one core)")
     p.add_argument("--passes", type=int, default=1, metavar="N",
                    help="process the frames N times; also print each frame's least CPU time")
+    p.add_argument("--contact", action="store_true",
+                   help="also time the per-frame contact work (live --calib with base positions)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -200,6 +281,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.passes < 1:
         p.error(f"--passes must be >= 1, got {args.passes}")
     print(run_bench(args.frames, args.video, sensor, args.threads, args.passes).text())
+    if args.contact:
+        print(bench_contact().text())
     return 0
 
 

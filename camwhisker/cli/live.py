@@ -22,6 +22,54 @@ __all__ = ["add_list_cameras", "add_live", "add_replay"]
 VIEW_PORT = 8765
 
 
+def _contact_args(p, live: bool) -> None:
+    """--calib, --eta-deg and the base positions' options (live: UDP; replay: the log)."""
+    p.add_argument("--calib", metavar="CALIB",
+                   help="contact calibration (camwhisker calibrate): adds per row the contact "
+                        "belief (eq. 1), MF's r and spread and the forces (--springs, default "
+                        "the spring model of Table I); with base positions, GM, Z, the fused "
+                        "estimate and the contact point (docs/sensor.md, section 6.4)")
+    p.add_argument("--eta-deg", type=float, metavar="X",
+                   help="the belief's eta as given; default: from the first rest frames")
+    if live:
+        p.add_argument("--base-udp", type=int, metavar="PORT",
+                       help="receive the base position, one JSON datagram {t_s, x_mm} each")
+        p.add_argument("--base-host", default="127.0.0.1",
+                       help="interface to receive base positions on (default: this host)")
+    else:
+        p.add_argument("--base-log", metavar="L.csv",
+                       help="the base positions: OUT.base.csv of the live session (or a stage "
+                            "log t_s,x_mm)")
+    p.add_argument("--base-offset-s", type=float, metavar="X",
+                   help="t_camera = t_base + X; default: " + (
+                       "the sender stamps with this machine's monotonic clock" if live
+                       else "0 (the session's base log is on the camera clock)"))
+
+
+def _calib_of(args):
+    """The --calib file's calibration (or None), with the checks of its options."""
+    if args.eta_deg is not None and not args.eta_deg > 0:
+        raise CommandError(f"--eta-deg must be > 0, got {args.eta_deg}")
+    base = getattr(args, "base_udp", None) is not None or getattr(args, "base_log", None)
+    if args.calib is None:
+        if base or args.eta_deg is not None:
+            raise CommandError("--eta-deg and the base positions need --calib")
+        return None
+    from camwhisker.calibrate import read_calibration
+
+    return read_calibration(args.calib)
+
+
+def _springs_with(args, calib):
+    """--springs; with --calib and none given, the spring model of Table I."""
+    springs = springs_of(args)
+    if springs is None and calib is not None:
+        from camwhisker.mechanics.springs import suspension_stiffness
+
+        springs = suspension_stiffness()
+    return springs
+
+
 def add_list_cameras(sub) -> None:
     p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
     p.add_argument("--all", action="store_true", help="also the nodes that cannot capture")
@@ -87,6 +135,7 @@ def add_live(sub) -> None:
     sensor_arg(p)
     features_arg(p)
     springs_arg(p)
+    _contact_args(p, live=True)
     p.set_defaults(func=_run_live)
 
 
@@ -114,6 +163,7 @@ def _run_live(args) -> int:
         profile = replace(profile, exposure=args.exposure)
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
+    calib = _calib_of(args)
     capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
     if args.loop and hasattr(capture, "loop"):
         capture.loop = True
@@ -128,11 +178,21 @@ def _run_live(args) -> int:
         controls=False if args.no_keys else None,
         max_frames=args.frames,
         duration_s=args.duration,
-        springs=springs_of(args),
+        springs=_springs_with(args, calib),
+        calib=calib,
+        calib_path=args.calib,
+        eta_deg=args.eta_deg,
+        base_port=args.base_udp,
+        base_host=args.base_host,
+        base_offset_s=args.base_offset_s,
         view_port=args.view,
         view_host=args.view_host,
     )
-    report = LiveSession(capture, sensor, args.out, config).run()
+    try:
+        session = LiveSession(capture, sensor, args.out, config)
+    except OSError as exc:
+        raise CommandError(str(exc)) from None
+    report = session.run()
     print(LiveSession.summary(report), file=sys.stderr)
     for problem in report.problems:
         print(f"camwhisker live: problem: {problem}", file=sys.stderr)
@@ -148,6 +208,7 @@ def add_replay(sub) -> None:
     sensor_arg(p)
     features_arg(p)
     springs_arg(p)
+    _contact_args(p, live=False)
     p.set_defaults(func=_run_replay)
 
 
@@ -157,6 +218,24 @@ def _run_replay(args) -> int:
 
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
-    out = reprocess_session(args.session, sensor, args.out, options, springs_of(args))
+    calib = _calib_of(args)
+    contact = None
+    if calib is not None:
+        from camwhisker.live.base import read_base_log
+        from camwhisker.live.contact import RowContact
+
+        samples = (read_base_log(args.base_log, args.base_offset_s or 0.0)
+                   if args.base_log else None)
+
+        def contact(frame_s):
+            rc = RowContact(calib, frame_s, args.eta_deg, base=samples is not None)
+            for sample in samples or ():
+                rc.put(*sample)
+            return rc
+
+    elif args.base_offset_s is not None:
+        raise CommandError("--base-offset-s needs --calib and --base-log")
+    out = reprocess_session(args.session, sensor, args.out, options,
+                            _springs_with(args, calib), contact)
     print(out)
     return 0

@@ -48,7 +48,7 @@ import numpy as np
 
 __all__ = [
     "ETA_QUANTILE", "ETA_FACTOR", "MIN_REST_FRAMES", "Onset", "contact_belief", "eta_from_rest",
-    "contact_flag", "find_onsets",
+    "next_contact", "contact_flag", "find_onsets",
 ]  # fmt: skip
 
 #: Quantile of the rest frames' |d| taken as their "peak": over a 1 s rest (30 frames)
@@ -114,15 +114,22 @@ def eta_from_rest(d_rest: np.ndarray) -> float:
     return eta
 
 
+def next_contact(state: bool, b: float) -> bool:
+    """The contact state after a frame of belief ``b``: entered at b = 1, left at b = 0,
+    kept in between and where b is NaN (one frame of :func:`contact_flag`, for live use)."""
+    if b >= 1.0:
+        return True
+    if b <= 0.0:
+        return False
+    return state
+
+
 def contact_flag(b: np.ndarray) -> np.ndarray:
     """Per frame: in contact from where b reaches 1 until b falls to 0 (NaN keeps the state)."""
     flag = np.zeros(len(b), bool)
     state = False
     for i, x in enumerate(b):
-        if x >= 1.0:
-            state = True
-        elif x <= 0.0:
-            state = False
+        state = next_contact(state, x)
         flag[i] = state
     return flag
 

@@ -30,7 +30,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR", "fuse"]
+__all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR", "fuse",
+           "OnlineFusion"]
 
 # Prior share of good GM estimates: rigid, non-slipping contact is the common case,
 # and a 3 % prior of failure lets a consistent bias of a few sigma overturn it.
@@ -88,21 +89,31 @@ def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
         Fused estimate; posterior that GM is good and the GM bias estimate
         (both NaN in a segment without a sample where GM and MF are defined).
     """
+    r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
+    seg = np.zeros(r_gm.shape, int) if segment is None else np.asarray(segment)
+    num, den = _two_sided_sums(d, w, seg, memory)
+    return _posterior(num, den, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm)
+
+
+def _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm):
+    """r_GM, r_MF as arrays, and each sample's weight 1 / (sigma_GM^2 + sigma_MF^2) and
+    difference d = r_GM - r_MF (both 0 where either estimate or spread is undefined)."""
     r_gm = np.atleast_1d(np.asarray(r_gm_mm, float))
     r_mf = np.atleast_1d(np.asarray(r_mf_mm, float))
     s_gm = np.broadcast_to(np.asarray(sigma_gm_mm, float), r_gm.shape)
     s_mf = np.broadcast_to(np.asarray(sigma_mf_mm, float), r_gm.shape)
-    seg = np.zeros(r_gm.shape, int) if segment is None else np.asarray(segment)
     both = (np.isfinite(r_gm) & np.isfinite(r_mf) & np.isfinite(s_gm) & np.isfinite(s_mf)
             & (s_gm > 0) & (s_mf > 0))
     var = np.where(both, s_gm**2 + s_mf**2, 1.0)
-    w = np.where(both, 1.0 / var, 0.0)
-    d = np.where(both, r_gm - r_mf, 0.0)
-    num, den = _two_sided_sums(d, w, seg, memory)
+    return r_gm, r_mf, np.where(both, 1.0 / var, 0.0), np.where(both, r_gm - r_mf, 0.0)
+
+
+def _posterior(num, den, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm):
+    """The bias estimate m = num / den, P(GM good) and the fused estimate (module docstring)."""
     seen = den > 0
-    m = np.divide(num, den, out=np.full(d.shape, np.nan), where=seen)
+    m = np.divide(num, den, out=np.full(r_gm.shape, np.nan), where=seen)
     # Variance of a weighted mean with weights w_i = 1 / variance_i: 1 / sum(w).
-    se2 = np.divide(1.0, den, out=np.ones(d.shape), where=seen) + floor_mm**2
+    se2 = np.divide(1.0, den, out=np.ones(r_gm.shape), where=seen) + floor_mm**2
     like_good = prior_good * np.exp(-0.5 * np.nan_to_num(m) ** 2 / se2) / np.sqrt(
         2.0 * np.pi * se2)
     like_bad = (1.0 - prior_good) / l_w_mm
@@ -113,3 +124,26 @@ def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
     fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)
     fused = np.where(~np.isfinite(r_gm) & np.isfinite(r_mf), r_mf, fused)
     return fused, p_good, m
+
+
+class OnlineFusion:
+    """:func:`fuse` one sample at a time, for live use: the forward recursion alone.
+
+    The two-sided sums of :func:`fuse` at the newest sample of a segment are its
+    forward sums (no later sample to add), so each call returns what :func:`fuse`
+    gives for the newest sample of all the samples so far (one segment).
+    """
+
+    def __init__(self, prior_good=PRIOR_GM_GOOD, memory=MEMORY_SAMPLES,
+                 floor_mm=MF_BIAS_FLOOR_MM, keep_gm=KEEP_GM_POSTERIOR):
+        self._lam = 1.0 - 1.0 / memory
+        self._args = (prior_good, floor_mm, keep_gm)
+        self._num = np.zeros(1)
+        self._den = np.zeros(1)
+
+    def __call__(self, r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm):
+        """(r_mm, p_good, bias_mm), arrays shape (1,), for one sample (as :func:`fuse`)."""
+        r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
+        self._num = self._lam * self._num + w * d
+        self._den = self._lam * self._den + w
+        return _posterior(self._num, self._den, r_gm, r_mf, l_w_mm, *self._args)

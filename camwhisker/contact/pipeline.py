@@ -30,7 +30,7 @@ from camwhisker.stage import (
 )
 
 __all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_rows", "base_speed",
-           "doubt", "MODES"]
+           "doubt", "smooth_half_frames", "MODES"]
 
 
 @dataclass(frozen=True)
@@ -119,14 +119,16 @@ def _travel(x_mm, x0, sign):
 
 
 def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
-             segment=None) -> dict:
+             segment=None, fusion=None) -> dict:
     """GM, MF, both Z scores, fusion and the reconstructed point, vectorised.
 
     Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside,
     sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, p_gm_good,
     gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm.
     Samples of one ``segment`` (contact) must be in time order (see
-    :func:`~camwhisker.contact.fusion.fuse`).
+    :func:`~camwhisker.contact.fusion.fuse`). ``fusion``, an
+    :class:`~camwhisker.contact.fusion.OnlineFusion`, fuses one new sample with the
+    earlier ones instead (live: no later samples).
     """
     phi = np.asarray(phi_deg, float)
     dz = np.asarray(dz_mm, float)
@@ -136,8 +138,11 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     sm = calib.mf_spread.sigma_at(phi)
     z = z_dissimilarity(rg, mf.r_mm, sg)
     zc = z_combined(rg, mf.r_mm, sg, sm)
-    fused, p_good, bias = fuse(rg, mf.r_mm, sg, calib.mf_noise.sigma_at(phi), calib.l_w_mm,
-                               segment)
+    noise = calib.mf_noise.sigma_at(phi)
+    if fusion is None:
+        fused, p_good, bias = fuse(rg, mf.r_mm, sg, noise, calib.l_w_mm, segment)
+    else:
+        fused, p_good, bias = fusion(rg, mf.r_mm, sg, noise, calib.l_w_mm)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign)
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside,
@@ -179,6 +184,11 @@ ONSET_DX_MM = 1.0
 # about as many frames as the paper's pause medians (1 s at 30 frames/s), over a
 # time short enough that the base's starts and stops blur little.
 SMOOTH_HALF_S = 0.2
+
+
+def smooth_half_frames(frame_s: float) -> int:
+    """h of the local line behind the per-frame estimates, for a frame period (s)."""
+    return int(round(SMOOTH_HALF_S / frame_s)) if frame_s > 0 else 0
 
 
 def base_speed(log: StageLog, t_stage_s) -> np.ndarray:
@@ -238,7 +248,7 @@ def contact_rows(signals: dict, log: StageLog, calib: Calibration,
             cols[name] = per_frame(pe[name])
         mf_out = np.where(inside, np.asarray(pe["mf_outside"], bool)[k], False)
     else:
-        h = int(round(SMOOTH_HALF_S / frame_s)) if frame_s > 0 else 0
+        h = smooth_half_frames(frame_s)
         own = estimate(calib, x, dx, local_line(phi, h), local_line(dz, h), run.travel_sign)
         for name in _PER_PAUSE:
             cols[name] = np.where(ok & np.isfinite(x), own[name], np.nan)

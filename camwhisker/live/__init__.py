@@ -9,6 +9,8 @@ Modules, in the order the data flows:
 - :mod:`~camwhisker.live.record`    recording a session (MJPG AVI + timestamps) for batch
 - :mod:`~camwhisker.live.outputs`   JSON lines, UDP (the table: :mod:`camwhisker.signals`)
 - :mod:`~camwhisker.live.view`      the page in a browser (``--view``): picture, plots, buttons
+- :mod:`~camwhisker.live.base`      the robot's base positions over UDP, and their log
+- :mod:`~camwhisker.live.contact`   contact fields per row (:mod:`camwhisker.contact.online`)
 - :mod:`~camwhisker.live.loop`      the session, reprocessing (the core: :mod:`camwhisker.stream`)
 """
 

@@ -35,7 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.atomic import atomic_path
+from camwhisker.live.base import BaseReceiver, base_log_path, write_base_log
 from camwhisker.live.capture import describe
+from camwhisker.live.contact import RowContact
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
 from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
@@ -81,9 +83,12 @@ class LiveProcessor:
 
 
 def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
-                      options: FrontEndOptions | None = None, springs=None) -> Path:  # fmt: skip
+                      options: FrontEndOptions | None = None, springs=None,
+                      contact=None) -> Path:  # fmt: skip
     """Process a recorded session again: the same rows as the live table (with the
-    forces where ``springs``, a Stiffness, is given, as live had it).
+    forces where ``springs``, a Stiffness, is given, and the contact's fields where
+    ``contact`` is: a function of the recording's frame period (s) that gives the
+    :class:`~camwhisker.live.contact.RowContact`, fed the logged base positions).
 
     Raises
     ------
@@ -94,10 +99,18 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
     """
     source = SessionSource(video)
     check_frame_size(source, sensor)
-    rows = stream(source, sensor, options, strict=False)
+    rest_log: list = []
+    rows = stream(source, sensor, options, strict=False, rest_log=rest_log)
     out_csv = Path(out_csv)
-    with atomic_path(out_csv) as tmp:
-        write_signals(tmp, ((frame.t_s, r) for frame, r in rows), springs)
+    if contact is None:
+        with atomic_path(out_csv) as tmp:
+            write_signals(tmp, ((frame.t_s, r) for frame, r in rows), springs)
+        return out_csv
+    contact = contact(1.0 / source.fps)
+    with atomic_path(out_csv) as tmp, SignalWriter(tmp, springs=springs,
+                                                   extra=contact.fields) as writer:
+        for frame, r in rows:
+            writer.write(frame.t_s, r, contact.cells(contact.update(frame, r, rest_log)))
     return out_csv
 
 
@@ -125,6 +138,12 @@ class LiveConfig:
     max_frames, duration_s : stop after so many rows / seconds (None: no limit).
     springs : the suspension's stiffness (Stiffness): adds the forces to every row.
     view_port : serve the browser view there (0: any free port), on ``view_host``.
+    calib : a contact calibration (camwhisker.contact.pipeline.Calibration): adds the
+        belief, MF and, with ``base_port``, GM, Z, fusion and the contact point.
+    eta_deg : the belief's eta as given (default: from the first rest reference).
+    base_port : receive base positions there (``base_host``, default this machine only;
+        0: a free port), stamped on this machine's monotonic clock, or on any clock
+        with ``base_offset_s`` given (t_camera = t_base + offset).
     """
 
     mode: str = "latest"
@@ -144,6 +163,12 @@ class LiveConfig:
     springs: object = None  # camwhisker.mechanics.springs.Stiffness
     view_port: int | None = None
     view_host: str = DEFAULT_VIEW_HOST
+    calib: object = None  # camwhisker.contact.pipeline.Calibration
+    calib_path: str | None = None
+    eta_deg: float | None = None
+    base_port: int | None = None
+    base_host: str = "127.0.0.1"
+    base_offset_s: float | None = None
 
 
 @dataclass
@@ -206,6 +231,25 @@ class LiveSession:
         self._handed_at = 0.0
         #: Why the first row was untrusted (said where no row is ok).
         self._first_reason = ""
+        #: The contact's fields per row, and the base positions' receiver (camera clock
+        #: from the first frame's monotonic time, ``_t0``).
+        self.contact: RowContact | None = None
+        self.base: BaseReceiver | None = None
+        self._t0 = math.nan
+        self.base_samples: list[tuple[float, float, float]] = []
+        cfg = self.config
+        if cfg.calib is not None:
+            self.contact = RowContact(cfg.calib, 1.0 / cfg.record_rate_fps, cfg.eta_deg,
+                                      base=cfg.base_port is not None)
+        if cfg.base_port is not None:
+            if cfg.calib is None:
+                capture.release()
+                raise ValueError("base positions need a contact calibration (calib)")
+            try:
+                self.base = BaseReceiver(cfg.base_port, cfg.base_host)
+            except OSError:
+                capture.release()
+                raise
         source = getattr(capture, "source", None)  # a file or folder: its size is known now
         if source is not None:
             try:
@@ -280,7 +324,8 @@ class LiveSession:
         prepare = MjpgRoundTrip(cfg.jpeg_quality) if cfg.record else decode_only
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
-        writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs)
+        writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs,
+                              extra=self.contact.fields if self.contact else ())
         recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
         udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
         controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
@@ -291,6 +336,7 @@ class LiveSession:
                 old_handlers[sig] = signal.signal(sig, self._on_signal)
         proc_ms: list[float] = []
         e2e_ms: list[float] = []
+        self.contact_ms: list[float] = []
         t_start = time.monotonic()
         self._input = describe(self.capture)  # a released cv2.VideoCapture cannot say
         # Everything alive now (modules, compiled code, the front end) lives as long
@@ -300,6 +346,8 @@ class LiveSession:
         if self.view is not None:
             self.view.start()
             log.info("view at %s", self.view.url)
+        if self.base is not None:
+            self.base.start()
         grabber.start()
         if controls:
             keys.start()
@@ -318,6 +366,9 @@ class LiveSession:
             if self.view is not None:
                 self.view.close()
             grabber.stop()
+            if self.base is not None:
+                self.base.stop()
+                self._take_base()
             if keys.is_alive():
                 self._stop.set()
                 keys.join()
@@ -350,6 +401,7 @@ class LiveSession:
                     self.stop("capture lost" if grabber.stats.lost else "end of input")
                 continue
             t0 = item.t_s if t0 is None else t0
+            self._t0 = t0
             event = "gap" if item.image is None else self._next_event()
             self._grabbed = item
             frame = Frame(self.report.rows, item.t_s - t0, item.image, event)
@@ -371,7 +423,16 @@ class LiveSession:
         if self.seqs:
             rep.seq_gaps += item.seq - self.seqs[-1] - 1
         self.seqs.append(item.seq)
-        writer.write(frame.t_s, r)
+        extra, cells = None, ()
+        if self.contact is not None:
+            tic = time.perf_counter()
+            if self.base is not None:
+                self._take_base()
+            values = self.contact.update(frame, r, self.rest_log)
+            extra = self.contact.message(values)
+            cells = self.contact.cells(values)
+            self.contact_ms.append(1e3 * (time.perf_counter() - tic))
+        writer.write(frame.t_s, r, cells)
         if recorder is not None and not self._record_toggles.empty():
             self._record_toggles.get_nowait()
             self.recording = not self.recording
@@ -385,7 +446,7 @@ class LiveSession:
             recorder.write(frame.index, item.seq, frame.t_s, item.jpeg, shape, frame.event)
         if self.config.jsonl or udp is not None:
             msg = result_message(item.seq, frame.t_s, r, 1e3 * (done - item.t_s),
-                                 self.config.springs)  # fmt: skip
+                                 self.config.springs, extra)  # fmt: skip
             if self.config.jsonl and not self._stdout_closed:
                 try:
                     print(msg, file=self.stdout, flush=True)
@@ -398,6 +459,45 @@ class LiveSession:
             self._first_reason = r.reason
         rep.rows += 1
         rep.rows_ok += bool(r.ok)
+
+    def _take_base(self) -> None:
+        """Move the positions received so far to the contact, on the camera clock
+        (from the first frame's time: none before it)."""
+        if not math.isfinite(self._t0):
+            return
+        cfg = self.config
+        # A sender on this machine's monotonic clock, else the given offset.
+        offset = -self._t0 if cfg.base_offset_s is None else cfg.base_offset_s
+        for t, x, arrived in self.base.take():
+            # Rounded as the base log holds them, so a replay reads the same numbers.
+            sample = (round(t + offset, 9), x, round(arrived - self._t0, 9))
+            self.base_samples.append(sample)
+            self.contact.put(*sample)
+
+    def _contact_record(self) -> dict | None:
+        """The sidecar's ``contact`` entry (and the base log written); what is missing is
+        named in the problems (not a failure: the pose rows are all there)."""
+        cfg = self.config
+        if self.contact is None:
+            return None
+        out = {"calib": cfg.calib_path, **self.contact.describe(),
+               "latency": latency_summary(self.contact_ms)}
+        if out["eta_deg"] is None:
+            why = out["eta_from"] or "none: no rest reference was built"
+            self.report.problems.append(f"no contact belief: eta {why}")
+        if self.base is not None and not self.base.received:
+            host, port = self.base.address
+            self.report.problems.append(f"no base position received on {host}:{port}: no GM, "
+                                        f"Z, fusion or contact point")
+        if self.base is not None:
+            path = write_base_log(base_log_path(self.out_csv), self.base_samples)
+            out["base"] = {
+                "address": list(self.base.address), "received": self.base.received,
+                "rejected": self.base.rejected, "log": str(path),
+                "clock": ("this machine's monotonic clock" if cfg.base_offset_s is None
+                          else f"t_camera = t_base + {cfg.base_offset_s!r} s"),
+            }
+        return out
 
     def _finish(self, grabber: Grabber, proc_ms, e2e_ms, recorder, udp) -> None:
         rep = self.report
@@ -430,6 +530,7 @@ class LiveSession:
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
+        contact = self._contact_record()
         source = describe(self.capture) if hasattr(self.capture, "describe") else self._input
         meta = sidecar(
             "camwhisker.live.loop.LiveSession", source,
@@ -452,6 +553,7 @@ class LiveSession:
             view=None if self.view is None else {"url": self.view.url,
                                                  "pictures": self.view.pictures,
                                                  "requests": self.view.requests},
+            contact=contact,
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)
 

@@ -25,9 +25,10 @@ def _num(x: float, digits: int) -> float | None:
 
 
 def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
-                   springs=None) -> str:  # fmt: skip
+                   springs=None, extra: dict | None = None) -> str:  # fmt: skip
     """One frame's result as compact JSON (a line on stdout, a UDP datagram); with
-    ``springs`` (a Stiffness) the forces too, as the table's columns."""
+    ``springs`` (a Stiffness) the forces too, as the table's columns; ``extra`` (the
+    contact's fields, :mod:`camwhisker.live.contact`) last."""
     ok = bool(r.ok)
     msg = {
         "frame": r.frame, "seq": seq, "t_s": _num(t_s, 6),
@@ -41,6 +42,7 @@ def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
                               strict=True):  # fmt: skip
             # The table's 5 significant digits, so a message and its row agree.
             msg[key] = float(f"{value:.5g}") if ok and math.isfinite(value) else None
+    msg.update(extra or {})
     return jsonfile.dumps(msg, separators=(",", ":"))
 
 

@@ -1,0 +1,89 @@
+"""Contact in the live rows: the per-frame fields, their table cells and message values.
+
+:class:`RowContact` wraps :class:`~camwhisker.contact.online.OnlineContact` for a
+session (live) or a recording (replay): it feeds it the base positions received
+by each frame's capture time and the session's first rest reference, and formats
+the fields for the table and the JSON message alike, so a message and its row agree.
+"""
+
+from __future__ import annotations
+
+import math
+
+from camwhisker.contact.online import BaseFeed, BaseTrack, OnlineContact
+from camwhisker.sources import Frame
+from camwhisker.vision.tracker import FrameResult
+
+__all__ = ["FORMATS", "RowContact"]
+
+#: Cell format of each field (the message rounds to the same digits).
+FORMATS = {"contact_b": ".4f", "z_score": ".3f", "z_combined": ".3f", "p_gm_good": ".4f"}
+_DEFAULT_FORMAT = ".4f"  # mm and mm/s: 0.1 um, far below any estimate's noise
+
+
+class RowContact:
+    """Per-row contact fields for a stream of (frame, result) rows.
+
+    Parameters
+    ----------
+    calib : Calibration, optional
+    frame_s : float
+        The camera's frame period (s).
+    eta_deg : float, optional
+        Given eta; default from the first rest reference's frames.
+    base : bool
+        Whether base positions come (:meth:`put`).
+    """
+
+    def __init__(self, calib, frame_s: float, eta_deg: float | None = None, base: bool = False):
+        track = BaseTrack() if base else None
+        self.feed = BaseFeed(track) if base else None
+        self.online = OnlineContact(calib, frame_s, eta_deg, track)
+        self.fields = self.online.fields()
+
+    def put(self, t_s: float, x_mm: float, received_s: float) -> None:
+        """A base position (camera clock, s) and when it was received (camera clock)."""
+        self.feed.put(t_s, x_mm, received_s)
+
+    def update(self, frame: Frame, r: FrameResult, rest_log: list) -> dict:
+        """The fields for one row; ``rest_log`` the stream's rest references so far."""
+        t = round(frame.t_s, 6)  # as the table and the timestamps file hold it
+        if self.feed is not None:
+            self.feed.advance(t)
+        rest = (rest_log[0].frame, rest_log[0].frames_used) if rest_log else None
+        # The pose as the table holds it, so a command run on the table sees the same numbers.
+        phi, dz = (float(format(v, ".5f")) for v in (r.phi_deg, r.dz_mm))
+        return self.online.update(frame.index, t, phi, dz, bool(r.ok), rest)
+
+    def cells(self, values: dict) -> list[str]:
+        """The fields as table cells (NaN: empty)."""
+        return [_cell(name, values[name]) for name in self.fields]
+
+    def message(self, values: dict) -> dict:
+        """The fields as message values (NaN: null), rounded as the cells."""
+        out = {}
+        for name in self.fields:
+            cell = _cell(name, values[name])
+            out[name] = cell if name == "doubt" else (None if cell == "" else
+                                                      (int(cell) if name == "contact"
+                                                       else float(cell)))
+        return out
+
+    def describe(self) -> dict:
+        """For the sidecar: eta and where it came from, the fields, base counts."""
+        out = {"eta_deg": self.online.eta_deg, "eta_from": self.online.eta_from,
+               "smooth_half_frames": self.online.half_frames, "fields": list(self.fields)}
+        if self.feed is not None:
+            out["base_positions"] = len(self.feed.samples)
+            out["base_out_of_order"] = self.feed.out_of_order
+        return out
+
+
+def _cell(name: str, value) -> str:
+    if name == "doubt":
+        return value
+    if name == "contact":
+        return str(int(value))
+    if value is None or not math.isfinite(value):
+        return ""
+    return format(value, FORMATS.get(name, _DEFAULT_FORMAT))
