@@ -190,7 +190,8 @@ def test_endpoints_without_a_browser(tmp_path, sensor):
         assert state["recording"] is None and state["events"] == []
         frames = [r[0] for r in state["rows"]]
         assert frames[:10] == list(range(10))
-        assert all(len(r) == 7 for r in state["rows"])  # frame, t_s, dz, phi, theta, ok, ms
+        # frame, t_s, dz, phi, theta, ok, ms, then belief, r, Z: none without --calib
+        assert all(len(r) == 10 and r[7:] == [None] * 3 for r in state["rows"])
     finally:
         rep = run.finish()
     assert rep.events == [] and rep.stopped_by == "quit"
@@ -237,6 +238,23 @@ def test_state_figures_from_published_rows():
         assert status == 200 and commands == ["rezero"]
     finally:
         view.close()
+
+
+def test_contact_fields_reach_the_plots_columns():
+    """With live --calib a row carries its contact fields: the state's rows end with the
+    belief, r (the fused one where given, else MF's) and Z, rounded to 4 digits, and
+    None where a field is empty or the session computes no contact."""
+    from camwhisker.live.view import Published, _row_numbers
+    from camwhisker.vision.tracker import FrameResult
+
+    r = FrameResult.untrusted(3, "test")
+    fused = {"contact_b": 0.51234, "r_mf_mm": 88.2, "r_hat_mm": 90.123456, "z_score": -1.23456}
+    mf_only = {"contact_b": 1.0, "r_mf_mm": 70.0000449, "sigma_mf_mm": 2.0}
+    empty = {"contact_b": None, "r_mf_mm": None, "z_score": None}
+    tails = [_row_numbers(Published(3, 0.1, "", r, 1.0, 0, None, c))[7:]
+             for c in (fused, mf_only, empty, None)]
+    assert tails == [[0.5123, 90.1235, -1.2346], [1.0, 70.0, None], [None, None, None],
+                     [None, None, None]]
 
 
 def test_bench_text_compares_each_open_session_with_the_closed_one_before():

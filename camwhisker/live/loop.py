@@ -440,7 +440,7 @@ class LiveSession:
             rep.events.append({"frame": frame.index, "event": what, "ok": True})
         if self.view is not None:
             self.view.publish(frame, r, 1e3 * (done - item.t_s), rep.seq_gaps,
-                              self.recording if recorder is not None else None)  # fmt: skip
+                              self.recording if recorder is not None else None, extra)  # fmt: skip
         if recorder is not None and self.recording:
             shape = None if item.image is None else item.image.shape
             recorder.write(frame.index, item.seq, frame.t_s, item.jpeg, shape, frame.event)

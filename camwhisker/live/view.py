@@ -87,6 +87,12 @@ class Published:
     latency_ms: float
     dropped: int
     recording: bool | None
+    contact: dict | None = None  # the row's contact fields (live --calib), as its message
+
+
+#: The contact fields the plots show, in the row's last columns: the belief, the
+#: contact distance (the fused one where the base is streamed in, else MF's) and Z.
+CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",))
 
 
 def _num(x: float, digits: int) -> float | None:
@@ -95,9 +101,14 @@ def _num(x: float, digits: int) -> float | None:
 
 def _row_numbers(p: Published) -> list:
     r, ok = p.result, bool(p.result.ok)
-    return [p.index, _num(p.t_s, 4), _num(r.dz_mm, 5) if ok else None,
-            _num(r.phi_deg, 4) if ok else None, _num(r.theta_deg, 2) if ok else None,
-            int(ok), _num(p.latency_ms, 2)]  # fmt: skip
+    row = [p.index, _num(p.t_s, 4), _num(r.dz_mm, 5) if ok else None,
+           _num(r.phi_deg, 4) if ok else None, _num(r.theta_deg, 2) if ok else None,
+           int(ok), _num(p.latency_ms, 2)]  # fmt: skip
+    c = p.contact or {}
+    for names in CONTACT_PLOTS:
+        name = next((n for n in names if n in c), None)
+        row.append(None if name is None or c[name] is None else _num(c[name], 4))
+    return row
 
 
 class LiveView:
@@ -181,10 +192,11 @@ class LiveView:
 
     # ------------------------------------------------------ the loop's side
     def publish(self, frame: Frame, result: FrameResult, latency_ms: float, dropped: int,
-                recording: bool | None = None) -> None:  # fmt: skip
+                recording: bool | None = None, contact: dict | None = None) -> None:  # fmt: skip
         """Hand over a row (called by the loop): a reference stored, a bounded append,
-        the render thread woken."""
-        p = Published(frame.index, frame.t_s, frame.event, result, latency_ms, dropped, recording)
+        the render thread woken. ``contact``: the row's contact fields, if any."""
+        p = Published(frame.index, frame.t_s, frame.event, result, latency_ms, dropped,
+                      recording, contact)  # fmt: skip
         self._inbox.append(p)
         self._latest = (frame.image, p)
         self._new_row.set()
