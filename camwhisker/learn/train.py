@@ -35,7 +35,7 @@ PREDICT_BATCH = 4096
 @dataclass(frozen=True)
 class TrainOptions:
     arch: dict = field(default_factory=lambda: {"kind": "conv", "hidden": 32})
-    epochs: int = 30
+    epochs: int = 20
     batch: int = 256
     #: Windows drawn per epoch (all when fewer): bounds an epoch's time on long recordings.
     samples_per_epoch: int = 200_000
@@ -43,7 +43,7 @@ class TrainOptions:
     validation_samples: int = 50_000
     lr: float = 2e-3
     #: Epochs without a better validation loss before training stops.
-    patience: int = 8
+    patience: int = 6
     seed: int = 0
 
 
@@ -91,8 +91,10 @@ def target_errors(pred: np.ndarray, truth: np.ndarray, columns: Columns) -> dict
 
 
 def train(training: list[Series], validation: list[Series], columns: Columns, window: int,
-          opts: TrainOptions = TrainOptions(), progress: bool = True) -> Trained:  # fmt: skip
-    """Fit a net on the training tables; keep the epoch best on the validation tables."""
+          opts: TrainOptions = TrainOptions(), progress: bool = True,
+          net=None) -> Trained:  # fmt: skip
+    """Fit a net on the training tables; keep the epoch best on the validation tables.
+    ``net``: a fresh torch module to train instead of ``opts.arch``'s (a benchmark's)."""
     torch = import_torch()
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
@@ -103,10 +105,9 @@ def train(training: list[Series], validation: list[Series], columns: Columns, wi
     if vends.size > opts.validation_samples:
         vends = vends[np.linspace(0, vends.size - 1, opts.validation_samples).astype(np.int64)]
     vtruth = np.concatenate([s.targets for s in validation])
-    arch = dict(opts.arch)
-    if arch["kind"] == "conv":
-        arch["dilations"] = conv_dilations(window)
-    net = build_net(arch, len(columns.inputs), columns.n_encoded)
+    arch = {**opts.arch, "dilations": conv_dilations(window)}
+    if net is None:
+        net = build_net(arch, len(columns.inputs), columns.n_encoded)
     optim = torch.optim.Adam(net.parameters(), lr=opts.lr)
     per_epoch = min(opts.samples_per_epoch, ends.size)
     best = (math.inf, 0, None)
