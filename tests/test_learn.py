@@ -151,3 +151,24 @@ def test_core_imports_without_torch_and_learn_names_the_extra(tmp_path):
     assert r.returncode == 2, r.stderr
     assert "need torch, which is not installed" in r.stderr and "camwhisker[learn]" in r.stderr
     assert not (tmp_path / "m").exists()
+
+
+def test_convolution_computes_the_last_row_as_the_full_causal_stack():
+    # the forward pass computes only the rows that reach the last one; the full causal
+    # stack (every row, zero-padded on the left) must give the same output
+    import torch
+
+    from camwhisker.learn.net import build_net, conv_dilations
+
+    dilations = conv_dilations(40)
+    assert dilations == [1, 2, 4, 8, 16]  # 1 + 2 * 31 = 63 rows seen >= 40
+    torch.manual_seed(0)
+    net = build_net({"kind": "conv", "hidden": 8, "dilations": dilations}, 3, 4)
+    x = torch.randn(5, 40, 3)
+    h = x.transpose(1, 2)
+    for conv in net.convs:
+        h = torch.relu(conv(torch.nn.functional.pad(h, (2 * conv.dilation[0], 0))))
+    full = net.head(h[:, :, -1])
+    with torch.no_grad():
+        # float32 sums in another order: 1e-5 is ~100 ulps of outputs of order 0.1-1
+        assert torch.allclose(net(x), full, atol=1e-5)

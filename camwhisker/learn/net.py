@@ -48,8 +48,12 @@ def _conv(torch, n_inputs: int, n_out: int, hidden: int, dilations: list[int]):
 
         def forward(self, x):
             h = x.transpose(1, 2)
-            for conv in self.convs:  # causal: pad on the left only
-                h = torch.relu(conv(nn.functional.pad(h, (2 * conv.dilation[0], 0))))
+            for i, conv in enumerate(self.convs):
+                d = conv.dilation[0]
+                # Only the rows the later layers read reach the last row: compute those.
+                keep = min(h.shape[2], 1 + 2 * sum(dilations[i + 1 :]))
+                h = nn.functional.pad(h, (2 * d, 0))[:, :, -(keep + 2 * d) :]  # causal
+                h = torch.relu(conv(h))
             return self.head(h[:, :, -1])
 
     return WindowConv()
