@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ["README.md", "BENCHMARKS.md", "docs/sensor.md", "docs/texture.md"]
+DOCUMENTS = ["README.md", "BENCHMARKS.md", "docs/sensor.md", "docs/texture.md", "docs/learn.md"]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
