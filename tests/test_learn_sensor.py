@@ -114,7 +114,7 @@ E2E_MEDIAN_MAX_MM = 3.0
 
 def test_contact_learned_column_end_to_end(tmp_path, capsys):
     from camwhisker.bench.contact import _log, calibrate_simulated
-    from camwhisker.bench.learn_sensor import SensorOptions, _frames, training_tables
+    from camwhisker.bench.learn_sensor import SensorOptions, prepared_runs, training_tables
     from camwhisker.calibrate import write_calibration
     from camwhisker.cli import main
     from camwhisker.learn.modeldir import save_model
@@ -126,7 +126,7 @@ def test_contact_learned_column_end_to_end(tmp_path, capsys):
     inputs = ("phi_deg", "dz_mm", "dx_mm")
     opts = SensorOptions(variants=(inputs,))
     calib = calibrate_simulated(0, noise=FRONT_END_NOISE)
-    cal_runs = _frames(calib, "rigid", 0, FRONT_END_NOISE, calibration=True)
+    cal_runs = prepared_runs(calib, "rigid", 0, FRONT_END_NOISE, calibration=True)
     training, validation = training_tables(cal_runs, inputs, opts)
     columns = sensor_columns(inputs)
     trained = train(training, validation, columns, opts.window, TrainOptions(epochs=3),

@@ -6,8 +6,8 @@ front end's), as contact-bench does: calibrate GM and MF on the simulated rigid 
 (:mod:`camwhisker.learn.sensor`: phi, dz, theta, base travel -> the stage log's r). Then
 every estimator runs per frame (``contact --per frame``) on the held-out runs of
 ``seed + 1``: rigid pegs, compliant pegs, the box (it slips) and the bottle (it slips, swept
-from both sides). Each scene is scored on the same frames for all four: in contact, true
-phi >= 2 deg (:data:`~camwhisker.bench.frames.PHI_MIN_DEG`), every estimate defined.
+from both sides). Each scene is scored on the same frames for every estimator: in contact,
+true phi >= 2 deg (:data:`~camwhisker.bench.frames.PHI_MIN_DEG`), every estimate defined.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from camwhisker.learn.sensor import (
 )
 from camwhisker.mechanics.experiment import NOISE_LEVELS, simulate_runs
 
-__all__ = ["SCENES", "PIPELINE", "VARIANTS", "SensorOptions", "variant_name",
+__all__ = ["SCENES", "PIPELINE", "VARIANTS", "SensorOptions", "variant_name", "prepared_runs",
            "training_tables", "score_scene", "run_sensor", "format_sensor"]  # fmt: skip
 
 #: Scene shown -> simulator kind of the held-out runs.
@@ -62,7 +62,7 @@ def variant_name(inputs: tuple[str, ...]) -> str:
     return ",".join(dict.fromkeys(short[c] for c in inputs))
 
 
-def _frames(calib, kind: str, seed: int, noise, calibration: bool) -> list[dict]:
+def prepared_runs(calib, kind: str, seed: int, noise, calibration: bool) -> list[dict]:
     """Per run of ``kind``: its contact table (per frame), inputs, truth and, for
     calibration runs, the stage log's r per frame."""
     out = []
@@ -78,7 +78,7 @@ def _frames(calib, kind: str, seed: int, noise, calibration: bool) -> list[dict]
 
 
 def training_tables(runs: list[dict], inputs: tuple[str, ...], opts: SensorOptions):
-    """(training, validation) tables from calibration runs (:func:`_frames`): frames in
+    """(training, validation) tables from calibration runs (:func:`prepared_runs`): frames in
     contact (truth) with every input defined, target the stage log's r; every
     ``validation_every``-th segment of each run held out."""
     columns = sensor_columns(inputs)
@@ -122,8 +122,8 @@ def run_sensor(seed: int, opts: SensorOptions = SensorOptions(), out=None,
     result = {}
     for level, noise in NOISE_LEVELS.items():
         calib = calibrate_simulated(seed, noise=noise)
-        cal_runs = _frames(calib, "rigid", seed, noise, calibration=True)
-        scenes = {s: _frames(calib, k, seed + 1, noise, False) for s, k in SCENES.items()}
+        cal_runs = prepared_runs(calib, "rigid", seed, noise, calibration=True)
+        scenes = {s: prepared_runs(calib, k, seed + 1, noise, False) for s, k in SCENES.items()}
         estimates = {s: {} for s in scenes}
         summaries = {}
         for inputs in opts.variants:
