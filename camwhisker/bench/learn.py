@@ -12,15 +12,21 @@ the moment's rate (speed / r**2) gives r: the estimate needs the window's histor
 ridge on random window features, trained on the same tables, scored on other seeds' tables.
 ``python -m camwhisker.bench.learn scale [--rows 1500000]``: ``learn``'s defaults on 1.5 M
 rows of 3 channels, window 40: training time, inference per sample at batch 1 and batched.
+``python -m camwhisker.bench.learn sensor [--seed 0] [--out DIR]``: on our sensor's simulated
+runs, trained on the calibration runs of a seed, against GM, MF and fused on runs of seed + 1
+(:mod:`camwhisker.bench.learn_sensor`).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
 
+from camwhisker.bench.learn_sensor import SensorOptions, format_sensor, run_sensor
+from camwhisker.learn.sensor import SENSOR_INPUTS, sensor_columns
 from camwhisker.learn.series import (
     Columns,
     Series,
@@ -234,8 +240,36 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--epochs", type=int, default=15)
     s = sub.add_parser("scale", help="learn's defaults on 1.5 M rows: time and speed")
     s.add_argument("--rows", type=int, default=1_500_000)
+    o = sub.add_parser("sensor", help="on our sensor's simulated runs, beside GM, MF, fused")
+    o.add_argument("--seed", type=int, default=0,
+                   help="calibration and training runs' seed (scored on seed + 1)")
+    o.add_argument("--window", type=int, default=SensorOptions.window, help="frames per window")
+    o.add_argument("--epochs", type=int, default=SensorOptions.epochs)
+    o.add_argument("--inputs", action="append", metavar="A,B,...",
+                   help="an input set to train and compare (repeat for several); some of "
+                        f"{', '.join(SENSOR_INPUTS)}; default: "
+                        + "; ".join(",".join(v) for v in SensorOptions.variants))
+    o.add_argument("--out", metavar="DIR", help="save each model as DIR/<level>/<variant>")
     args = p.parse_args(argv)
-    return compare(args) if args.what == "compare" else scale(args)
+    return {"compare": compare, "scale": scale, "sensor": sensor}[args.what](args)
+
+
+def sensor(args) -> int:
+    """The learned estimator on our sensor: the Markdown table of learn_sensor."""
+    from camwhisker.learn.series import LearnError
+
+    variants = tuple(tuple(c.strip() for c in v.split(",") if c.strip())
+                     for v in args.inputs or ()) or SensorOptions.variants
+    opts = SensorOptions(window=args.window, epochs=args.epochs, variants=variants)
+    try:
+        for v in variants:
+            sensor_columns(v)
+        result = run_sensor(args.seed, opts, args.out)
+    except LearnError as exc:
+        print(f"python -m camwhisker.bench.learn sensor: {exc}", file=sys.stderr)
+        return 2
+    print(format_sensor(result, args.seed, opts))
+    return 0
 
 
 if __name__ == "__main__":

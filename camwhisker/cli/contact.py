@@ -144,6 +144,9 @@ def add_contact(sub) -> None:
                         "paper, from the medians of the stage pause the frame lies in")
     p.add_argument("--out", required=True, metavar="C.csv",
                    help="contact table to write, one row per signal row")
+    p.add_argument("--learned", metavar="MODEL",
+                   help="also a learned estimator's r (docs/learn.md, 'On this sensor') as "
+                        "the column r_learned_mm; the fusion does not use it. Needs torch")
     springs_arg(p)
     p.set_defaults(func=_run_contact)
 
@@ -158,8 +161,17 @@ def _run_contact(args) -> int:
     calib = read_calibration(args.calib)
     signals = read_signal_table(args.signals)
     springs = springs_of(args)
+    model = None
+    if args.learned:
+        from camwhisker.learn.modeldir import load_model
+
+        model = load_model(args.learned)  # before any work: a bad model is named first
     cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s,
                              mode=args.per)
+    if model is not None:
+        from camwhisker.learn.sensor import learned_r_mm
+
+        cols["r_learned_mm"] = learned_r_mm(model, cols, signals["theta_deg"], args.learned)
     if springs is not None:
         cols.update(springs.columns(cols["dz_mm"], cols["phi_deg"]))
     write_csv(args.out, cols)

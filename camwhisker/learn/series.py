@@ -17,7 +17,7 @@ from camwhisker.tables import read_columns
 
 __all__ = ["LearnError", "Columns", "Series", "Normalisation", "read_series",
            "fit_normalisation", "encode_targets", "decode_targets", "window_ends",
-           "gather_windows", "split_by_table"]  # fmt: skip
+           "gather_windows", "split_by_table", "segments"]  # fmt: skip
 
 #: Share of the rows held out for validation when one table is given (its last rows).
 VALIDATION_SHARE = 0.2
@@ -143,6 +143,15 @@ def window_ends(lengths: list[int], window: int) -> np.ndarray:
 def gather_windows(x: np.ndarray, ends: np.ndarray, window: int) -> np.ndarray:
     """Windows shape (B, window, C) of rows ``x`` shape (N, C) ending at ``ends`` shape (B,)."""
     return x[ends[:, None] + np.arange(1 - window, 1)[None, :]]
+
+
+def segments(usable: np.ndarray, min_rows: int = 1) -> list[slice]:
+    """The maximal runs of consecutive True rows in ``usable`` shape (N,), each of at least
+    ``min_rows`` rows (shorter ones hold no full window: dropped), in row order."""
+    u = np.concatenate([[False], np.asarray(usable, bool), [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(u))
+    return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)
+            if b - a >= min_rows]
 
 
 def split_by_table(series: list[Series], window: int) -> tuple[list[Series], list[Series]]:
