@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
+from camwhisker.contact.fusion import KEEP_GM_POSTERIOR
 from camwhisker.contact.percepts import MIN_SURFELS, fit_model, perceive
+from camwhisker.contact.shape import reconstruct
 from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
 from camwhisker.tables import write_csv
 
@@ -113,6 +115,51 @@ def test_line_intervals_cover_the_truth_with_independent_noise():
     assert hits >= 34
 
 
+def _estimates_table(r_hat, r_mf, p_good, mf_outside, phi_deg, base_x):
+    """Contact-table columns with both estimates and the fusion's P(GM good), one row a pause."""
+    x_hat, y_hat = reconstruct(base_x, r_hat, phi_deg, 1.0)
+    return {"t_s": np.arange(base_x.size) * 0.5, "x_mm": base_x, "phi_deg": phi_deg,
+            "x_hat_mm": x_hat, "r_hat_mm": r_hat, "y_hat_mm": y_hat, "r_mf_mm": r_mf,
+            "p_gm_good": p_good, "mf_outside": mf_outside}
+
+
+def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
+    # Rows: GM kept; GM dropped; dropped but MF clamped at its table's edge; no posterior;
+    # dropped but no MF.
+    p_good = np.array([KEEP_GM_POSTERIOR, KEEP_GM_POSTERIOR - 0.01, 0.0, np.nan, 0.0])
+    r_hat = np.array([40.0, 45.0, 50.0, 55.0, 60.0])
+    r_mf = np.array([41.0, 47.0, 53.0, 57.0, np.nan])
+    phi, base_x = np.array([5.0, 8.0, 11.0, 14.0, 17.0]), np.arange(5.0)
+    s = surfels_from_columns(_estimates_table(r_hat, r_mf, p_good, np.array([0, 0, 1, 0, 0]),
+                                              phi, base_x))
+    r_used = np.array([40.0, 47.0, 50.0, 55.0, 60.0])
+    # Same arithmetic (eq. 12) on both sides: equal to rounding.
+    assert np.allclose(s.xy_mm, np.c_[reconstruct(base_x, r_used, phi, 1.0)], atol=1e-9, rtol=0)
+
+
+def test_wall_from_a_slide_where_the_fused_estimate_lags():
+    # A slide up a wall at 78 deg: past the stuck start the fusion drops GM (P = 0) and its
+    # fused r trails the truth by up to 6 mm (a mean over pauses of a bias that grows each
+    # pause), while MF scatters 0.3 mm about it. From MF the angle comes within 0.5 deg
+    # (the largest error over 20 noise seeds is 0.14 deg); from r_hat it is 2.9 deg off.
+    n, a = 30, math.radians(78.0)
+    along = np.linspace(0.0, 50.0, n)
+    xc, yc = along * math.cos(a), 40.0 + along * math.sin(a)
+    base_x = xc + np.linspace(2.0, 15.0, n)
+    r = np.hypot(base_x - xc, yc)
+    phi = np.degrees(np.arctan2(base_x - xc, yc))
+    stuck = along < 5.0
+    p_good = np.where(stuck, 0.99, 0.0)
+    r_hat = np.where(stuck, r, r - 6.0 * along / along[-1])
+    r_mf = r + 0.3 * np.random.default_rng(7).standard_normal(n)
+    cols = _estimates_table(r_hat, r_mf, p_good, np.zeros(n), phi, base_x)
+    angle = fit_model("line", surfels_from_columns(cols)).params["angle_deg"]
+    assert abs(angle - 78.0) < 0.5
+    lagging = fit_model("line", surfels_from_columns({k: v for k, v in cols.items()
+                                                      if k != "p_gm_good"}))
+    assert abs(lagging.params["angle_deg"] - 78.0) > 2.0
+
+
 def test_pose_moves_a_table_into_the_common_frame():
     pose = Pose(10.0, -5.0, 90.0)
     assert np.allclose(pose.apply(np.array([[1.0, 2.0]])), [[8.0, -4.0]])
@@ -181,8 +228,9 @@ def test_simulated_sweeps_of_each_object():
     assert all(r["correct"] for r in rows)
     s = summarise(rows)
     # These seeds' errors (looked at while tuning), with room for a change in the
-    # simulator's numerics: radius 0.07 mm, centre 2.6 mm, apex 0.5 mm, wall angle 4.5 deg.
+    # simulator's numerics: radius 0.04 mm, centre 2.4 mm, apex 0.5 mm, wall angle 3.6 deg
+    # (4.5 deg with the fused r_hat on slipping contacts).
     assert s["radius_err_mm"]["max"] < 1.0
     assert s["center_err_mm"]["max"] < 3.5
     assert s["apex_err_mm"]["max"] < 1.5
-    assert s["angle_err_deg"]["max"] < 6.0
+    assert s["angle_err_deg"]["max"] < 4.2

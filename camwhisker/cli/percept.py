@@ -87,7 +87,7 @@ def add_percept_bench(sub) -> None:
     p = sub.add_parser("percept-bench", help="shape percepts on simulated sweeps: identification, "
                                              "localisation error, interval coverage")
     p.add_argument("--seeds", default="1000-1199", metavar="A-B",
-                   help="sweep seeds, inclusive (0-39 were used to choose the constants)")
+                   help="sweep seeds, inclusive (0-99 were used to choose the constants)")
     p.add_argument("--out", metavar="R.json", help="also write every sweep's result here")
     p.set_defaults(func=_run_percept_bench)
 

@@ -6,10 +6,12 @@ there and the belief that the contact happened. Here
 
 - the point is eq. 12's, one per stage pause (the table repeats a pause's
   estimate on each of its frames), from the table's r_hat (the fused
-  estimate) where GM and MF agree and from r_mf where they do not (|Z| over
-  :data:`Z_SWITCH` in the combined spread, when the table has those columns,
-  and MF lies inside its table): there the fusion may still lean on a GM that
-  slip has broken;
+  estimate) where the fusion kept GM (p_gm_good at or above
+  :data:`~camwhisker.contact.fusion.KEEP_GM_POSTERIOR`) and from r_mf where
+  it did not (when the table has those columns and MF lies inside its
+  table): there GM is broken by slip, and the fused correction, a mean of
+  the GM-MF difference over several pauses, lags a bias that grows with
+  every pause of the slide, while MF follows it;
 - the direction is that of the chord between the neighbouring contacts of the
   same table (central difference), left undefined (NaN) where they lie closer
   than :data:`MIN_CHORD_MM` (a stuck contact says nothing about the surface);
@@ -31,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from camwhisker.contact.fusion import KEEP_GM_POSTERIOR
 from camwhisker.contact.shape import reconstruct
 from camwhisker.tables import TableError, read_columns
 
 __all__ = ["Pose", "Surfels", "surfels_from_columns", "read_surfels", "merge", "MIN_CHORD_MM",
-           "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS", "Z_SWITCH"]
+           "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 # Neighbouring contacts closer than this give no direction: it is the
 # contact points' own scatter (fused r_hat, ~0.2-0.3 mm) times a few.
@@ -43,10 +46,7 @@ MIN_CHORD_MM = 0.8
 #: What a contact table must have (docs/sensor.md section 7).
 REQUIRED_COLUMNS = ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm")
 #: Columns used where the table has them (camwhisker contact writes them).
-OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "z_combined", "phi_pause_deg", "mf_outside")
-# Above this |Z| (in the combined spread of GM and MF) the surfel takes the MF point:
-# the paper reads Z < 0.5 as "expected", and beyond it the fused point leans on a broken GM.
-Z_SWITCH = 0.5
+OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "phi_pause_deg", "mf_outside")
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,8 @@ def _travel_sign(x_mm) -> float:
 
 
 def _points(cols: dict):
-    """Each row's contact point: eq. 12 with r_hat, or with r_mf where |Z| > Z_SWITCH."""
+    """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
+    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good keeps r_hat)."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
@@ -100,11 +101,11 @@ def _points(cols: dict):
         y_hat = np.asarray(cols["y_hat_mm"], float)
     else:
         y_hat = r_hat * np.cos(np.radians(phi))  # Eq. (12)
-    if "r_mf_mm" not in cols or "z_combined" not in cols:
+    if "r_mf_mm" not in cols or "p_gm_good" not in cols:
         return x_hat, y_hat
     r_mf = np.asarray(cols["r_mf_mm"], float)
     with np.errstate(invalid="ignore"):
-        use_mf = (np.abs(np.asarray(cols["z_combined"], float)) > Z_SWITCH) & np.isfinite(r_mf)
+        use_mf = (np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR) & np.isfinite(r_mf)
     if "mf_outside" in cols:  # MF clamped at its table's edge says nothing about r
         use_mf &= np.asarray(cols["mf_outside"], float) == 0
     use_mf &= np.isfinite(x_hat)
