@@ -98,6 +98,7 @@ class _SplineCost:
         self.t = np.asarray(t_camera_s, float)
         self.y = np.asarray(signal, float)
         finite = np.isfinite(self.y) & np.isfinite(self.t)
+        self.finite = finite
         self.t, self.y = self.t[finite], self.y[finite]
         sd = noise_sd(signal)
         self.var = sd * sd if sd > 0 else np.var(self.y) or 1.0
@@ -132,6 +133,10 @@ class _SplineCost:
         r = y - (a * c[j] + w * c[j + 1])
         return float(r @ r) + outside
 
+    def mask(self, per_frame):
+        """A per-frame array (or None) cut to this signal's finite frames."""
+        return None if per_frame is None else np.asarray(per_frame, bool)[self.finite]
+
     def chi2(self, offset_s: float) -> float:
         return self.rss(offset_s) / self.var
 
@@ -158,19 +163,20 @@ def event_speeds(log: StageLog, events) -> np.ndarray:
     return np.array(out)
 
 
-def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
+def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s, contact=None):
     """chi-square of a line f(x) fitted in a window around each event, per trial offset.
 
     ``half_s``: the window's half-width (s), one value or one per event. The
     frames of each window are fixed (camera time around event + offset0), so
-    every trial offset is scored on the same frames.
+    every trial offset is scored on the same frames. ``contact`` (bool per
+    frame, optional): a window counts only if every frame in it is in contact.
     """
     halves = np.broadcast_to(np.asarray(half_s, float), np.shape(events))
     out = np.zeros(offsets.size)
     dof = 0
     for tau, half in zip(events, halves, strict=True):
         w = np.abs(t - (tau + offset0)) <= half
-        if w.sum() < 8:
+        if w.sum() < 8 or (contact is not None and not contact[w].all()):
             continue
         dof += int(w.sum()) - 2
         yw = y[w]
@@ -188,7 +194,8 @@ def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s):
 
 
 def estimate_offset_motion(log: StageLog, t_camera_s, signals,
-                           search_s: tuple[float, float] = (-30.0, 30.0)) -> OffsetEstimate:
+                           search_s: tuple[float, float] = (-30.0, 30.0),
+                           in_contact=None) -> OffsetEstimate:
     """Estimate ``offset_s`` (t_camera = t_stage + offset_s) from signals that follow x.
 
     Two steps. The global spline fit of f(x) (module docstring) finds the offset
@@ -205,12 +212,19 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
     signals : sequence of ndarray, shape (N,)
         phi_deg (and dz_mm): NaN where untrusted. Their chi-squares add.
     search_s : (float, float)
+    in_contact : ndarray of bool, shape (N,), optional
+        Frames in contact. An event then counts only where the whisker is in
+        contact throughout its window: contact starting or ending there is a kink
+        in f(x) that the line reads as an offset; out of contact f is flat.
 
     Returns
     -------
     OffsetEstimate
         Falsy (offset NaN) when the signals do not vary with x (explained share
-        below 0.5: no contact seen) or the log holds one position only.
+        below 0.5: no contact seen) or the log holds one position only. Its se is
+        NaN where no event counts (a sweep at one speed whose contact starts and
+        ends inside it): the offset is the spline fit's alone and not pinned; any
+        offset then shifts every frame's x alike, and GM's dx does not change.
     """
     if np.ptp(log.x_mm) <= 0:
         return OffsetEstimate(math.nan, math.nan, 0.0)
@@ -242,8 +256,8 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
     events = motion_events(log)
     # The spline's error is one-sided (late): search mostly before its estimate.
     grid = np.arange(first - REFINE_S, first + REFINE_MARGIN_S, FINE_STEP_S)
-    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, first - 0.5 * REFINE_S, grid, WINDOW_S)[0]
-             for c in costs)
+    lc = sum(_local_chi2(log, c.t, c.y, c.var, events, first - 0.5 * REFINE_S, grid, WINDOW_S,
+                         c.mask(in_contact))[0] for c in costs)  # fmt: skip
     if not np.any(lc > 0):
         return OffsetEstimate(first, math.nan, explained)
     # Second pass in windows of a fixed travel: little of phi's curvature in x to bias
@@ -253,7 +267,8 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
                    SHORT_WINDOW_MIN_S, WINDOW_S)
     reach = 0.5 * float(np.min(half))
     grid = np.arange(second - reach, second + reach, FINE_STEP_S)
-    parts = [_local_chi2(log, c.t, c.y, c.var, events, second, grid, half) for c in costs]
+    parts = [_local_chi2(log, c.t, c.y, c.var, events, second, grid, half, c.mask(in_contact))
+             for c in costs]  # fmt: skip
     lc = sum(p[0] for p in parts)
     dof = sum(p[1] for p in parts)
     i = int(np.argmin(lc))

@@ -73,3 +73,22 @@ def test_analyse_run_without_pauses_and_with_a_given_offset():
     assert abs(a.x_contact_mm - run.info["x_first_contact_mm"]) < 0.5
     given = analyse_run(run.signals, _log(run), offset_s=run.offset_s + 0.5)
     assert given.offset_s == run.offset_s + 0.5 and not given.offset_estimated
+
+
+def test_a_box_left_at_the_stop_is_not_read_as_the_offset():
+    """The box's whisker slides off its edge as the base stops: contact ends at the stop,
+    a kink in phi(x) that a line around the stop reads as an offset (7 frames late before
+    the in-contact rule). No event then counts: the spline's offset, se NaN (not pinned)."""
+    from camwhisker.mechanics.experiment import FRONT_END_NOISE
+    from camwhisker.stage import CONTACT_PHI_DEG
+
+    run = simulate_runs("slide-box", 1, noise=FRONT_END_NOISE,
+                        protocol=continuous_protocol(1.0))[0]  # fmt: skip
+    s = run.signals
+    e = estimate_offset_motion(_log(run), s["t_s"], [s["phi_deg"], s["dz_mm"]],
+                               in_contact=s["phi_deg"] >= CONTACT_PHI_DEG)  # fmt: skip
+    # Within one frame (measured: 0.16 frames); the stop carries no in-contact window.
+    assert abs(e.offset_s - run.offset_s) < FRAME_S
+    assert math.isnan(e.se_s)
+    a = analyse_run(s, _log(run))
+    assert a.offset_s == pytest.approx(e.offset_s, abs=1e-9)

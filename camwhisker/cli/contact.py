@@ -181,7 +181,10 @@ def _run_contact(args) -> int:
     how = "given"
     if run.offset_estimated:
         how = ("estimated from pauses" if run.paused
-               else f"estimated from motion, se {run.offset_se_s:.3f} s")
+               else f"estimated from motion, se {run.offset_se_s:.3f} s"
+               if run.offset_se_s == run.offset_se_s
+               else "estimated from motion, not pinned: the base changes speed only out of "
+                    "contact; any offset moves every x alike, and GM's travel not at all")
     print(f"offset {run.offset_s:+.3f} s ({how}), "
           f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
     if defined == 0:

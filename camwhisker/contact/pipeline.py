@@ -20,6 +20,7 @@ from camwhisker.contact.shape import reconstruct
 from camwhisker.contact.smooth import local_line
 from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
 from camwhisker.stage import (
+    CONTACT_PHI_DEG,
     PauseTable,
     StageLog,
     contact_onset_x,
@@ -91,7 +92,7 @@ def analyse_run(signals: dict, log: StageLog, offset_s: float | None = None) -> 
         if not math.isfinite(offset_s):
             raise ValueError(f"{log.source}: cannot estimate the clock offset (too few pauses)")
     elif estimated:
-        e = estimate_offset_motion(log, t, [phi, dz])
+        e = estimate_offset_motion(log, t, [phi, dz], in_contact=phi >= CONTACT_PHI_DEG)
         if not e:
             raise ValueError(f"{log.source}: cannot estimate the clock offset: phi does not "
                              f"follow the stage position (explained share {e.score:.2f}); "
