@@ -271,6 +271,8 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
              for c in costs]  # fmt: skip
     lc = sum(p[0] for p in parts)
     dof = sum(p[1] for p in parts)
+    if dof <= 0:  # no event window wholly in contact at this width
+        return OffsetEstimate(second, math.nan, explained)
     i = int(np.argmin(lc))
     near = np.abs(grid - grid[i]) <= PARABOLA_HALF_S
     a2, a1, _ = np.polyfit(grid[near] - grid[i], lc[near], 2)
