@@ -193,6 +193,28 @@ def _local_chi2(log: StageLog, t, y, var, events, offset0, offsets, half_s, cont
     return out, dof
 
 
+def _spline_offset(costs: list, search_s: tuple[float, float]) -> float:
+    """The offset minimising the spline fits' summed chi-square: a coarse grid, then a
+    fine one around its best few local minima."""
+
+    def chi2(o):
+        return sum(c.chi2(o) for c in costs)
+
+    lo, hi = search_s
+    coarse = np.arange(lo, hi + COARSE_STEP_S / 2, COARSE_STEP_S)
+    cs = np.array([chi2(o) for o in coarse])
+    local = np.r_[True, cs[1:] <= cs[:-1]] & np.r_[cs[:-1] <= cs[1:], True]
+    peaks = np.flatnonzero(local)
+    peaks = peaks[np.argsort(cs[peaks])[:CANDIDATES]]
+    best_o, best_c = None, None
+    for b in coarse[peaks]:
+        fine = np.arange(b - 1.5 * COARSE_STEP_S, b + 1.5 * COARSE_STEP_S, FINE_STEP_S)
+        fc = np.array([chi2(o) for o in fine])
+        if best_c is None or fc.min() < best_c.min():
+            best_o, best_c = fine, fc
+    return float(best_o[int(np.argmin(best_c))])
+
+
 def estimate_offset_motion(log: StageLog, t_camera_s, signals,
                            search_s: tuple[float, float] = (-30.0, 30.0),
                            in_contact=None) -> OffsetEstimate:
@@ -233,22 +255,7 @@ def estimate_offset_motion(log: StageLog, t_camera_s, signals,
     if not costs:
         return OffsetEstimate(math.nan, math.nan, 0.0)
 
-    def chi2(o):
-        return sum(c.chi2(o) for c in costs)
-
-    lo, hi = search_s
-    coarse = np.arange(lo, hi + COARSE_STEP_S / 2, COARSE_STEP_S)
-    cs = np.array([chi2(o) for o in coarse])
-    local = np.r_[True, cs[1:] <= cs[:-1]] & np.r_[cs[:-1] <= cs[1:], True]
-    peaks = np.flatnonzero(local)
-    peaks = peaks[np.argsort(cs[peaks])[:CANDIDATES]]
-    best_o, best_c = None, None
-    for b in coarse[peaks]:
-        fine = np.arange(b - 1.5 * COARSE_STEP_S, b + 1.5 * COARSE_STEP_S, FINE_STEP_S)
-        fc = np.array([chi2(o) for o in fine])
-        if best_c is None or fc.min() < best_c.min():
-            best_o, best_c = fine, fc
-    first = float(best_o[int(np.argmin(best_c))])
+    first = _spline_offset(costs, search_s)
     explained = float(np.mean([1.0 - c.rss(first) / c.total if c.total > 0 else 0.0
                                for c in costs]))
     if explained < 0.5:
