@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -179,12 +180,13 @@ def _run_contact(args) -> int:
     onset = (f"first contact at x = {run.x_contact_mm:.2f} mm"
              if run.x_contact_mm == run.x_contact_mm else "no contact found")
     how = "given"
-    if run.offset_estimated:
-        how = ("estimated from pauses" if run.paused
-               else f"estimated from motion, se {run.offset_se_s:.3f} s"
-               if run.offset_se_s == run.offset_se_s
-               else "estimated from motion, not pinned: the base changes speed only out of "
-                    "contact; any offset moves every x alike, and GM's travel not at all")
+    if run.offset_estimated and run.paused:
+        how = "estimated from pauses"
+    elif run.offset_estimated and math.isfinite(run.offset_se_s):
+        how = f"estimated from motion, se {run.offset_se_s:.3f} s"
+    elif run.offset_estimated:
+        how = ("estimated from motion, not pinned: the base changes speed only out of contact; "
+               "any offset moves every x alike, and GM's travel not at all")
     print(f"offset {run.offset_s:+.3f} s ({how}), "
           f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
     if defined == 0:
