@@ -4,9 +4,10 @@ Unknowns: the geometry of ``GEOMETRY_NAMES`` (camera intrinsics and
 distortion, the ``[plate]`` dimensions) and, per frame off rest, the pose
 (dz_mm, a_rad, b_rad). The residuals are the tracked image points (12 corners
 and the tip, :mod:`camwhisker.model`) minus the model's, under a Huber loss on
-each point's distance. The normal equations are solved by Levenberg-Marquardt
-with the per-frame pose blocks eliminated (Schur complement), so a sweep of
-hundreds of frames costs little more than its geometry.
+each point's distance, scaled to that point's own scatter. The normal
+equations are solved by Levenberg-Marquardt with the per-frame pose blocks
+eliminated (Schur complement), so a sweep of hundreds of frames costs little
+more than its geometry.
 
 Gauges, and what holds them:
 
@@ -87,6 +88,12 @@ __all__ = [
 #: The Huber loss is quadratic within this distance of a point's model (px):
 #: above the tracking noise (~0.1 px), below a mistracked corner (pixels).
 HUBER_PX = 0.5
+#: Once its residuals are measured, a point's Huber distance is this many times its
+#: own robust scatter (px per coordinate), up to HUBER_PX: a corner that a spring
+#: reaches in some frames of the sweep then counts less in those frames alone.
+HUBER_SCATTERS = 3.0
+#: Median of a 2D normal vector's length, in SDs per coordinate: sqrt(2 ln 2).
+_RAYLEIGH_MEDIAN = math.sqrt(2 * math.log(2))
 #: A parameter whose SE exceeds this fraction of its build tolerance is held:
 #: the sweep says less about it than the build's tolerance already does.
 SE_LIMIT = 0.5
@@ -216,7 +223,8 @@ class _Problem:
     tol: np.ndarray  # (G + 2 TIP V,): the geometry's, then the shifts' prior SDs (mm)
     shift_prior: np.ndarray  # (2 TIP V,): the shifts' prior centres (mm)
     free: np.ndarray  # indices into the geometry, then the shifts
-    huber_px: float
+    huber_max_px: float
+    huber_px: np.ndarray  # (13,) each point's Huber distance (px), at most huber_max_px
     noise_px: np.ndarray  # (13,) each point's residuals' SD per coordinate: their weight
     known_dz: np.ndarray  # (F,) a known dz (mm) per frame, NaN where none
     known_dz_sd: np.ndarray  # (F,) its SD per frame (mm)
@@ -292,7 +300,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
         uv = jac.uv.copy()
         uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts[p.video[f]])  # first order
         r = p.obs[f][m] - uv[m]
-        rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px)
+        rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px[m])
         residual[f][m], weight[f][m] = r, w
         cost += float(np.sum(rho / p.noise_px[m] ** 2))
         sw = np.repeat(np.sqrt(w) / p.noise_px[m], 2)  # residuals in units of their SD
@@ -382,16 +390,19 @@ def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray):
     return g, q, ne, n_iter
 
 
-def _noise(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[float, np.ndarray]:
-    """The robust residual SD per coordinate (px), and each point's noise SD, shape
-    (13,): its own robust residual SD inflated for its frame-to-frame correlation.
+def _noise(ne: _Normal, p: _Problem, moving: np.ndarray
+           ) -> tuple[float, np.ndarray, np.ndarray]:  # fmt: skip
+    """The robust residual SD per coordinate (px); each point's noise SD, shape
+    (13,): its own robust residual SD inflated for its frame-to-frame correlation;
+    and each point's Huber distance (13,), ``HUBER_SCATTERS`` times its scatter
+    (from its median residual), at most ``huber_max_px``.
     Per point, since a point measured with a biased model (the tip's rim and rod)
     scatters far more than the corners, and must not drag their geometry."""
     n_obs = 2 * int(np.count_nonzero(ne.weight))
     dof = max(n_obs - 3 * int(moving.sum()) - len(p.free), 1)
     r2 = np.nansum(ne.residual**2, axis=-1)
     sigma = float(np.sqrt(np.sum(ne.weight * r2) / dof))
-    noise = p.noise_px.copy()
+    noise, huber = p.noise_px.copy(), p.huber_px.copy()
     for j in range(TIP + 1):
         # Its dof: its coordinates less the share of the poses they absorb (a point
         # weighted heavily fits its frames' poses itself and shows no residual).
@@ -399,7 +410,9 @@ def _noise(ne: _Normal, p: _Problem, moving: np.ndarray) -> tuple[float, np.ndar
         if dof_j >= MIN_NOISE_DOF:
             s_j = math.sqrt(np.sum(ne.weight[:, j] * r2[:, j]) / dof_j)
             noise[j] = s_j * math.sqrt(_correlation_inflation(ne.residual[:, j]))
-    return sigma, noise
+            scatter = np.nanmedian(np.sqrt(r2[:, j][ne.weight[:, j] > 0])) / _RAYLEIGH_MEDIAN
+            huber[j] = min(HUBER_SCATTERS * scatter, p.huber_max_px)
+    return sigma, noise, huber
 
 
 def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
@@ -455,9 +468,11 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
         g, q, ne, it = _solve(p, g, q, moving)
         n_iter += it
         passes += 1
-        sigma, noise = _noise(ne, p, moving)
-        if np.abs(noise / p.noise_px - 1).max() > NOISE_RTOL and passes < _NOISE_PASSES:
-            p.noise_px = noise  # the weights were off: fit again with the measured SDs
+        sigma, noise, huber = _noise(ne, p, moving)
+        change = np.abs(np.concatenate([noise / p.noise_px, huber / p.huber_px]) - 1)
+        if change.max() > NOISE_RTOL and passes < _NOISE_PASSES:
+            # The weights were off: fit again with the measured SDs and Huber distances.
+            p.noise_px, p.huber_px = noise, huber
             continue
         se_data, se_free = _standard_errors(ne, p, moving)
         n_free_geo = int(np.count_nonzero(p.free < n_geo))
@@ -549,8 +564,11 @@ def adjust_geometry(
         apart from the detection (NaN: not measured); default: none measured.
     video : ndarray of int, shape (F,), optional
         Each frame's video, 0 ... V - 1 (its rest templates); default all 0.
-    huber_px, se_limit : float
-        See ``HUBER_PX`` and ``SE_LIMIT``.
+    huber_px : float
+        The Huber distance before the residuals are measured, and its cap
+        (``HUBER_PX``, ``HUBER_SCATTERS``).
+    se_limit : float
+        See ``SE_LIMIT``.
     known_dz_mm, known_dz_sd_mm : ndarray, shape (F,), optional; float or ndarray
         A frame's known dz (mm; NaN where unknown), such as a stage's axial steps, and
         its SD: a prior on the frame's pose that fixes the scale without a length.
@@ -585,7 +603,8 @@ def adjust_geometry(
     held = {name: "held at the given value" for name in fixed}
     held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
     p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior,
-                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, NOISE_START_PX),
+                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, huber_px),
+                 np.full(TIP + 1, NOISE_START_PX),
                  known_dz, known_sd)  # fmt: skip
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
