@@ -75,6 +75,7 @@ from camwhisker.model import (
 )
 from camwhisker.plate import rigid_motion
 from camwhisker.sensor import Sensor, SensorFileError
+from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_response
 
 __all__ = [
     "HUBER_PX",
@@ -157,6 +158,8 @@ class Adjustment:
     se_data : ndarray, shape (len(GEOMETRY_NAMES),)
         The SEs without the tilt-dependent tracking error: what the sweep's data
         say, which decides what is held and when the rounds are stable.
+    covariance : ndarray, shape (G, G)
+        The covariance behind ``se``; zero in a held parameter's row and column.
     held : dict
         Held parameter name -> why.
     q : ndarray, shape (F, 5)
@@ -181,6 +184,7 @@ class Adjustment:
     value: np.ndarray
     se: np.ndarray
     se_data: np.ndarray
+    covariance: np.ndarray
     held: dict
     q: np.ndarray
     residual_uv: np.ndarray
@@ -198,6 +202,12 @@ class Adjustment:
     @property
     def phi_max_deg(self) -> float:
         return float(np.degrees(np.nanmax(np.hypot(self.q[:, 1], self.q[:, 2]))))
+
+    def phi_se_deg(self, phi_deg: float = CHECK_PHI_DEG) -> float:
+        """SE of phi at ``phi_deg`` read with the fitted file, from the fitted
+        parameters' covariance (held ones count as exact), in the worst direction."""
+        response = phi_response(PlateModel(self.sensor), phi_deg)
+        return float(np.sqrt(np.einsum("tg,gh,th->t", response, self.covariance, response).max()))
 
     def rms_per_point_px(self) -> np.ndarray:
         """RMS residual distance of each tracked point over the used frames, shape (13,)."""
@@ -416,14 +426,16 @@ def _noise(ne: _Normal, p: _Problem, moving: np.ndarray
 
 
 def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """SE of the free parameters (their units) from the undamped reduced system, whose
     residuals are in units of their noise SD: the larger of the model's covariance
     S^-1 and the sandwich S^-1 M S^-1 with the residuals' scores summed over blocks
     of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across),
-    and that plus the variance from the tilt-dependent errors (``SYSTEMATIC_PX``)."""
+    and that plus the variance from the tilt-dependent errors (``SYSTEMATIC_PX``).
+    Third, the covariance behind the second: the sandwich's correlations with those
+    variances, plus the tilt-dependent errors' own."""
     if not len(p.free):
-        return np.zeros(0), np.zeros(0)
+        return np.zeros(0), np.zeros(0), np.zeros((0, 0))
     S, _, vinv = _reduced(ne, 0.0, moving)
     score = ne.bg_frame - np.einsum("fij,fj->fi", ne.W @ vinv, ne.bp)  # each frame's share
     # A block never spans two videos, and each video's rest frames are one block.
@@ -436,10 +448,15 @@ def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
     is_shift = p.free >= len(GEOMETRY_NAMES)
     meat[is_shift, is_shift] += 1.0  # the prior: an observation of unit variance
     s_inv = np.linalg.inv(S)
-    var = np.clip(np.maximum(np.diag(s_inv), np.diag(s_inv @ meat @ s_inv)), 0.0, None)
+    sandwich = s_inv @ meat @ s_inv
+    var = np.clip(np.maximum(np.diag(s_inv), np.diag(sandwich)), 0.0, None)
     response = s_inv @ ne.systematic.reshape(-1, S.shape[0]).T  # (n, 13 * 2 * 3)
     var_sys = SYSTEMATIC_PX**2 * np.sum(response**2, axis=1)
-    return np.sqrt(var) * p.tol[p.free], np.sqrt(var + var_sys) * p.tol[p.free]
+    d = np.sqrt(np.clip(np.diag(sandwich), 1e-300, None))
+    scale = np.sqrt(var) / d
+    cov = sandwich * np.outer(scale, scale) + SYSTEMATIC_PX**2 * response @ response.T
+    tol = p.tol[p.free]
+    return np.sqrt(var) * tol, np.sqrt(var + var_sys) * tol, cov * np.outer(tol, tol)
 
 
 def _correlation_inflation(residual: np.ndarray) -> float:
@@ -461,8 +478,8 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
     used; then hold the free geometry parameter worst determined (SE above
     se_limit tolerances) at nominal and fit again, until none is; ``held``,
     ``p.free`` and ``p.noise_px`` are updated. Returns g, q, the normal
-    equations, the free SEs (with and without the tilt-dependent error), sigma and
-    the iterations."""
+    equations, the free SEs (with and without the tilt-dependent error) and their
+    covariance, sigma and the iterations."""
     n_geo, n_iter, passes = len(nominal), 0, 0
     while True:
         g, q, ne, it = _solve(p, g, q, moving)
@@ -474,13 +491,13 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
             # The weights were off: fit again with the measured SDs and Huber distances.
             p.noise_px, p.huber_px = noise, huber
             continue
-        se_data, se_free = _standard_errors(ne, p, moving)
+        se_data, se_free, cov = _standard_errors(ne, p, moving)
         n_free_geo = int(np.count_nonzero(p.free < n_geo))
         # By what the sweep's data say: holding does not remove the tilt-dependent error,
         # it passes it to the parameters correlated with the held one, and adds its own.
         ratio = se_data[:n_free_geo] / p.tol[p.free[:n_free_geo]]
         if not len(ratio) or ratio.max() <= se_limit:
-            return g, q, ne, (se_free, se_data), sigma, n_iter
+            return g, q, ne, (se_free, se_data, cov), sigma, n_iter
         worst = int(np.argmax(ratio))
         i = int(p.free[worst])
         held[GEOMETRY_NAMES[i]] = (
@@ -564,11 +581,8 @@ def adjust_geometry(
         apart from the detection (NaN: not measured); default: none measured.
     video : ndarray of int, shape (F,), optional
         Each frame's video, 0 ... V - 1 (its rest templates); default all 0.
-    huber_px : float
-        The Huber distance before the residuals are measured, and its cap
-        (``HUBER_PX``, ``HUBER_SCATTERS``).
-    se_limit : float
-        See ``SE_LIMIT``.
+    huber_px, se_limit : float
+        See ``HUBER_PX`` (each point's Huber distance at most) and ``SE_LIMIT``.
     known_dz_mm, known_dz_sd_mm : ndarray, shape (F,), optional; float or ndarray
         A frame's known dz (mm; NaN where unknown), such as a stage's axial steps, and
         its SD: a prior on the frame's pose that fixes the scale without a length.
@@ -602,25 +616,33 @@ def adjust_geometry(
     tol = np.concatenate([tolerances(sensor), shift_sd])
     held = {name: "held at the given value" for name in fixed}
     held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
-    p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior,
-                 np.zeros(0, dtype=int), huber_px, np.full(TIP + 1, huber_px),
-                 np.full(TIP + 1, NOISE_START_PX),
+    p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior, np.zeros(0, dtype=int),
+                 huber_px, np.full(TIP + 1, huber_px), np.full(TIP + 1, NOISE_START_PX),
                  known_dz, known_sd)  # fmt: skip
     g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
-    g, q, ne, se_pair, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
+    g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
     n_iter += it
-    se, se_data = np.full((2, n_geo), np.nan)
-    geo = p.free[p.free < n_geo]  # the free geometry comes first, then the shifts
-    se[geo], se_data[geo] = se_pair[0][: len(geo)], se_pair[1][: len(geo)]
+    se, se_data, covariance = _geometry_errors(p.free, n_geo, *se_free)
     g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
     q5 = np.where(used[:, None], np.pad(q, ((0, 0), (0, 2))), np.nan)
     scaled_by_dz = bool(np.nan_to_num(known_dz)[moving].any())
     return Adjustment(
-        with_geometry(sensor, g), nominal, g, se, se_data, held, q5, ne.residual, used, sigma,
-        n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, scaled_by_dz),
+        with_geometry(sensor, g), nominal, g, se, se_data, covariance, held, q5, ne.residual,
+        used, sigma, n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, scaled_by_dz),
     )  # fmt: skip
+
+
+def _geometry_errors(free: np.ndarray, n_geo: int, se, se_data, cov):
+    """The free parameters' SEs (with and without the tilt-dependent error) and
+    covariance placed in the geometry's order: NaN SEs and zero covariance where held."""
+    geo = free[free < n_geo]  # the free geometry comes first, then the shifts
+    out_se, out_se_data = np.full((2, n_geo), np.nan)
+    out_se[geo], out_se_data[geo] = se[: len(geo)], se_data[: len(geo)]
+    covariance = np.zeros((n_geo, n_geo))
+    covariance[np.ix_(geo, geo)] = cov[: len(geo), : len(geo)]
+    return out_se, out_se_data, covariance
 
 
 def _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames: int):

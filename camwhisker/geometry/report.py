@@ -6,7 +6,9 @@ For ``BUILD.toml``::
     BUILD.report.json   every parameter's nominal and fitted value, SE (and the
                         SE from the data alone, ``se_data``), held or fitted;
                         residual RMS per point and per frame; each video's
-                        corners' offsets at rest; frames used;
+                        corners' offsets at rest; frames used; phi's SE
+                        at 20 deg of tilt read with the fitted file (from the
+                        fitted parameters' covariance; held ones count as exact);
                         warnings; version, inputs, command
     BUILD.report.png    residuals per point and per frame, parameter shifts in SE
 
@@ -93,6 +95,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
             "ok_fraction_per_round": cal.ok_fraction,
         },
         "phi_max_deg": _num(adj.phi_max_deg),
+        "phi_se_deg_at_20_deg": _num(adj.phi_se_deg(20.0)),
         "tip_radius_at_rest_px": _num(cal.tip_radius_px),
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
@@ -126,7 +129,8 @@ def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: s
     ax.set_xscale("symlog", linthresh=3)
     ax.set_xlabel("fitted - nominal (SE)")
     held = ", ".join(n.split(".")[1] for n in adj.held) or "none"
-    ax.set_title(f"parameter shifts; held: {held}", fontsize=9)
+    ax.set_title(f"parameter shifts; held: {held}; phi at 20 deg: SE "
+                 f"{adj.phi_se_deg(20.0):.3f} deg", fontsize=9)
     save_figure(fig, path, how)
 
 

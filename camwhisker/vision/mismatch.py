@@ -32,7 +32,8 @@ from camwhisker.model import (
     build_tolerances,
 )
 
-__all__ = ["MismatchCheck", "check_mismatch", "prior_scales", "PHI_ERROR_WARN_DEG"]
+__all__ = ["MismatchCheck", "check_mismatch", "prior_scales", "phi_response", "phi_error_deg",
+           "PHI_ERROR_WARN_DEG"]
 
 #: Tilt at which the deviation's effect on phi is judged (deg): a working tilt.
 CHECK_PHI_DEG = 20.0
@@ -198,22 +199,28 @@ def _pose_fit_weights() -> np.ndarray:
     return np.repeat(np.where(np.arange(TIP + 1) == TIP, TIP_WEIGHT, 1.0), 2)
 
 
-def phi_error_deg(model: PlateModel, deviation: np.ndarray, phi_deg: float = CHECK_PHI_DEG):
-    """Error of phi at ``phi_deg`` when the model is off by ``deviation`` (of
-    ``GEOMETRY_NAMES``) and the rest offsets absorb its rest image, largest over
-    CHECK_THETA_DEG (deg); linearised."""
-    rest_shift = model.jacobians(np.zeros(5)).geometry @ deviation
+def phi_response(model: PlateModel, phi_deg: float = CHECK_PHI_DEG) -> np.ndarray:
+    """Error of phi at ``phi_deg`` per unit deviation of each of ``GEOMETRY_NAMES``,
+    in each direction of CHECK_THETA_DEG, the rest offsets absorbing the deviation's
+    rest image: shape (len(CHECK_THETA_DEG), G), deg per unit; linearised."""
+    rest_shift = model.jacobians(np.zeros(5)).geometry.reshape(-1, len(GEOMETRY_NAMES))
     sw = np.sqrt(_pose_fit_weights())
-    worst = 0.0
     phi = math.radians(phi_deg)
+    rows = []
     for theta in np.radians(CHECK_THETA_DEG):
         q = np.array([0.0, phi * math.cos(theta), phi * math.sin(theta), 0.0, 0.0])
         jac = model.jacobians(q)
-        residual = (jac.geometry @ deviation - rest_shift).reshape(-1)
-        dq = np.linalg.lstsq(jac.pose.reshape(-1, 5) * sw[:, None], residual * sw, rcond=None)[0]
-        dphi = (q[1] * dq[1] + q[2] * dq[2]) / phi
-        worst = max(worst, abs(math.degrees(dphi)))
-    return worst
+        residual = jac.geometry.reshape(rest_shift.shape) - rest_shift
+        dq = np.linalg.lstsq(jac.pose.reshape(-1, 5) * sw[:, None], residual * sw[:, None],
+                             rcond=None)[0]  # fmt: skip
+        rows.append(np.degrees(q[1] * dq[1] + q[2] * dq[2]) / phi)
+    return np.array(rows)
+
+
+def phi_error_deg(model: PlateModel, deviation: np.ndarray, phi_deg: float = CHECK_PHI_DEG):
+    """Error of phi at ``phi_deg`` when the model is off by ``deviation`` (of
+    ``GEOMETRY_NAMES``), largest over CHECK_THETA_DEG (deg); see :func:`phi_response`."""
+    return float(np.abs(phi_response(model, phi_deg) @ deviation).max())
 
 
 def check_mismatch(rest, model: PlateModel, scatter_px: np.ndarray | None = None) -> MismatchCheck:
