@@ -155,23 +155,25 @@ def test_calibration_table_and_summary_on_made_up_rows():
                           np.array([1.2, 9.0, 3.5]))  # fmt: skip
     assert (share, n) == (0.5, 2)
     good = CalibrationRow(100, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.012),
-                          row("true", 1.0, 0.02, 0.01), 1.0, 20, 41.0)  # fmt: skip
+                          row("true", 1.0, 0.02, 0.01), 1.0, 20, 41.0, phi_se_deg=0.01,
+                          phi_error_deg=0.02)  # fmt: skip
     nan = float("nan")
     failed = CalibrationRow(101, row("nominal", 0.5, 0.3, 0.02), None,
                             row("true", 1.0, 0.02, 0.01), nan, 0, 3.0, "no fit")  # fmt: skip
     text = table([good, failed])
     lines = text.splitlines()
     assert len(lines) == 4 and all(line.count("|") == lines[0].count("|") for line in lines)
-    assert "| 1.50 | 1.20 | 100% of 20 | 41 |" in lines[2]
+    assert "| 1.50 | 1.20 | 100% of 20 | 0.0200 / 0.0100 | 41 |" in lines[2]
     assert "| - | - | - |" in lines[3] and "no fit" in lines[3]
     assert good.meets() == {"phi": True, "dz": True, "ok": True, "se": True}
     assert not any(failed.meets().values())
     half = CalibrationRow(102, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.012),
                           row("true", 1.0, 0.02, 0.01), 0.5, 4, 40.0, "",
-                          ("camera.k1", "plate.h_r_mm"))  # fmt: skip
-    first, pooled = summary([good, failed, half]).splitlines()
+                          ("camera.k1", "plate.h_r_mm"), 0.01, 0.05)  # fmt: skip
+    first, pooled, phi = summary([good, failed, half]).splitlines()
     assert first.endswith("all four 1/3")
     assert "builds pooled: 22/24" in pooled and "camera.k1 1, plate.h_r_mm 1" in pooled
+    assert phi.endswith("within 3 reported SE: 1/2")  # 0.02 within 0.03, 0.05 not
     value, se = np.zeros(len(GEOMETRY_NAMES)), np.full(len(GEOMETRY_NAMES), 0.1)
     truth, se[2] = value + 0.25, np.nan  # 2.5 SE off, one held
     truth[[1, 2]] = 0.35  # 3.5 SE off, and held

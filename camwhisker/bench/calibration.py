@@ -5,8 +5,9 @@ of the nominal scene (another render seed), fit the build's sensor file to
 the sweep from the nominal file and the true square side, then run the front
 end on the clip with the nominal, the fitted and the true file. Prints one
 Markdown row per build (rows ok, phi and dz RMSE per file, fitted/true
-ratios, the share of fitted parameters within 3 SE of the truth, the
-calibration's seconds) and a summary against the acceptance limits.
+ratios, the share of fitted parameters within 3 SE of the truth, the fitted
+geometry's phi error at 20 deg against the report's SE, the calibration's
+seconds) and a summary against the acceptance limits.
 
     python -m camwhisker.bench.calibration [--seeds 100-104] [--sweep-s 12] [--clip-frames 120]
 """
@@ -25,11 +26,12 @@ import numpy as np
 
 from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip, seed_list
 from camwhisker.geometry.sweep import calibrate_sensor
-from camwhisker.model import GEOMETRY_NAMES, geometry_vector
+from camwhisker.model import GEOMETRY_NAMES, PlateModel, geometry_vector
 from camwhisker.sensor import Sensor
 from camwhisker.sources import VideoSource
 from camwhisker.synth.builds import REALITY_SUITE, draw_build
 from camwhisker.vision.detect import FeaturesNotFound
+from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_error_deg
 
 __all__ = ["CalibrationRow", "run_build", "table", "summary", "main"]
 
@@ -55,6 +57,10 @@ class CalibrationRow:
     calibration_s: float
     note: str = ""
     outside: tuple[str, ...] = ()  # fitted parameters more than 3 SE off the truth
+    #: phi's SE at CHECK_PHI_DEG as the report gives it, and the fitted geometry's phi
+    #: error there (linearised, worst of CHECK_THETA_DEG) (deg).
+    phi_se_deg: float = math.nan
+    phi_error_deg: float = math.nan
 
     def ratio(self, attr: str) -> float:
         """Fitted over true of ``attr`` (a :class:`RealityRow` field); NaN without a fit."""
@@ -112,9 +118,11 @@ def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
     truth = geometry_vector(build.sensor)
     share, n_fitted = within_3se(adj.value, adj.se, truth)
     fitted = clip_row(seed, "fitted", frames, scenario, cal.sensor)
+    phi_error = phi_error_deg(PlateModel(cal.sensor), adj.value - truth)
     return CalibrationRow(seed, rows["nominal"], fitted, rows["true"], share, n_fitted, seconds,
                           "; ".join(r.note for r in (fitted, rows["true"]) if r.note),
-                          outside_3se(adj.value, adj.se, truth))  # fmt: skip
+                          outside_3se(adj.value, adj.se, truth), adj.phi_se_deg(),
+                          phi_error)  # fmt: skip
 
 
 def _cells(r: RealityRow | None) -> list[str]:
@@ -128,12 +136,14 @@ def table(rows: list[CalibrationRow]) -> str:
     head = ["build"]
     for label in ("nominal", "fitted", "true"):
         head += [f"ok {label}", f"phi RMSE {label} (deg)", f"dz RMSE {label} (mm)"]
-    head += ["phi fitted/true", "dz fitted/true", "within 3 SE", "calibration (s)", "note"]
+    head += ["phi fitted/true", "dz fitted/true", "within 3 SE", "phi error / SE at 20 deg",
+             "calibration (s)", "note"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [str(r.seed), *_cells(r.nominal), *_cells(r.fitted), *_cells(r.true),
                  f"{r.ratio('phi_rmse_deg'):.2f}", f"{r.ratio('dz_rmse_mm'):.2f}",
-                 f"{100 * r.within_3se:.0f}% of {r.n_fitted}", f"{r.calibration_s:.0f}",
+                 f"{100 * r.within_3se:.0f}% of {r.n_fitted}",
+                 f"{r.phi_error_deg:.4f} / {r.phi_se_deg:.4f}", f"{r.calibration_s:.0f}",
                  r.note]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -150,12 +160,15 @@ def summary(rows: list[CalibrationRow]) -> str:
     n_in = sum(round(r.within_3se * r.n_fitted) for r in fits)
     off = Counter(name for r in fits for name in r.outside)
     worst = ", ".join(f"{name} {k}" for name, k in off.most_common()) or "none"
+    covered = sum(r.phi_error_deg <= 3 * r.phi_se_deg for r in fits)
     return (f"{n} builds: detected {detected}/{n}; phi within {MAX_RATIO}x {count['phi']}/{n}, "
             f"dz within {MAX_RATIO}x {count['dz']}/{n}, >= {100 * MIN_OK:.0f} % ok "
             f"{count['ok']}/{n}, >= {100 * MIN_WITHIN_3SE:.0f} % within 3 SE {count['se']}/{n}; "
             f"all four {sum(all(m.values()) for m in meets)}/{n}\n"
             f"fitted parameters within 3 SE, builds pooled: {n_in}/{n_par}; "
-            f"builds where each is outside: {worst}")  # fmt: skip
+            f"builds where each is outside: {worst}\n"
+            f"phi error at {CHECK_PHI_DEG:g} deg within 3 reported SE: "
+            f"{covered}/{len(fits)}")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
