@@ -95,7 +95,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
             "ok_fraction_per_round": cal.ok_fraction,
         },
         "phi_max_deg": _num(adj.phi_max_deg),
-        "phi_se_deg_at_20_deg": _num(adj.phi_se_deg(20.0)),
+        "phi_se_deg_at_20_deg": _num(adj.phi_se_deg()),
         "tip_radius_at_rest_px": _num(cal.tip_radius_px),
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
@@ -130,7 +130,7 @@ def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: s
     ax.set_xlabel("fitted - nominal (SE)")
     held = ", ".join(n.split(".")[1] for n in adj.held) or "none"
     ax.set_title(f"parameter shifts; held: {held}; phi at 20 deg: SE "
-                 f"{adj.phi_se_deg(20.0):.3f} deg", fontsize=9)
+                 f"{adj.phi_se_deg():.3f} deg", fontsize=9)
     save_figure(fig, path, how)
 
 
