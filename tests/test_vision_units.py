@@ -11,6 +11,7 @@ Tolerances (and why):
 | LK, noise-free shift | 0.02 px | bilinear interpolation of a blurred edge |
 | LK, zero motion | 1e-6 px | template == image: the first step is exactly 0 |
 | tip centre, noise-free | 0.05 px | 48 edge points on an antialiased disc |
+| tip centre, rim 0.5 px small | 0.1 px | whole edge: the shift absorbs none of it (0.016 px) |
 """
 
 from __future__ import annotations
@@ -42,11 +43,14 @@ from camwhisker.vision.tip import (
     BODY_ANGLES,
     BODY_BLUR_PX,
     BODY_PROTRUSION_PX,
+    N_RAYS,
     _beside_body,
     brightness,
     ellipse_centre,
     face_near,
     find_tip,
+    rim_centre,
+    tip_edge_points,
 )
 
 # ------------------------------------------------------------------ paper eqs
@@ -531,6 +535,36 @@ def test_tip_centre_beside_a_thin_blue_band():
     got = find_tip(_disc_beside_blue_band(), np.ones(3), np.array([120.0, 100.0]), 30.0, 20.0)
     assert got.ok
     np.testing.assert_allclose(got.centre_uv, DISC_CENTRE, atol=0.05)
+
+
+def _disc_on_cloth_and_dark_red():
+    """The face on the cloth, dark red (the cross) beyond its left third, blurred 1.4 px:
+    luma rises ~0.23 as steeply into the red as into the cloth."""
+    h, w = 200, 260
+    u, v = _fine_grid(h, w)
+    cu, cv_ = DISC_CENTRE
+    colour = np.zeros((*u.shape, 3), np.float32)
+    colour[:] = (215, 220, 225)  # cloth
+    colour[u < cu - DISC_RADIUS / 2] = (30, 35, 150)  # dark red
+    colour[(u - cu) ** 2 + (v - cv_) ** 2 <= DISC_RADIUS**2] = (24, 24, 26)  # face
+    img = cv2.GaussianBlur(cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA), (0, 0), 1.4)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def test_tip_centre_keeps_the_rays_into_a_dark_colour():
+    """The model's rim 0.5 px smaller than the face: fitted to the whole edge, the
+    shift absorbs none of it and the centre stays within 0.1 px; fitted to the cloth
+    side alone (the red side's rays dropped as too weak, at MIN_RISE_FRACTION 0.3) it
+    moved 0.48 px toward the cloth."""
+    pts, _, why = tip_edge_points(_disc_on_cloth_and_dark_red(), np.ones(3),
+                                  np.array([120.0, 100.0]), 30.0, 20.0)  # fmt: skip
+    assert not why
+    assert (pts[:, 0] < DISC_CENTRE[0] - 10).sum() >= N_RAYS // 3  # the red side's rays
+    ang = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    rim = np.array(DISC_CENTRE) + (DISC_RADIUS - 0.5) * np.column_stack([np.cos(ang), np.sin(ang)])
+    got = rim_centre(pts, rim)
+    assert got.ok
+    np.testing.assert_allclose(got.centre_uv, DISC_CENTRE, atol=0.1)
 
 
 @pytest.mark.parametrize("angle_deg", [0, 45, 150, 270])

@@ -70,7 +70,9 @@ EDGE_SMOOTH_PX = 1.0
 #: Component area accepted relative to the expected face area.
 AREA_RANGE = (0.35, 2.5)
 #: A ray's edge is kept when its rise is at least this fraction of the median rise.
-MIN_RISE_FRACTION = 0.3
+#: Against the red cross or the rod's shaded flank luma rises 0.2-0.4 as steeply as
+#: against the cloth, and where those rays go, the centre rests on the rest of the rim.
+MIN_RISE_FRACTION = 0.15
 #: A ray is left out where the steepest rises of luma and of V lie farther apart than
 #: this (px): V rises at the face's own edge, while luma can jump to a stronger edge
 #: just beyond a dark colour (blue to cloth, where the face crosses the blue square).
@@ -325,10 +327,9 @@ def ellipse_centre(pts: np.ndarray) -> TipMeasurement:
 def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | None = None):
     """Face centroid from edge points (N, 2) and the model's rim polygon (M, 2).
 
-    The model rim is shifted (and its edge offset uniformly) to fit the edge
-    points; the result is the shifted rim's area centroid. This needs only part
-    of the edge, so rays where the face borders the rod's own body (outline
-    ``body_hull_uv``, shape (L, 2)) are left out.
+    The model rim is shifted to fit the edge points; the result is the shifted
+    rim's area centroid. This needs only part of the edge, so rays where the face
+    borders the rod's own body (outline ``body_hull_uv``, shape (L, 2)) are left out.
     """
     pts = np.asarray(pts, float)
     rim = np.asarray(rim_uv, float)
