@@ -371,7 +371,7 @@ def calibrated(tmp_path_factory, build):
     clip = render_scenario(make_scenario("nominal", CLIP_FRAMES, 2), build, d / "clip.avi", 2)
     out = d / "build.toml"
     rc = main(["calibrate-sensor", str(sweep["video"]), "--square-side-mm",
-               str(build.plate.square_side_mm), "--out", str(out), "--rounds", "2",
+               str(build.plate.square_side_mm), "--out", str(out), "--rounds", "3",
                "--quiet"])  # fmt: skip
     assert rc == 0
     return out, clip
@@ -400,7 +400,8 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
     assert out.with_name("build.report.png").stat().st_size > 0
     params = {p["name"]: p for p in report["parameters"]}
     assert list(params) == list(GEOMETRY_NAMES)
-    assert "measured from the tip's radius" in params["plate.rod_diameter_mm"]["why_held"]
+    assert "measured from the tip's edge in" in params["plate.rod_diameter_mm"]["why_held"]
+    assert report["tip_tilted_frames"] >= 20
     assert len(report["residual_rms_px"]["per_frame"]) == SWEEP_FRAMES
     assert report["frames"]["rest"] >= 8 and report["frames"]["used"] == SWEEP_FRAMES
     fitted = load_sensor(out)
@@ -415,8 +416,10 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
     assert offsets.shape == (1, 12, 2) and np.isfinite(offsets).mean() > 0.8
     assert np.nanmax(np.abs(offsets)) < 5.0
     assert not params["camera.fx_px"]["held"] and not params["plate.z_i_mm"]["held"]
+    # From the tip's edge in tilted frames: within 0.3 % (tuning builds -0.17 to -0.10 %;
+    # from the rest frame alone -1.7 to +0.9 %).
     assert params["plate.rod_diameter_mm"]["fitted"] == pytest.approx(
-        build.plate.rod_diameter_mm, abs=0.01
+        build.plate.rod_diameter_mm, rel=0.003
     )
     # phi's SE at 20 deg covers the fitted file's phi error there (linearised), and says
     # far more than an uncalibrated build's ~0.8 deg.

@@ -12,6 +12,7 @@ Tolerances (and why):
 | LK, zero motion | 1e-6 px | template == image: the first step is exactly 0 |
 | tip centre, noise-free | 0.05 px | 48 edge points on an antialiased disc |
 | tip centre, rim 0.5 px small | 0.1 px | whole edge: the shift absorbs none of it (0.016 px) |
+| rim scale, exact edge points | 1e-4 | a 720-gon's chords |
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from camwhisker.vision.tip import (
     face_near,
     find_tip,
     rim_centre,
+    rim_scale,
     tip_edge_points,
 )
 
@@ -565,6 +567,22 @@ def test_tip_centre_keeps_the_rays_into_a_dark_colour():
     got = rim_centre(pts, rim)
     assert got.ok
     np.testing.assert_allclose(got.centre_uv, DISC_CENTRE, atol=0.1)
+
+
+def test_rim_scale_of_a_partial_edge_ignores_the_shift():
+    """Edge points 1 % outside the model's rim, its centre 0.8 px off, on the half of
+    the rim away from the rod's body (the body's side left out): the scale comes back
+    to 1e-4 (the 720-gon's chords), the shift does not leak into it."""
+    ang = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    unit = np.column_stack([np.cos(ang), np.sin(ang)])
+    c = np.array([200.0, 150.0])
+    rim = c + 30.0 * unit
+    body = np.concatenate([rim, rim + (-25.0, 0.0)])  # the body shows on the -u side
+    rays = np.radians(np.arange(-100.0, 101.0, 7.5))
+    pts = c + (0.8, -0.3) + 30.3 * np.column_stack([np.cos(rays), np.sin(rays)])
+    assert rim_scale(pts, rim, body) == pytest.approx(0.01, abs=1e-4)
+    # With the body on the edge's side, too few rays remain.
+    assert math.isnan(rim_scale(pts, rim, np.concatenate([rim, rim + (25.0, 0.0)])))
 
 
 @pytest.mark.parametrize("angle_deg", [0, 45, 150, 270])

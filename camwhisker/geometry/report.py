@@ -50,6 +50,9 @@ def _num(v) -> float | None:
 
 
 def _why_held(cal: Calibration, name: str) -> str:
+    if name == "plate.rod_diameter_mm" and cal.rim_frames:
+        return (f"measured from the tip's edge in {cal.rim_frames} tilted frames (the rim "
+                f"scaled by {1 + cal.rim_scale:.4f} from the round before)")
     if name == "plate.rod_diameter_mm" and math.isfinite(cal.tip_radius_px):
         return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
     return cal.adjustment.held.get(name, "")
@@ -97,6 +100,8 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
         "phi_max_deg": _num(adj.phi_max_deg),
         "phi_se_deg_at_20_deg": _num(adj.phi_se_deg()),
         "tip_radius_at_rest_px": _num(cal.tip_radius_px),
+        "tip_rim_scale_in_tilted_frames": _num(cal.rim_scale),
+        "tip_tilted_frames": cal.rim_frames,
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
     }

@@ -13,9 +13,10 @@ side, measured with calipers, fixes the scale. Each video's tracked corners
 are its rest reference's detected corners carried along; where they lie off
 the true corners is measured at rest by the crossings of the corners' edges
 (:func:`rest_corner_offsets`), and the adjustment fits that offset as the
-corner's shift in the plate. The rod's diameter is measured
-from the tip's radius at rest (the adjustment cannot see it, the front end's
-tip measurement can). Intrinsics from chessboard
+corner's shift in the plate. The rod's diameter (which the adjustment cannot
+see, and the front end's tip measurement needs) is measured from the tip's
+radius at rest in the first round, then from its edge in the last round's
+tilted frames (:func:`tilted_rim_scale`). Intrinsics from chessboard
 images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
 """
 
@@ -47,7 +48,7 @@ from camwhisker.stream import track
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import edge_corners
 from camwhisker.vision.rest import mean_image
-from camwhisker.vision.tip import rim_centre, tip_edge_points
+from camwhisker.vision.tip import rim_centre, rim_scale, tip_edge_points
 from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd, FrontEndOptions
 
 __all__ = [
@@ -60,6 +61,7 @@ __all__ = [
     "rest_frames",
     "rest_corner_offsets",
     "rest_tip_radius_px",
+    "tilted_rim_scale",
     "rod_diameter_mm",
     "calibrate_sensor",
     "intrinsics_from_chessboard",
@@ -76,6 +78,19 @@ MAX_ROUNDS = 6
 #: the phi scale comes from the corners' foreshortening, which blur's rounding of the
 #: apex biases at the 0.02 px level under tilt; the edges' half levels it does not move.
 SWEEP_APEX_MASK_PX = 4.0
+#: The tip's size is measured in frames tilted at least this far (deg): the face then
+#: lies on the cloth, as in use; at rest it lies on the cross and its light centre,
+#: whose dark red the edge search can leave out (tuning builds: rod diameter off by
+#: -1.7 to +0.9 % from the rest frame, -0.17 to -0.10 % from tilted frames).
+TILTED_TIP_MIN_DEG = 10.0
+#: ... in this many of them at most, spread over the sweep (the scale's SD per frame
+#: is ~0.002, so the median's is ~0.0003), and in this many at least (fewer: a round
+#: tracked with a file far off, whose poses misplace the rim; the rest frame then).
+TILTED_TIP_FRAMES = 40
+MIN_TILTED_TIP_FRAMES = 20
+#: Rounds go on while the tilted frames find the rim off by more than this (relative):
+#: 0.1 % of the rod's diameter moves phi by ~0.005 deg.
+RIM_SCALE_TOL = 0.001
 #: The fit is stable when no parameter moved by more than this many SE in a round.
 STABLE_SE = 0.5
 SQUARE_SIDE = "plate.square_side_mm"
@@ -117,8 +132,12 @@ class Calibration:
     adjustment: Adjustment
     tracked: TrackedSweep
     ok_fraction: list = field(default_factory=list)
-    #: The tip's radius at rest (px), mean over the videos: it gives the rod's diameter.
+    #: The tip's radius at rest (px), mean over the videos: the first round's rod diameter.
     tip_radius_px: float = float("nan")
+    #: The tip's edge over the model's rim in the tilted frames of the round before the
+    #: last (:func:`tilted_rim_scale`), and those frames' count: the rod diameter since.
+    rim_scale: float = float("nan")
+    rim_frames: int = 0
 
     @property
     def sensor(self) -> Sensor:
@@ -193,6 +212,37 @@ def _rim_radius_px(sensor: Sensor) -> float:
     """The model's end-face rim at rest: its mean radius about its centroid (px)."""
     rim = PlateModel(sensor).outlines(np.zeros(5))[0]
     return float(np.mean(np.linalg.norm(rim - polygon_centroid(rim), axis=1)))
+
+
+def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: TrackedSweep,
+                     options: FrontEndOptions | None = None) -> tuple[float, int]:  # fmt: skip
+    """How much larger the tip's edge is than ``sensor``'s rim in the sweep's frames
+    tilted beyond TILTED_TIP_MIN_DEG (median of :func:`~camwhisker.vision.tip.rim_scale`
+    over at most TILTED_TIP_FRAMES of them, at the tracked poses), and how many
+    frames gave one; (NaN, 0) where none. ``tracked`` was tracked with ``sensor``."""
+    phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
+    tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
+    keep = np.unique(np.linspace(0, len(tilted) - 1, TILTED_TIP_FRAMES).round().astype(int))
+    pick = set(tilted[keep].tolist()) if len(tilted) else set()
+    model, scales = PlateModel(sensor), []
+    for k, video in enumerate(videos):
+        first = int(np.flatnonzero(tracked.video == k)[0])
+        fe = None
+        for i, frame in enumerate(open_source(video)):
+            if fe is None:
+                fe = FrontEnd(sensor, options)
+                fe.start(frame.image)
+            guess = tracked.points_uv[first + i, TIP]
+            if first + i not in pick or not np.isfinite(guess).all():
+                continue
+            rim, rod, _ = model.outlines(tracked.q[first + i])
+            off = fe.rest.offsets[TIP]
+            edges, _, _ = tip_edge_points(frame.image, fe.gains(frame.image), guess,
+                                          _rim_radius_px(sensor), TIP_SEARCH_PX)  # fmt: skip
+            if edges is not None:
+                scales.append(rim_scale(edges, rim + off, rod + off))
+    scales = np.array(scales)[np.isfinite(scales)] if scales else np.zeros(0)
+    return (float(np.median(scales)), len(scales)) if len(scales) else (float("nan"), 0)
 
 
 def rod_diameter_mm(sensor: Sensor, tip_radius_px: float) -> float:
@@ -329,12 +379,20 @@ def calibrate_sensor(
     videos = [*videos, *(v for v, _ in dz_steps)]
     options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX)
     current, previous, ok_fraction = start, None, []
+    scale, n_scaled = float("nan"), 0
     for k in range(rounds):
-        # Again each round: the rim is placed, and the rod's flank told apart, by the fit.
-        radius_px = float(np.mean([rest_tip_radius_px(v, current, options) for v in videos]))
-        fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
+        if n_scaled >= MIN_TILTED_TIP_FRAMES:  # the tip's edge in the last round's tilted frames
+            fixed[ROD_DIAMETER] *= 1.0 + scale
+            used = (scale, n_scaled)
+        else:  # at rest, the rim placed and the rod's flank told apart by the fit so far
+            radius_px = float(np.mean([rest_tip_radius_px(v, current, options) for v in videos]))
+            fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
+            used = (float("nan"), 0)
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
         tracked = track_sweep(videos, current, on_frame, options)
+        # Not in the first round: the start file's poses misplace the rim.
+        scale, n_scaled = (tilted_rim_scale(videos, current, tracked, options) if k
+                           else (float("nan"), 0))  # fmt: skip
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
@@ -349,10 +407,11 @@ def calibrate_sensor(
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
-        if previous is not None and _stable(previous, adj):
+        rim_off = n_scaled >= MIN_TILTED_TIP_FRAMES and abs(scale) > RIM_SCALE_TOL
+        if previous is not None and _stable(previous, adj) and not rim_off:
             break
         previous = adj
-    return Calibration(adj, tracked, ok_fraction, radius_px)
+    return Calibration(adj, tracked, ok_fraction, radius_px, *used)
 
 
 def _start(sensor: Sensor, square_side_mm: float | None, intrinsics: dict | None,

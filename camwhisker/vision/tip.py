@@ -36,6 +36,7 @@ __all__ = [
     "tip_edge_points",
     "ellipse_centre",
     "rim_centre",
+    "rim_scale",
     "brightness",
     "face_near",
 ]
@@ -341,6 +342,37 @@ def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | N
     if centre is None:
         return _not_found("tip edge does not fit the model's rim")
     return TipMeasurement(centre, r_mean, True)
+
+
+def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray) -> float:
+    """How much larger the face's edge is than the model's rim: the relative scale s
+    in the least-squares fit of the rim, shifted and scaled by 1 + s, to the edge
+    points (N, 2) clear of the rod's body (see :func:`rim_centre`); NaN where too few.
+    """
+    pts = np.asarray(pts, float)
+    rim = np.asarray(rim_uv, float)
+    pts = pts[~_beside_body(pts, rim, body_hull_uv)]
+    if len(pts) < MIN_RIM_RAYS:
+        return math.nan
+    c0 = polygon_centroid(rim)
+    ar, rr = _polar(rim, c0)
+    t, s = np.zeros(2), 0.0
+    use = np.ones(len(pts), bool)
+    for _ in range(RIM_FIT_ITER):
+        d = pts - c0 - t
+        rho = np.hypot(d[:, 0], d[:, 1])
+        r_model = np.interp(np.arctan2(d[:, 1], d[:, 0]), ar, rr) * (1.0 + s)
+        a = np.column_stack([d / rho[:, None], r_model])
+        res = rho - r_model
+        step = np.linalg.lstsq(a[use], res[use], rcond=None)[0]
+        use = np.abs(res - a @ step) <= OUTLIER_PX
+        if use.sum() < MIN_RIM_RAYS:
+            return math.nan
+        t += step[:2]
+        s = (1.0 + s) * (1.0 + step[2]) - 1.0
+        if np.abs(step[:2]).max() < RIM_FIT_TOL_PX:
+            break
+    return float(s)
 
 
 def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> np.ndarray:
