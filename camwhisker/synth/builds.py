@@ -66,9 +66,11 @@ class RealitySuite:
     scenes: tuple[str, ...]
 
 
+# 0-4 from the start, 5-29 seen since; 110's tip edge led to a change of the tip's search.
+_TUNING = (*range(30), 110)
 REALITY_SUITE = RealitySuite(
-    tuning_seeds=tuple(range(5)),
-    held_out_seeds=tuple(range(100, 200)),
+    tuning_seeds=_TUNING,
+    held_out_seeds=tuple(s for s in range(100, 200) if s not in _TUNING),
     scenes=("nominal", "large_tilt"),
 )
 
