@@ -80,8 +80,7 @@ MAX_ROUNDS = 6
 SWEEP_APEX_MASK_PX = 4.0
 #: The tip's size is measured in frames tilted at least this far (deg): the face then
 #: lies on the cloth, as in use; at rest it lies on the cross and its light centre,
-#: whose dark red the edge search can leave out (tuning builds: rod diameter off by
-#: -1.7 to +0.9 % from the rest frame, -0.17 to -0.10 % from tilted frames).
+#: whose dark red the edge search can leave out.
 TILTED_TIP_MIN_DEG = 10.0
 #: ... in this many of them at most, spread over the sweep (the scale's SD per frame
 #: is ~0.002, so the median's is ~0.0003), and in this many at least (fewer: a round
@@ -222,13 +221,20 @@ def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: Trac
     frames gave one; (NaN, 0) where none. ``tracked`` was tracked with ``sensor``."""
     phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
     tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
+    if not len(tilted):
+        return float("nan"), 0
     keep = np.unique(np.linspace(0, len(tilted) - 1, TILTED_TIP_FRAMES).round().astype(int))
-    pick = set(tilted[keep].tolist()) if len(tilted) else set()
+    pick = set(tilted[keep].tolist())
     model, scales = PlateModel(sensor), []
     for k, video in enumerate(videos):
         first = int(np.flatnonzero(tracked.video == k)[0])
+        mine = [f - first for f in pick if tracked.video[f] == k]
+        if not mine:
+            continue
         fe = None
         for i, frame in enumerate(open_source(video)):
+            if i > max(mine):
+                break
             if fe is None:
                 fe = FrontEnd(sensor, options)
                 fe.start(frame.image)
