@@ -50,11 +50,12 @@ def _num(v) -> float | None:
 
 
 def _why_held(cal: Calibration, name: str) -> str:
-    if name == "plate.rod_diameter_mm" and cal.rim_frames:
-        return (f"measured from the tip's edge in {cal.rim_frames} tilted frames (the rim "
-                f"scaled by {1 + cal.rim_scale:.4f} from the round before)")
-    if name == "plate.rod_diameter_mm" and math.isfinite(cal.tip_radius_px):
-        return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
+    if name == "plate.rod_diameter_mm":
+        if cal.rim_frames:
+            return (f"measured from the tip's edge in {cal.rim_frames} tilted frames (the rim "
+                    f"scaled by {1 + cal.rim_scale:.4f} from the round before)")
+        if math.isfinite(cal.tip_radius_px):
+            return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
     return cal.adjustment.held.get(name, "")
 
 

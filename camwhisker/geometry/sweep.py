@@ -225,7 +225,7 @@ def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: Trac
         return float("nan"), 0
     keep = np.unique(np.linspace(0, len(tilted) - 1, TILTED_TIP_FRAMES).round().astype(int))
     pick = set(tilted[keep].tolist())
-    model, scales = PlateModel(sensor), []
+    model, radius_px, scales = PlateModel(sensor), _rim_radius_px(sensor), []
     for k, video in enumerate(videos):
         first = int(np.flatnonzero(tracked.video == k)[0])
         mine = [f - first for f in pick if tracked.video[f] == k]
@@ -243,8 +243,8 @@ def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: Trac
                 continue
             rim, rod, _ = model.outlines(tracked.q[first + i])
             off = fe.rest.offsets[TIP]
-            edges, _, _ = tip_edge_points(frame.image, fe.gains(frame.image), guess,
-                                          _rim_radius_px(sensor), TIP_SEARCH_PX)  # fmt: skip
+            edges, _, _ = tip_edge_points(frame.image, fe.gains(frame.image), guess, radius_px,
+                                          TIP_SEARCH_PX)  # fmt: skip
             if edges is not None:
                 scales.append(rim_scale(edges, rim + off, rod + off))
     scales = np.array(scales)[np.isfinite(scales)] if scales else np.zeros(0)
