@@ -9,6 +9,8 @@ tolerance (else the fit would tell nothing).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -402,6 +404,9 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
     assert list(params) == list(GEOMETRY_NAMES)
     assert "measured from the tip's edge in" in params["plate.rod_diameter_mm"]["why_held"]
     assert report["tip_tilted_frames"] >= 20
+    # The sweep's webcam blurs 1.4 px, and its pixels add a 1/12 px^2 box: within 0.1 px
+    # (the measurement is within 0.05 px on a plain disc; here JPEG and springs too).
+    assert report["tip_edge_blur_px"] == pytest.approx(math.hypot(1.4, 12**-0.5), abs=0.1)
     assert len(report["residual_rms_px"]["per_frame"]) == SWEEP_FRAMES
     assert report["frames"]["rest"] >= 8 and report["frames"]["used"] == SWEEP_FRAMES
     fitted = load_sensor(out)

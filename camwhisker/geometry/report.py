@@ -53,7 +53,8 @@ def _why_held(cal: Calibration, name: str) -> str:
     if name == "plate.rod_diameter_mm":
         if cal.rim_frames:
             return (f"measured from the tip's edge in {cal.rim_frames} tilted frames (the rim "
-                    f"scaled by {1 + cal.rim_scale:.4f} from the round before)")
+                    f"scaled by {1 + cal.rim_scale:.4f} from the round before, the edge's "
+                    f"blur of {cal.rim_blur_px:.2f} px taken out)")
         if math.isfinite(cal.tip_radius_px):
             return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
     return cal.adjustment.held.get(name, "")
@@ -103,6 +104,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
         "tip_radius_at_rest_px": _num(cal.tip_radius_px),
         "tip_rim_scale_in_tilted_frames": _num(cal.rim_scale),
         "tip_tilted_frames": cal.rim_frames,
+        "tip_edge_blur_px": _num(cal.rim_blur_px),
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
     }

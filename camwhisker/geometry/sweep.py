@@ -48,7 +48,13 @@ from camwhisker.stream import track
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import edge_corners
 from camwhisker.vision.rest import mean_image
-from camwhisker.vision.tip import rim_centre, rim_scale, tip_edge_points
+from camwhisker.vision.tip import (
+    brightness,
+    edge_blur_px,
+    rim_centre,
+    rim_scale,
+    tip_edge_points,
+)
 from camwhisker.vision.tracker import TIP_SEARCH_PX, FrontEnd, FrontEndOptions
 
 __all__ = [
@@ -87,6 +93,9 @@ TILTED_TIP_MIN_DEG = 10.0
 #: tracked with a file far off, whose poses misplace the rim; the rest frame then).
 TILTED_TIP_FRAMES = 40
 MIN_TILTED_TIP_FRAMES = 20
+#: The blur across the tip's edge is measured in the first this many of them: one
+#: lens, and each frame's median over its rays is within ~0.05 px.
+BLUR_FRAMES = 8
 #: Rounds go on while the tilted frames find the rim off by more than this (relative):
 #: 0.1 % of the rod's diameter moves phi by ~0.005 deg.
 RIM_SCALE_TOL = 0.001
@@ -137,6 +146,8 @@ class Calibration:
     #: last (:func:`tilted_rim_scale`), and those frames' count: the rod diameter since.
     rim_scale: float = float("nan")
     rim_frames: int = 0
+    #: The blur across the tip's edge in those frames (Gaussian sigma, px).
+    rim_blur_px: float = float("nan")
 
     @property
     def sensor(self) -> Sensor:
@@ -213,19 +224,25 @@ def _rim_radius_px(sensor: Sensor) -> float:
     return float(np.mean(np.linalg.norm(rim - polygon_centroid(rim), axis=1)))
 
 
-def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: TrackedSweep,
-                     options: FrontEndOptions | None = None) -> tuple[float, int]:  # fmt: skip
-    """How much larger the tip's edge is than ``sensor``'s rim in the sweep's frames
+def tilted_rim_scale(
+    videos: Sequence[str | Path],
+    sensor: Sensor,
+    tracked: TrackedSweep,
+    options: FrontEndOptions | None = None,
+) -> tuple[float, int, float]:
+    """How much larger the end face is than ``sensor``'s rim in the sweep's frames
     tilted beyond TILTED_TIP_MIN_DEG (median of :func:`~camwhisker.vision.tip.rim_scale`
-    over at most TILTED_TIP_FRAMES of them, at the tracked poses), and how many
-    frames gave one; (NaN, 0) where none. ``tracked`` was tracked with ``sensor``."""
+    over at most TILTED_TIP_FRAMES of them, at the tracked poses, the blur's inward
+    shift of the edge taken out), how many frames gave one, and the blur (Gaussian
+    sigma, px; :func:`~camwhisker.vision.tip.edge_blur_px`, median over BLUR_FRAMES
+    of them); (NaN, 0, NaN) where none. ``tracked`` was tracked with ``sensor``."""
     phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
     tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
     if not len(tilted):
-        return float("nan"), 0
+        return float("nan"), 0, float("nan")
     keep = np.unique(np.linspace(0, len(tilted) - 1, TILTED_TIP_FRAMES).round().astype(int))
     pick = set(tilted[keep].tolist())
-    model, radius_px, scales = PlateModel(sensor), _rim_radius_px(sensor), []
+    model, radius_px, faces, blurs = PlateModel(sensor), _rim_radius_px(sensor), [], []
     for k, video in enumerate(videos):
         first = int(np.flatnonzero(tracked.video == k)[0])
         mine = [f - first for f in pick if tracked.video[f] == k]
@@ -242,13 +259,19 @@ def tilted_rim_scale(videos: Sequence[str | Path], sensor: Sensor, tracked: Trac
             if first + i not in pick or not np.isfinite(guess).all():
                 continue
             rim, rod, _ = model.outlines(tracked.q[first + i])
-            off = fe.rest.offsets[TIP]
-            edges, _, _ = tip_edge_points(frame.image, fe.gains(frame.image), guess, radius_px,
-                                          TIP_SEARCH_PX)  # fmt: skip
-            if edges is not None:
-                scales.append(rim_scale(edges, rim + off, rod + off))
-    scales = np.array(scales)[np.isfinite(scales)] if scales else np.zeros(0)
-    return (float(np.median(scales)), len(scales)) if len(scales) else (float("nan"), 0)
+            off, gains = fe.rest.offsets[TIP], fe.gains(frame.image)
+            edges, _, _ = tip_edge_points(frame.image, gains, guess, radius_px, TIP_SEARCH_PX)
+            if edges is None:
+                continue
+            faces.append((edges, rim + off, rod + off))
+            if len(blurs) < BLUR_FRAMES:
+                blurs.append(edge_blur_px(brightness(frame.image, gains)[1], *faces[-1]))
+    blur = float(np.nanmedian(blurs)) if np.isfinite(blurs).any() else 0.0
+    scales = np.array([rim_scale(*face, blur) for face in faces])
+    scales = scales[np.isfinite(scales)]
+    if not len(scales):
+        return float("nan"), 0, float("nan")
+    return float(np.median(scales)), len(scales), blur
 
 
 def rod_diameter_mm(sensor: Sensor, tip_radius_px: float) -> float:
@@ -385,20 +408,20 @@ def calibrate_sensor(
     videos = [*videos, *(v for v, _ in dz_steps)]
     options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX)
     current, previous, ok_fraction = start, None, []
-    scale, n_scaled = float("nan"), 0
+    scale, n_scaled, blur = float("nan"), 0, float("nan")
     for k in range(rounds):
         if n_scaled >= MIN_TILTED_TIP_FRAMES:  # the tip's edge in the last round's tilted frames
             fixed[ROD_DIAMETER] *= 1.0 + scale
-            used = (scale, n_scaled)
+            used = (scale, n_scaled, blur)
         else:  # at rest, the rim placed and the rod's flank told apart by the fit so far
             radius_px = float(np.mean([rest_tip_radius_px(v, current, options) for v in videos]))
             fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
-            used = (float("nan"), 0)
+            used = (float("nan"), 0, float("nan"))
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
         tracked = track_sweep(videos, current, on_frame, options)
         # Not in the first round: the start file's poses misplace the rim.
-        scale, n_scaled = (tilted_rim_scale(videos, current, tracked, options) if k
-                           else (float("nan"), 0))  # fmt: skip
+        scale, n_scaled, blur = (tilted_rim_scale(videos, current, tracked, options) if k
+                                 else (float("nan"), 0, float("nan")))  # fmt: skip
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)

@@ -26,6 +26,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numba import njit
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
+from scipy.special import erf
 
 from camwhisker.polygon import polygon_centroid
 from camwhisker.vision.blobs import blobs
@@ -37,6 +40,7 @@ __all__ = [
     "ellipse_centre",
     "rim_centre",
     "rim_scale",
+    "edge_blur_px",
     "brightness",
     "face_near",
 ]
@@ -95,6 +99,12 @@ RIM_FIT_ITER = 10
 RIM_FIT_TOL_PX = 1e-6
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
+#: Half-width (px) of the luma profile across the face's edge that :func:`edge_blur_px`
+#: fits: past ~1 blur sigma on each side, short of the next feature's edge.
+BLUR_WINDOW_PX = 3.0
+BLUR_STEP_PX = 0.25
+#: Soft-L1 scale (DN) of that fit: JPEG ringing and noise of a few DN count fully.
+BLUR_FIT_DN = 2.0
 #: An ellipse fitted to the edge is refused when its minor axis is under this
 #: fraction of its major one: the model's rim projects to 0.50 or more at tilts
 #: to 45 deg (every direction, dz -0.5 to 1 mm); collinear points give ~0.003.
@@ -344,10 +354,15 @@ def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | N
     return TipMeasurement(centre, r_mean, True)
 
 
-def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray) -> float:
-    """How much larger the face's edge is than the model's rim: the relative scale s
-    in the least-squares fit of the rim, shifted and scaled by 1 + s, to the edge
-    points (N, 2) clear of the rod's body (see :func:`rim_centre`); NaN where too few.
+def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray,
+              blur_px: float = 0.0) -> float:  # fmt: skip
+    """How much larger the face is than the model's rim: the relative scale s in the
+    least-squares fit of the rim, shifted and scaled by 1 + s, to the edge points
+    (N, 2) clear of the rod's body (see :func:`rim_centre`); NaN where too few.
+
+    A blur of Gaussian sigma ``blur_px`` moves a curved edge's steepest rise inward
+    by blur^2 / (2 r), r its radius of curvature, so the face's own scale is the
+    fit's plus blur^2 / (2 r^2), r the fitted rim's mean radius.
     """
     pts = np.asarray(pts, float)
     rim = np.asarray(rim_uv, float)
@@ -372,7 +387,63 @@ def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray) -> 
         s = (1.0 + s) * (1.0 + step[2]) - 1.0
         if np.abs(step[:2]).max() < RIM_FIT_TOL_PX:
             break
-    return float(s)
+    r = rr[1:-1].mean() * (1.0 + s)
+    return float((1.0 + s) * (1.0 + blur_px**2 / (2.0 * r * r)) - 1.0)
+
+
+def edge_blur_px(lum: np.ndarray, pts: np.ndarray, rim_uv: np.ndarray,
+                 body_hull_uv: np.ndarray) -> float:  # fmt: skip
+    """The blur across the face's edge: Gaussian sigma (px), the median over the edge
+    points (N, 2) clear of the rod's body of an error function fitted to the luma
+    ``lum`` (:func:`brightness`) along the ray from the rim's centroid through each
+    point; NaN where no ray's fit rises within the window.
+    """
+    pts = np.asarray(pts, float)
+    rim = np.asarray(rim_uv, float)
+    pts = pts[~_beside_body(pts, rim, body_hull_uv)]
+    if not len(pts):
+        return math.nan
+    c = polygon_centroid(rim)
+    u = (pts - c) / np.hypot(*(pts - c).T)[:, None]
+    x = np.arange(-BLUR_WINDOW_PX, BLUR_WINDOW_PX + 1e-9, BLUR_STEP_PX)
+    mx, my = (pts[:, :, None] + u[:, :, None] * x).transpose(1, 0, 2).astype(np.float32)
+    prof = cv2.remap(lum, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    sigma = _erf_sigmas(x, prof.astype(float))
+    return float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else math.nan
+
+
+def _erf_sigmas(x: np.ndarray, prof: np.ndarray) -> np.ndarray:
+    """Per row of ``prof`` (sampled at ``x``), the Gaussian sigma of a rising blurred
+    step a + b Phi((x - x0) / sigma) fitted to it (one sparse least-squares problem);
+    NaN where the fit does not rise or its step is wider than the window."""
+    n, m = prof.shape
+    rows = np.arange(n * m)
+    cols = np.repeat(np.arange(n) * 4, m)[:, None] + np.arange(4)
+
+    def parts(q):
+        a, b, x0, sig = q.reshape(n, 4).T[:, :, None]
+        z = (x - x0) / sig
+        return a, b, sig, z, 0.5 * (1.0 + erf(z / math.sqrt(2.0)))
+
+    def resid(q):
+        a, b, _, _, cdf = parts(q)
+        return (a + b * cdf - prof).ravel()
+
+    def jac(q):
+        _, b, sig, z, cdf = parts(q)
+        pdf = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+        d = np.stack(np.broadcast_arrays(1.0, cdf, -b * pdf / sig, -b * pdf * z / sig), -1)
+        return csr_matrix((d.reshape(-1, 4).ravel(), (np.repeat(rows, 4), cols.ravel())),
+                          shape=(n * m, 4 * n))  # fmt: skip
+
+    q0 = np.column_stack([prof[:, 0], prof[:, -1] - prof[:, 0], np.zeros(n), np.ones(n)])
+    q0[:, 1] = np.maximum(q0[:, 1], 1.0)
+    lo = np.tile([-np.inf, 0.0, x[0], 0.05], n)
+    hi = np.tile([np.inf, np.inf, x[-1], 2.0 * x[-1]], n)
+    fit = least_squares(resid, q0.ravel(), jac=jac, bounds=(lo, hi), loss="soft_l1",
+                        f_scale=BLUR_FIT_DN, x_scale="jac")  # fmt: skip
+    _, b, _, sig = fit.x.reshape(n, 4).T
+    return np.where((b > 0) & (sig < x[-1]), sig, np.nan)
 
 
 def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> np.ndarray:
