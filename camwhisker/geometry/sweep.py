@@ -16,7 +16,8 @@ the true corners is measured at rest by the crossings of the corners' edges
 corner's shift in the plate. The rod's diameter (which the adjustment cannot
 see, and the front end's tip measurement needs) is measured from the tip's
 radius at rest in the first round, then from its edge in the last round's
-tilted frames (:func:`tilted_rim_scale`). Intrinsics from chessboard
+tilted frames (:func:`tilted_rim_scale`), less the blur's inward shift of
+that curved edge, with the blur measured across it. Intrinsics from chessboard
 images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
 """
 
