@@ -52,9 +52,10 @@ def _num(v) -> float | None:
 def _why_held(cal: Calibration, name: str) -> str:
     if name == "plate.rod_diameter_mm":
         if cal.rim_frames:
+            blur = (f"the edge's blur of {cal.rim_blur_px:.2f} px taken out"
+                    if math.isfinite(cal.rim_blur_px) else "the edge's blur not measured")
             return (f"measured from the tip's edge in {cal.rim_frames} tilted frames (the rim "
-                    f"scaled by {1 + cal.rim_scale:.4f} from the round before, the edge's "
-                    f"blur of {cal.rim_blur_px:.2f} px taken out)")
+                    f"scaled by {1 + cal.rim_scale:.4f} from the round before, {blur})")
         if math.isfinite(cal.tip_radius_px):
             return f"measured from the tip's radius at rest ({cal.tip_radius_px:.2f} px)"
     return cal.adjustment.held.get(name, "")

@@ -236,7 +236,8 @@ def tilted_rim_scale(
     over at most TILTED_TIP_FRAMES of them, at the tracked poses, the blur's inward
     shift of the edge taken out), how many frames gave one, and the blur (Gaussian
     sigma, px; :func:`~camwhisker.vision.tip.edge_blur_px`, median over BLUR_FRAMES
-    of them); (NaN, 0, NaN) where none. ``tracked`` was tracked with ``sensor``."""
+    of them; NaN, and no shift taken out, where no edge fits); (NaN, 0, NaN) where no
+    frame gives a scale. ``tracked`` was tracked with ``sensor``."""
     phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
     tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
     if not len(tilted):
@@ -267,8 +268,8 @@ def tilted_rim_scale(
             faces.append((edges, rim + off, rod + off))
             if len(blurs) < BLUR_FRAMES:
                 blurs.append(edge_blur_px(brightness(frame.image, gains)[1], *faces[-1]))
-    blur = float(np.nanmedian(blurs)) if np.isfinite(blurs).any() else 0.0
-    scales = np.array([rim_scale(*face, blur) for face in faces])
+    blur = float(np.nanmedian(blurs)) if np.isfinite(blurs).any() else float("nan")
+    scales = np.array([rim_scale(*face, np.nan_to_num(blur)) for face in faces])
     scales = scales[np.isfinite(scales)]
     if not len(scales):
         return float("nan"), 0, float("nan")

@@ -102,6 +102,7 @@ OUTLIER_PX = 1.5
 #: Half-width (px) of the luma profile across the face's edge that :func:`edge_blur_px`
 #: fits: past ~1 blur sigma on each side, short of the next feature's edge.
 BLUR_WINDOW_PX = 3.0
+#: ... sampled this finely (px): a few samples per sigma at the sharpest builds' ~1 px.
 BLUR_STEP_PX = 0.25
 #: Soft-L1 scale (DN) of that fit: JPEG ringing and noise of a few DN count fully.
 BLUR_FIT_DN = 2.0
