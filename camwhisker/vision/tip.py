@@ -26,9 +26,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numba import njit
-from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
-from scipy.special import erf
 
 from camwhisker.polygon import polygon_centroid
 from camwhisker.vision.blobs import blobs
@@ -417,6 +414,11 @@ def _erf_sigmas(x: np.ndarray, prof: np.ndarray) -> np.ndarray:
     """Per row of ``prof`` (sampled at ``x``), the Gaussian sigma of a rising blurred
     step a + b Phi((x - x0) / sigma) fitted to it (one sparse least-squares problem);
     NaN where the fit does not rise or its step is wider than the window."""
+    # Here, not at the top: the CLI's parser imports this module and must stay light.
+    from scipy.optimize import least_squares
+    from scipy.sparse import csr_matrix
+    from scipy.special import erf
+
     n, m = prof.shape
     rows = np.arange(n * m)
     cols = np.repeat(np.arange(n) * 4, m)[:, None] + np.arange(4)
