@@ -137,7 +137,11 @@ def test_bundled_sample_regenerates_and_resolves(tmp_path):
     bundled = Path(__file__).resolve().parents[1] / "sample_frames" / "texture"
     assert main(["simulate-texture", "--out", str(tmp_path)]) == 0  # the defaults make it
     for name in ("signals.csv", "stage.csv", "truth.csv"):
-        assert (tmp_path / name).read_bytes() == (bundled / name).read_bytes(), name
+        made, kept = ((folder / name).read_text().splitlines() for folder in (tmp_path, bundled))
+        assert made[0] == kept[0] and len(made) == len(kept), name
+        made, kept = (np.genfromtxt(lines[1:], delimiter=",") for lines in (made, kept))
+        # Builds of numpy/scipy differ in the last written digit; a change of substance moves more.
+        np.testing.assert_allclose(made, kept, rtol=1e-6, atol=0, equal_nan=True, err_msg=name)
     out = tmp_path / "t.json"
     assert main(["texture", "--signals", str(bundled / "signals.csv"), "--speed-mm-s", "1",
                  "--stage", str(bundled / "stage.csv"), "--out", str(out)]) == 0
