@@ -178,6 +178,40 @@ def test_detection_finds_a_held_out_builds_features(seed):
     assert err[TIP] < TIP_TOL_PX
 
 
+def test_a_pale_cross_on_tinted_cloth_still_gives_the_rest_colours():
+    """Build 126's yellow cloth, white balanced to grey, leaves its cross at |G| ~ 1.0,
+    at the fixed threshold: the cross's core comes from its own extreme instead."""
+    from camwhisker.vision.colour import contrast_map
+    from camwhisker.vision.rest import COLOUR_G_MIN, colour_core
+    from camwhisker.vision.tracker import FrontEnd
+
+    build = draw_build(126)
+    frame = _first_frame(build)
+    fe = FrontEnd(build.sensor)
+    fe.start(frame)  # raised "features not found: cross colour" before
+    rest = fe.rest
+    u0, v0 = rest.origin.astype(int)
+    g = contrast_map(frame[v0 : v0 + rest.region_size[1], u0 : u0 + rest.region_size[0]],
+                     rest.gains)  # fmt: skip
+    cross, square = colour_core(-g), colour_core(g)
+    assert np.percentile(-g, 99) < 1.1 * COLOUR_G_MIN  # the case: a cross this pale
+    # The two cores unmix apart: 0.05 is ~10x the shares' scatter at this noise.
+    assert np.median(rest.red[cross]) == pytest.approx(1.0, abs=0.05)
+    assert np.median(rest.red[square]) == pytest.approx(0.0, abs=0.05)
+    assert np.median(rest.blue[cross]) == pytest.approx(0.0, abs=0.05)
+
+
+def test_an_absent_colour_has_no_core():
+    from camwhisker.vision.rest import colour_core
+
+    rng = np.random.default_rng(0)
+    g = rng.normal(0.0, 0.1, (200, 200)).astype(np.float32)  # cloth: noise about G = 0
+    g[50:120, 60:150] = 1.9 + rng.normal(0.0, 0.03, (70, 90))  # the square
+    assert not colour_core(-g).any()
+    # Eroded by 4 px: (70 - 8) x (90 - 8) pixels of the square.
+    assert colour_core(g).sum() == 62 * 82
+
+
 def test_a_failed_detection_says_what_was_found_and_where():
     from camwhisker.vision.detect import FeaturesNotFound, detect_features
     from camwhisker.vision.tracker import FrontEnd

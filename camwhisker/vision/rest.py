@@ -20,7 +20,8 @@ from camwhisker.vision.colour import cloth_level, unmixing_weights
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.paper import PaperRest
 
-__all__ = ["RestReference", "mean_image", "region_size", "region_origin", "rest_colours"]
+__all__ = ["RestReference", "mean_image", "region_size", "region_origin", "colour_core",
+           "rest_colours"]
 
 #: Margin of the corners' region beyond their window (px): room for the
 #: templates' warps and for the rest colours' samples.
@@ -32,6 +33,11 @@ REGION_GROWTH = 1.15
 #: COLOUR_ERODE_PX so that no blurred edge pixel enters.
 COLOUR_G_MIN = 1.0
 COLOUR_ERODE_PX = 4
+#: A colour fainter than COLOUR_G_MIN (white balance on tinted cloth pales the
+#: cross) takes the pixels within this share of its extreme (99th percentile) instead;
+#: one whose extreme is under COLOUR_FAINTEST is not there.
+COLOUR_CORE_SHARE = 0.8
+COLOUR_FAINTEST = 0.5
 #: Fewest pixels of a colour for its median to be trusted.
 COLOUR_MIN_PX = 10
 
@@ -110,6 +116,18 @@ def region_origin(frame_shape, uv: np.ndarray, size: tuple[int, int]) -> np.ndar
     return np.array([u0, v0], float)
 
 
+def colour_core(g: np.ndarray) -> np.ndarray:
+    """Pixels well inside the colour whose contrast ``g`` (eq. 1, signed so that it
+    is positive) is high: above COLOUR_G_MIN or COLOUR_CORE_SHARE of its extreme,
+    whichever is lower, and eroded by COLOUR_ERODE_PX; bool, shape of ``g``."""
+    extreme = float(np.percentile(g, 99))
+    if extreme < COLOUR_FAINTEST:
+        return np.zeros(g.shape, bool)
+    threshold = min(COLOUR_G_MIN, COLOUR_CORE_SHARE * extreme)
+    kernel = np.ones((2 * COLOUR_ERODE_PX + 1,) * 2, np.uint8)
+    return cv2.erode((g > threshold).astype(np.uint8), kernel).astype(bool)
+
+
 def rest_colours(frame, gains, g, origin, cloth_rows, cloth_cols) -> tuple[np.ndarray, float]:
     """Unmixing weights from the colours of cross, square and cloth, and the cloth level.
 
@@ -131,9 +149,7 @@ def rest_colours(frame, gains, g, origin, cloth_rows, cloth_cols) -> tuple[np.nd
     u0, v0 = origin.astype(int)
     h, w = g.shape
     region = frame[v0 : v0 + h, u0 : u0 + w].astype(np.float32) * gains
-    kernel = np.ones((2 * COLOUR_ERODE_PX + 1,) * 2, np.uint8)
-    red = cv2.erode((g < -COLOUR_G_MIN).astype(np.uint8), kernel).astype(bool)
-    blue = cv2.erode((g > COLOUR_G_MIN).astype(np.uint8), kernel).astype(bool)
+    red, blue = colour_core(-g), colour_core(g)
     if red.sum() < COLOUR_MIN_PX or blue.sum() < COLOUR_MIN_PX:
         raise FeaturesNotFound(["square colour" if blue.sum() < COLOUR_MIN_PX else "cross colour"])
     cloth = (frame[cloth_rows, cloth_cols].astype(np.float32) * gains).mean(axis=0)
