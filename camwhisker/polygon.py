@@ -42,6 +42,7 @@ def polygon_area(uv: np.ndarray) -> float:
     return abs(twice) / 2.0
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
 def polygon_centroid_jacobian(uv: np.ndarray, duv: np.ndarray) -> np.ndarray:
     """Derivative of :func:`polygon_centroid` along the vertices' derivatives.
 
@@ -59,15 +60,25 @@ def polygon_centroid_jacobian(uv: np.ndarray, duv: np.ndarray) -> np.ndarray:
         c_i = x_i y_(i+1) - x_(i+1) y_i, A2 = sum c_i and
         C_x = sum c_i (x_i + x_(i+1)) / (3 A2).
     """
-    x, y = uv[:, 0, None], uv[:, 1, None]
-    xn, yn = np.roll(x, -1, axis=0), np.roll(y, -1, axis=0)
-    dx, dy = duv[:, 0], duv[:, 1]
-    dxn, dyn = np.roll(dx, -1, axis=0), np.roll(dy, -1, axis=0)
-    c = x * yn - xn * y
-    dc = dx * yn + x * dyn - dxn * y - xn * dy
-    a3 = 3.0 * c.sum()
-    da3 = 3.0 * dc.sum(axis=0)
-    centroid = np.array([(c * (x + xn)).sum(), (c * (y + yn)).sum()]) / a3
-    d_sx = (dc * (x + xn) + c * (dx + dxn)).sum(axis=0)
-    d_sy = (dc * (y + yn) + c * (dy + dyn)).sum(axis=0)
-    return (np.stack([d_sx, d_sy]) - centroid[:, None] * da3) / a3
+    n, n_p = uv.shape[0], duv.shape[2]
+    a2 = sx = sy = 0.0
+    da2, d_sx, d_sy = np.zeros(n_p), np.zeros(n_p), np.zeros(n_p)
+    for i in range(n):
+        j = (i + 1) % n
+        x, y, xn, yn = uv[i, 0], uv[i, 1], uv[j, 0], uv[j, 1]
+        c = x * yn - xn * y
+        a2 += c
+        sx += c * (x + xn)
+        sy += c * (y + yn)
+        for k in range(n_p):
+            dx, dy, dxn, dyn = duv[i, 0, k], duv[i, 1, k], duv[j, 0, k], duv[j, 1, k]
+            dc = dx * yn + x * dyn - dxn * y - xn * dy
+            da2[k] += dc
+            d_sx[k] += dc * (x + xn) + c * (dx + dxn)
+            d_sy[k] += dc * (y + yn) + c * (dy + dyn)
+    a3 = 3.0 * a2
+    out = np.empty((2, n_p))
+    for k in range(n_p):
+        out[0, k] = (d_sx[k] - sx / a3 * 3.0 * da2[k]) / a3
+        out[1, k] = (d_sy[k] - sy / a3 * 3.0 * da2[k]) / a3
+    return out

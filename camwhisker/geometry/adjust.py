@@ -135,9 +135,14 @@ ALWAYS_HELD = {
 #: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
 #: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
 _RIDGE = 1e-10
+#: Iterations at most; fewer for the poses alone at the start: they only start the
+#: geometry's fit, which moves them again, and the start geometry's px-sized
+#: residuals make Huber's reweighting converge slowly.
 _MAX_ITER = 60
-#: Iterations stop when the cost falls by less than this fraction.
-_COST_RTOL = 1e-9
+_START_ITER = 10
+#: Iterations stop when the cost (residuals in units of their SD, squared) falls by
+#: less than this: the last steps crawl along directions the sweep hardly determines.
+COST_ATOL = 0.01
 
 
 def tolerances(sensor: Sensor) -> np.ndarray:
@@ -328,11 +333,12 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
                 V[f][0, 0] += p.known_dz_sd[f] ** -2
                 bp[f][0] += r_dz / p.known_dz_sd[f]
                 cost += r_dz**2
+            v_inv = np.linalg.pinv(V[f])
             # The hat matrix's diagonal: how much of each residual the pose absorbs.
-            hat = np.einsum("ij,jk,ik->i", jp, np.linalg.pinv(V[f]), jp)
+            hat = np.einsum("ij,jk,ik->i", jp, v_inv, jp)
             leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
             # What of the geometry's rows the pose cannot absorb, per pixel of bias.
-            reduced = (jg - jp @ np.linalg.pinv(V[f]) @ W[f].T) * sw[:, None]
+            reduced = (jg - jp @ v_inv @ W[f].T) * sw[:, None]
             systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
                                        _bias_terms(q[f]))  # fmt: skip
     # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
@@ -374,14 +380,15 @@ def _step(ne: _Normal, lam: float, moving: np.ndarray):
     return dg, np.where(moving[:, None], dq, 0.0)
 
 
-def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray):
+def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray,
+           max_iter: int = _MAX_ITER):  # fmt: skip
     """Minimise the robust cost from (g, q); returns g, q, the last normal equations
     and the number of iterations."""
     ne = _normal(p, g, q)
     if ne is None:
         raise SensorFileError("the starting geometry is not a valid sensor")
     lam, n_iter = 1e-3, 0
-    while n_iter < _MAX_ITER:
+    while n_iter < max_iter:
         n_iter += 1
         dg, dq = _step(ne, lam, moving)
         g_try = g.copy()
@@ -389,7 +396,7 @@ def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray):
         q_try = q + dq
         trial = _normal(p, g_try, q_try)
         if trial is not None and trial.cost <= ne.cost:
-            done = ne.cost - trial.cost <= _COST_RTOL * ne.cost
+            done = ne.cost - trial.cost <= COST_ATOL
             g, q, ne, lam = g_try, q_try, trial, max(lam / 3, 1e-9)
             if done:
                 break
@@ -619,7 +626,7 @@ def adjust_geometry(
     p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior, np.zeros(0, dtype=int),
                  huber_px, np.full(TIP + 1, huber_px), np.full(TIP + 1, NOISE_START_PX),
                  known_dz, known_sd)  # fmt: skip
-    g, q, ne, n_iter = _solve(p, g, q, moving)  # the poses alone first
+    g, q, ne, n_iter = _solve(p, g, q, moving, _START_ITER)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
     g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
