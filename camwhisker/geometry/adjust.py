@@ -84,6 +84,7 @@ __all__ = [
     "Adjustment",
     "tolerances",
     "adjust_geometry",
+    "corner_shift_jacobian",
 ]
 
 #: The Huber loss is quadratic within this distance of a point's model (px):
@@ -101,10 +102,12 @@ SE_LIMIT = 0.5
 #: A sweep whose largest tilt stays below this (deg) leaves the depths and the
 #: distortion poorly determined.
 PHI_MIN_SWEEP_DEG = 15.0
-#: Prior SD of a tracked corner's in-plane shift about the one its measured rest
-#: offset gives (mm): the edges' crossings' error on builds; and where none was
-#: measured (the detected corner taken as the true one): the detection's error.
-CORNER_SHIFT_MM = 0.012
+#: Prior SD of a tracked corner's in-plane shift about the one its measured offset
+#: gives (mm): the edges' crossings' error on tuning builds (0.0053 mm RMS over the
+#: moving frames, 0.010 at rest alone: compression moves an edge, the same way in
+#: every still frame); and where none was measured (the detected corner taken as the
+#: true one): the detection's error.
+CORNER_SHIFT_MM = 0.006
 CORNER_SHIFT_UNMEASURED_MM = 0.03
 #: Frames whose residuals the sandwich SE lets correlate freely: 1 s at 30 fps, longer
 #: than the tracking errors take to drift.
@@ -272,7 +275,7 @@ def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
     return rho, w
 
 
-def _corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
+def corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
     """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2).
 
     Not in :class:`PlateModel`: its Jacobians are by the shared dimensions only.
@@ -306,7 +309,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     for f in np.flatnonzero(p.valid.any(axis=1)):
         q5[:3] = q[f]
         jac = model.jacobians(q5)
-        d_corner = _corner_shift_jacobian(model, q5)
+        d_corner = corner_shift_jacobian(model, q5)
         d_shift[:] = 0.0
         first = 2 * TIP * p.video[f]
         for j in range(TIP):  # block-diagonal: each shift moves its own corner
@@ -519,7 +522,7 @@ def _shift_prior(sensor: Sensor, offsets_uv: np.ndarray) -> tuple[np.ndarray, np
     """The shifts' prior centres (mm) from the corners' rest offsets (px), and their
     SDs (mm): each offset carried into the plate through its corner's Jacobian at rest;
     an unmeasured one (NaN) centres at zero with the wider SD."""
-    d_corner = _corner_shift_jacobian(PlateModel(sensor), np.zeros(5))  # (12, 2, 2)
+    d_corner = corner_shift_jacobian(PlateModel(sensor), np.zeros(5))  # (12, 2, 2)
     measured = np.isfinite(offsets_uv).all(axis=-1)  # (V, 12)
     centre = np.linalg.solve(d_corner[None], np.nan_to_num(offsets_uv)[..., None])[..., 0]
     centre[~measured] = 0.0

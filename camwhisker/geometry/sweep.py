@@ -11,8 +11,8 @@ Each video starts at rest: its first frame is the front end's rest frame, and
 the frames before the plate first moves are held at pose zero. The square's
 side, measured with calipers, fixes the scale. Each video's tracked corners
 are its rest reference's detected corners carried along; where they lie off
-the true corners is measured at rest by the crossings of the corners' edges
-(:func:`rest_corner_offsets`), and the adjustment fits that offset as the
+the true corners is measured by the crossings of the corners' edges in the
+moving frames (:func:`corner_offsets`), and the adjustment fits that offset as the
 corner's shift in the plate. The rod's diameter (which the adjustment cannot
 see, and the front end's tip measurement needs) is measured from the tip's
 radius at rest in the first round, then from its edge in the last round's
@@ -25,14 +25,18 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
-from itertools import islice
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from camwhisker.camera import INTRINSIC_NAMES
-from camwhisker.geometry.adjust import KNOWN_DZ_SD_MM, Adjustment, adjust_geometry
+from camwhisker.geometry.adjust import (
+    KNOWN_DZ_SD_MM,
+    Adjustment,
+    adjust_geometry,
+    corner_shift_jacobian,
+)
 from camwhisker.model import TIP, PlateModel
 from camwhisker.polygon import polygon_centroid
 from camwhisker.sensor import Sensor
@@ -46,9 +50,8 @@ from camwhisker.stage import (
     pause_frames,
 )
 from camwhisker.stream import track
-from camwhisker.vision.detect import FeaturesNotFound
-from camwhisker.vision.mismatch import edge_corners
-from camwhisker.vision.rest import mean_image
+from camwhisker.vision.colour import unmixed_maps
+from camwhisker.vision.mismatch import edge_crossings
 from camwhisker.vision.tip import (
     brightness,
     edge_blur_px,
@@ -66,7 +69,7 @@ __all__ = [
     "Calibration",
     "track_sweep",
     "rest_frames",
-    "rest_corner_offsets",
+    "corner_offsets",
     "rest_tip_radius_px",
     "tilted_rim_scale",
     "rod_diameter_mm",
@@ -102,6 +105,8 @@ BLUR_FRAMES = 8
 RIM_SCALE_TOL = 0.001
 #: The fit is stable when no parameter moved by more than this many SE in a round.
 STABLE_SE = 0.5
+#: The corners' crop reaches this far beyond them (px): their edges' profiles.
+CORNER_BOX_PX = 16
 SQUARE_SIDE = "plate.square_side_mm"
 ROD_DIAMETER = "plate.rod_diameter_mm"
 
@@ -117,7 +122,7 @@ class TrackedSweep:
     video : ndarray of int, shape (F,); which video each frame came from
     t_s : ndarray, shape (F,); each frame's time in its video (s)
     corner_offsets_uv : ndarray, shape (V, 12, 2); each video's tracked corners minus
-        the true ones at rest (:func:`rest_corner_offsets`), NaN where not measured
+        the true ones, as offsets at rest (:func:`corner_offsets`), NaN where not measured
     """
 
     points_uv: np.ndarray
@@ -166,32 +171,42 @@ def rest_frames(points_uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def rest_corner_offsets(images: list[np.ndarray], points_uv: np.ndarray, sensor: Sensor,
-                        options: FrontEndOptions | None = None) -> np.ndarray:  # fmt: skip
-    """Where the tracked corners lie off the true corners at rest (px), shape (12, 2):
-    their median over the rest frames minus the crossings of the corners' edges in
-    the frames' mean (:func:`~camwhisker.vision.mismatch.edge_corners`), which blur
-    does not move. NaN where an edge is not found, or the features are not.
-
-    Parameters
-    ----------
-    images : list of ndarray
-        The video's frames at rest.
-    points_uv : ndarray, shape (len(images), 13, 2)
-        The front end's points in those frames.
-    sensor : Sensor
-        The sensor file the video was tracked with.
-    options : FrontEndOptions, optional
-        The options it was tracked with.
+def corner_offsets(video: str | Path, tracked: TrackedSweep, k: int, sensor: Sensor,
+                   options: FrontEndOptions | None = None) -> np.ndarray:  # fmt: skip
+    """Where video ``k``'s tracked corners lie off the true corners, as offsets at rest
+    (px), shape (12, 2): in each trusted frame off rest, the tracked corner minus the
+    crossing of its edges' lines (:func:`~camwhisker.vision.mismatch.edge_crossings`,
+    which blur does not move), carried into the plate at the frame's pose and out
+    again at rest; the median over the frames. The moving frames, not the rest ones:
+    compression moves an edge by up to ~1 px, the same way in every still frame but
+    differently as the edge crosses the blocks. NaN where no frame found the edges.
+    ``tracked`` (without its offsets yet) was tracked with ``sensor``.
     """
-    fe = FrontEnd(sensor, options)
-    try:
-        fe.start(mean_image(images))
-    except FeaturesNotFound:
+    mine = np.flatnonzero(tracked.video == k)
+    use = set((mine[tracked.ok[mine] & ~tracked.rest[mine]] - mine[0]).tolist())
+    model = PlateModel(sensor)
+    at_rest = corner_shift_jacobian(model, np.zeros(5))
+    fe, found = None, []
+    for i, frame in enumerate(open_source(video)):
+        if fe is None:
+            fe = FrontEnd(sensor, options)
+            fe.start(frame.image)
+        if i not in use:
+            continue
+        uv, q = tracked.points_uv[mine[i], :TIP], tracked.q[mine[i]]
+        box = np.floor(np.nanmin(uv, axis=0)).astype(int) - CORNER_BOX_PX
+        h, w = frame.image.shape[:2]
+        u0, v0 = np.clip(box, 0, [w - 1, h - 1])
+        u1, v1 = np.ceil(np.nanmax(uv, axis=0)).astype(int) + CORNER_BOX_PX
+        crop = frame.image[v0:v1, u0:u1]
+        red, blue = unmixed_maps(crop, fe.rest.weights, fe.gains(frame.image))
+        edges, _ = edge_crossings(red, blue, uv - (u0, v0), model.edge_directions(q))
+        shift = np.linalg.solve(corner_shift_jacobian(model, q), (uv - edges - (u0, v0))[..., None])
+        found.append((at_rest @ shift)[..., 0])
+    if not found:
         return np.full((TIP, 2), np.nan)
-    edges, _ = edge_corners(fe.rest, fe.model)
     with np.errstate(all="ignore"):
-        return np.nanmedian(points_uv[:, :TIP], axis=0) - edges
+        return np.nanmedian(found, axis=0)
 
 
 def rest_tip_radius_px(video: str | Path, sensor: Sensor,
@@ -306,7 +321,7 @@ def track_sweep(
     camwhisker.vision.FeaturesNotFound
         A video's first frame lacks a feature.
     """
-    parts, offsets = [], []
+    parts = []
     for k, video in enumerate(videos):
         times: list[float] = []
         images = _images_noting_times(video, times)
@@ -318,14 +333,14 @@ def track_sweep(
         if not results:
             raise ValueError(f"{video}: no frames")
         pts = np.array([r.points_uv for r in results], dtype=float).reshape(-1, TIP + 1, 2)
-        rest = rest_frames(pts)
-        # The rest frames again (a few): the stream does not keep its images.
-        images = [f.image for f in islice(open_source(video), int(rest.sum()))]
-        offsets.append(rest_corner_offsets(images, pts[rest], sensor, options))
         parts.append((pts, _q_from_results(results), np.array([r.ok for r in results]),
-                      rest, np.full(len(results), k), np.array(times[: len(results)])))  # fmt: skip
-    return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
-                        np.array(offsets))  # fmt: skip
+                      rest_frames(pts), np.full(len(results), k),
+                      np.array(times[: len(results)])))  # fmt: skip
+    tracked = TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
+                           np.full((len(videos), TIP, 2), np.nan))  # fmt: skip
+    # A second pass over each video: the stream does not keep its images.
+    offsets = [corner_offsets(v, tracked, k, sensor, options) for k, v in enumerate(videos)]
+    return replace(tracked, corner_offsets_uv=np.array(offsets))
 
 
 def _images_noting_times(video: str | Path, times: list) -> Iterator[np.ndarray]:

@@ -33,7 +33,7 @@ from camwhisker.model import (
 )
 
 __all__ = ["MismatchCheck", "check_mismatch", "prior_scales", "phi_response", "phi_error_deg",
-           "PHI_ERROR_WARN_DEG"]
+           "edge_corners", "edge_crossings", "PHI_ERROR_WARN_DEG"]
 
 #: Tilt at which the deviation's effect on phi is judged (deg): a working tilt.
 CHECK_PHI_DEG = 20.0
@@ -132,23 +132,35 @@ def prior_scales(model: PlateModel) -> np.ndarray:
 
 def edge_corners(rest, model: PlateModel) -> tuple[np.ndarray, np.ndarray]:
     """The 12 corners at rest as the crossings of their two edges' lines, shape (12, 2),
-    and each one's standard error from its edges' scatter (px), shape (12,).
+    and each one's standard error from its edges' scatter (px), shape (12,): the
+    :func:`edge_crossings` of the rest frame's share maps."""
+    out, sd = edge_crossings(rest.red, rest.blue, rest.uv[:TIP] - rest.origin,
+                             model.edge_directions(np.zeros(5)))  # fmt: skip
+    return out + rest.origin, sd
+
+
+def edge_crossings(red: np.ndarray, blue: np.ndarray, corners_uv: np.ndarray,
+                   directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The 12 corners as the crossings of their two edges' lines in the share maps
+    (map pixels), shape (12, 2), and each one's standard error (px), shape (12,).
 
     Each edge is found at half the colour share's step, on profiles across it
-    EDGE_FROM_PX ... EDGE_TO_PX from the detected corner: a straight edge's
-    half level does not move with blur, while a blurred corner's detected point
-    moves into its feature. NaN where an edge is not found.
+    EDGE_FROM_PX ... EDGE_TO_PX from the detected corner ``corners_uv`` along its
+    ``directions`` (12, 2, 2): a straight edge's half level does not move with
+    blur, while a blurred corner's detected point moves into its feature. NaN
+    where an edge is not found.
     """
-    edges = model.edge_directions(np.zeros(5))
-    unit = edges / np.linalg.norm(edges, axis=-1, keepdims=True)
+    unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
     out = np.full((TIP, 2), np.nan)
     sd = np.full(TIP, np.nan)
     for k in range(TIP):
-        share = rest.blue if k < N_SQUARE else rest.red
-        lines = [_edge_line(share, rest.uv[k] - rest.origin, e, unit[k, 1 - j])
+        if not np.isfinite(corners_uv[k]).all():
+            continue
+        share = blue if k < N_SQUARE else red
+        lines = [_edge_line(share, corners_uv[k], e, unit[k, 1 - j])
                  for j, e in enumerate(unit[k])]  # fmt: skip
         if all(line is not None for line in lines):
-            out[k] = _crossing(*lines) + rest.origin
+            out[k] = _crossing(*lines)
             sd[k] = math.hypot(lines[0][2], lines[1][2])
     return out, sd
 
@@ -167,21 +179,20 @@ def _edge_line(share: np.ndarray, corner: np.ndarray, along: np.ndarray, inward:
     maps = pts.astype(np.float32)
     vals = cv2.remap(share, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)  # fmt: skip
-    found = []
-    for row, ti in zip(vals, t, strict=True):
-        lo, hi = np.nanmean(row[:4]), np.nanmean(row[-4:])
-        if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo < EDGE_MIN_STEP:
-            continue
-        above = row >= (lo + hi) / 2
-        k = np.flatnonzero(~above[:-1] & above[1:])
-        if len(k) != 1:
-            continue
-        k = k[0]
-        frac = ((lo + hi) / 2 - row[k]) / (row[k + 1] - row[k])
-        found.append(corner + ti * along + (s[k] + frac * PROFILE_STEP_PX) * normal)
-    if len(found) < EDGE_MIN_POINTS:
+    with np.errstate(all="ignore"):  # a profile off the map is NaN: skipped below
+        lo, hi = np.nanmean(vals[:, :4], axis=1), np.nanmean(vals[:, -4:], axis=1)
+        half = ((lo + hi) / 2)[:, None]
+        above = vals >= half
+        rises = ~above[:, :-1] & above[:, 1:]
+        k = np.argmax(rises, axis=1)
+        rows = np.arange(len(t))
+        frac = (half[:, 0] - vals[rows, k]) / (vals[rows, k + 1] - vals[rows, k])
+    # A profile counts with a clear step that it crosses once.
+    keep = (hi - lo >= EDGE_MIN_STEP) & (rises.sum(axis=1) == 1)
+    if np.count_nonzero(keep) < EDGE_MIN_POINTS:
         return None
-    found = np.array(found)
+    offset = s[k[keep]] + frac[keep] * PROFILE_STEP_PX
+    found = corner + t[keep, None] * along + offset[:, None] * normal
     centre = found.mean(axis=0)
     _, sv, vt = np.linalg.svd(found - centre)
     # The crossings' scatter about the line; its offset is known to 1/sqrt(n) of that.
