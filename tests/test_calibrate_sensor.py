@@ -476,7 +476,8 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
     true = np.nanmedian(true, axis=0)  # a corner a spring hides in a frame is NaN there
     moving = corner_offsets(sweep["video"], tracked, 0, build)
     # The old measure: the crossings in the mean of the frames at rest alone.
-    images = [f.image for f, r in zip(open_source(sweep["video"]), tracked.rest) if r]
+    frames = zip(open_source(sweep["video"]), tracked.rest, strict=True)
+    images = [f.image for f, at_rest in frames if at_rest]
     fe = FrontEnd(build)
     fe.start(mean_image(images))
     still = np.median(tracked.points_uv[tracked.rest, :TIP], axis=0) - edge_corners(fe.rest,
