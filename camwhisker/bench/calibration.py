@@ -175,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m camwhisker.bench.calibration", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
-    p.add_argument("--seeds", default=f"{held[0]}-{held[4]}", help="e.g. 100-104 or 100,107")
+    p.add_argument("--seeds", type=seed_list, default=f"{held[0]}-{held[4]}",
+                   help="e.g. 100-104, 100,107 or 100-104,107")  # fmt: skip
     p.add_argument("--sweep-s", type=float, default=12.0, help="sweep length (s, at most 20)")
     p.add_argument("--clip-frames", type=int, default=120, help="frames of the separate clip")
     p.add_argument("--cache", metavar="DIR", help="folder for the renders, reused on a rerun")
@@ -187,14 +188,14 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="camwhisker-calbench-") as tmp:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        for seed in seed_list(args.seeds):
+        for seed in args.seeds:
             rows.append(run_build(seed, sweep_frames, args.clip_frames, folder))
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     print()
     print(table(rows))
     print(f"\n{summary(rows)}")
     print(f"sweep {args.sweep_s:g} s ({sweep_frames} frames), clip 'nominal' {args.clip_frames} "
-          f"frames (MJPG), seeds {args.seeds}; tune only on seeds "
+          f"frames (MJPG), seeds {','.join(map(str, args.seeds))}; tune only on seeds "
           f"{REALITY_SUITE.tuning_seeds}")  # fmt: skip
     return 0
 

@@ -221,19 +221,23 @@ def summary(rows: list[RealityRow], effects: dict[int, float]) -> str:
 
 
 def seed_list(text: str) -> list[int]:
-    """'100-104' or '100,101,107'."""
-    if "-" in text:
-        lo, hi = (int(x) for x in text.split("-"))
-        return list(range(lo, hi + 1))
-    return [int(x) for x in text.split(",")]
+    """'100-104', '100,101,107' or both, '141-146,151'; ValueError naming a bad item."""
+    seeds = []
+    for item in text.split(","):
+        lo, _, hi = item.strip().partition("-")
+        try:
+            seeds += list(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise ValueError(f"seeds: {item!r} is not a seed or a range like 100-104") from None
+    return seeds
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m camwhisker.bench.reality", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
-    p.add_argument("--seeds", default=f"{held[0]}-{held[19]}",
-                   help="builds, e.g. 100-119 or 100,107")  # fmt: skip
+    p.add_argument("--seeds", type=seed_list, default=f"{held[0]}-{held[19]}",
+                   help="builds, e.g. 100-119, 100,107 or 100-104,107")  # fmt: skip
     p.add_argument("--frames", type=int, default=150, help="frames per clip (default: 150)")
     p.add_argument("--nominal-renders", type=int, default=5,
                    help="clips of the nominal sensor and look (default: 5)")  # fmt: skip
@@ -243,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         folder = args.cache or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         rows, effects = [], {}
-        for seed in seed_list(args.seeds):
+        for seed in args.seeds:
             build_rows, effects[seed] = run_build(seed, args.frames, folder)
             rows += build_rows
         for k in range(args.nominal_renders):
@@ -251,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(rows, effects))
     print()
     print(summary(rows, effects))
-    print(f"\nscene {SCENE}, {args.frames} frames per clip (MJPG), builds {args.seeds}, "
+    builds = ",".join(map(str, args.seeds))
+    print(f"\nscene {SCENE}, {args.frames} frames per clip (MJPG), builds {builds}, "
           f"nominal renders {args.nominal_renders}; tune only on builds "
           f"{REALITY_SUITE.tuning_seeds}")  # fmt: skip
     return 0
