@@ -477,7 +477,7 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
     moving = corner_offsets(sweep["video"], tracked, 0, build)
     # The old measure: the crossings in the mean of the frames at rest alone.
     frames = zip(open_source(sweep["video"]), tracked.rest, strict=True)
-    images = [f.image for f, at_rest in frames if at_rest]
+    images = [f.image for f, is_rest in frames if is_rest]
     fe = FrontEnd(build)
     fe.start(mean_image(images))
     still = np.median(tracked.points_uv[tracked.rest, :TIP], axis=0) - edge_corners(fe.rest,
