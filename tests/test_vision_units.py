@@ -44,8 +44,11 @@ from camwhisker.vision.tip import (
     BODY_ANGLES,
     BODY_BLUR_PX,
     BODY_PROTRUSION_PX,
+    JOINED_RADIUS,
+    LEVEL_STEP_PX,
     N_RAYS,
     _beside_body,
+    _dark_blob,
     brightness,
     edge_blur_px,
     ellipse_centre,
@@ -567,6 +570,36 @@ def test_tip_centre_keeps_the_rays_into_a_dark_colour():
     rim = np.array(DISC_CENTRE) + (DISC_RADIUS - 0.5) * np.column_stack([np.cos(ang), np.sin(ang)])
     got = rim_centre(pts, rim)
     assert got.ok
+    np.testing.assert_allclose(got.centre_uv, DISC_CENTRE, atol=0.1)
+
+
+def _face_on_a_dark_rod():
+    """The face on red, its rod's body running 80 px to its right as dark as the
+    window's usual threshold less 4 DN (a dark red rod beside the black tip), blurred
+    1.4 px; and the model's rim and the rod's outline."""
+    h, w = 200, 260
+    u, v = _fine_grid(h, w)
+    cu, cv_ = DISC_CENTRE
+    colour = np.zeros((*u.shape, 3), np.float32)
+    colour[:] = (45, 50, 200)  # red
+    colour[(u >= cu) & (u <= cu + 80.0) & (np.abs(v - cv_) <= DISC_RADIUS)] = (16, 18, 46)
+    colour[(u - cu) ** 2 + (v - cv_) ** 2 <= DISC_RADIUS**2] = (24, 24, 26)  # face
+    img = cv2.GaussianBlur(cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA), (0, 0), 1.4)
+    ang = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    rim = np.array(DISC_CENTRE) + DISC_RADIUS * np.column_stack([np.cos(ang), np.sin(ang)])
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), rim, np.concatenate([rim, rim + (80, 0)])
+
+
+def test_tip_centre_where_a_dark_rod_joins_the_face():
+    """At the usual threshold the rod's body joins the face's blob (asserted: so the
+    case is the one meant); the lower threshold parts them, and the centre is within
+    0.1 px (build 145's clip: a 1.05 px error at frame 70, frames 71-72 lost)."""
+    frame, rim, body = _face_on_a_dark_rod()
+    val, _ = brightness(frame[40:160, 70:190], np.ones(3))
+    joined = _dark_blob(val, np.array([50.0, 60.0]), DISC_RADIUS, LEVEL_STEP_PX)
+    assert joined[1] > JOINED_RADIUS * DISC_RADIUS
+    got = find_tip(frame, np.ones(3), np.array([120.0, 100.0]), DISC_RADIUS, 20.0, rim, body)
+    assert got.ok, got.reason
     np.testing.assert_allclose(got.centre_uv, DISC_CENTRE, atol=0.1)
 
 

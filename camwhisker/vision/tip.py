@@ -46,6 +46,11 @@ __all__ = [
 #: 0.15 of the way keeps the face apart from the rod's darkest flank (~0.4) and the
 #: grey springs (~0.65) under vignetting and 5 DN noise.
 TIP_THRESHOLD_FRACTION = 0.15
+#: A blob whose radius is over JOINED_RADIUS times the face's has the rod's flank
+#: joined to it (a dark red rod's lies near 0.15); LOW_THRESHOLD_FRACTION, half the
+#: way, parts them, with the face ~0.08 below it and 5 DN noise.
+JOINED_RADIUS = 1.1
+LOW_THRESHOLD_FRACTION = 0.075
 #: The dark level is the percentile of V that falls this deep inside the expected
 #: face area (a quarter of it), however large the window; the bright level is the
 #: BRIGHT_PERCENTILE of the window (red, blue or cloth, never the face).
@@ -257,7 +262,7 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
         if u1 - u0 < 8 or v1 - v0 < 8:
             return None, None, "tip window outside the frame"
         val, lum = brightness(frame[v0:v1, u0:u1], gains)
-        found = _dark_blob(val, guess_uv - (u0, v0), radius_px, LEVEL_STEP_PX)
+        found = _face_blob(val, guess_uv - (u0, v0), radius_px)
         if isinstance(found, str):
             return None, None, found
         seed, r_seed, thr, (x, y, bw, bh) = found
@@ -278,8 +283,20 @@ def tip_edge_points(frame, gains, guess_uv, radius_px, search_px):
     return pts + (u0, v0), seed + (u0, v0), ""
 
 
-def _dark_blob(val, guess_xy, radius_px, level_step):
-    """The dark component of the face's size nearest ``guess_xy`` in ``val``.
+def _face_blob(val, guess_xy, radius_px):
+    """:func:`_dark_blob` at the face's threshold, or at the lower one where the
+    rod's flank has joined the face's blob: (centroid, radius, threshold, bbox) or
+    the reason it failed."""
+    found = _dark_blob(val, guess_xy, radius_px, LEVEL_STEP_PX)
+    if isinstance(found, str) or found[1] <= JOINED_RADIUS * radius_px:
+        return found
+    lower = _dark_blob(val, guess_xy, radius_px, LEVEL_STEP_PX, LOW_THRESHOLD_FRACTION)
+    return found if isinstance(lower, str) else lower
+
+
+def _dark_blob(val, guess_xy, radius_px, level_step, fraction=TIP_THRESHOLD_FRACTION):
+    """The dark component of the face's size nearest ``guess_xy`` in ``val``, below
+    ``fraction`` of the way from the window's dark level to its bright one.
 
     Returns (centroid, radius, threshold, bbox) or the reason it failed.
     """
@@ -293,7 +310,7 @@ def _dark_blob(val, guess_xy, radius_px, level_step):
     dark, bright = float(part[k_dark]), float(part[k_bright])
     if bright - dark <= 0:
         return "no contrast in the tip window"
-    thr = dark + TIP_THRESHOLD_FRACTION * (bright - dark)
+    thr = dark + fraction * (bright - dark)
     mask = cv2.threshold(val, thr, 1, cv2.THRESH_BINARY_INV)[1].astype(np.uint8)
     found = blobs(mask)
     if len(found) == 0:
