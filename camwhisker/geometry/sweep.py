@@ -16,9 +16,10 @@ moving frames (:func:`corner_offsets`), and the adjustment fits that offset as t
 corner's shift in the plate. The rod's diameter (which the adjustment cannot
 see, and the front end's tip measurement needs) is measured from the tip's
 radius at rest in the first round, then from its edge in the last round's
-tilted frames (:func:`tilted_rim_scale`), less the blur's inward shift of
-that curved edge, with the blur measured across it. Intrinsics from chessboard
-images (:func:`intrinsics_from_chessboard`) may be given; they are then held.
+tilted frames against that round's fit (:func:`tilted_rim_scale`), less the
+blur's inward shift of that curved edge, with the blur measured across it.
+Intrinsics from chessboard images (:func:`intrinsics_from_chessboard`) may be
+given; they are then held.
 """
 
 from __future__ import annotations
@@ -252,7 +253,7 @@ def tilted_rim_scale(
     shift of the edge taken out), how many frames gave one, and the blur (Gaussian
     sigma, px; :func:`~camwhisker.vision.tip.edge_blur_px`, median over BLUR_FRAMES
     of them; NaN, and no shift taken out, where no edge fits); (NaN, 0, NaN) where no
-    frame gives a scale. ``tracked`` was tracked with ``sensor``."""
+    frame gives a scale. ``tracked``'s points place the search, its poses are ``sensor``'s."""
     phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
     tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
     if not len(tilted):
@@ -436,9 +437,6 @@ def calibrate_sensor(
             used = (float("nan"), 0, float("nan"))
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
         tracked = track_sweep(videos, current, on_frame, options)
-        # Not in the first round: the start file's poses misplace the rim.
-        scale, n_scaled, blur = (tilted_rim_scale(videos, current, tracked, options) if k
-                                 else (float("nan"), 0, float("nan")))  # fmt: skip
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
@@ -453,6 +451,10 @@ def calibrate_sensor(
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
+        # The rim measured against this round's fit, its geometry and poses: against the
+        # tracking's (the round before's fit) the rod's size lags the depths and swings.
+        fitted = replace(tracked, q=np.where(adj.used[:, None], adj.q, tracked.q))
+        scale, n_scaled, blur = tilted_rim_scale(videos, current, fitted, options)
         rim_off = n_scaled >= MIN_TILTED_TIP_FRAMES and abs(scale) > RIM_SCALE_TOL
         if previous is not None and _stable(previous, adj) and not rim_off:
             break
