@@ -85,6 +85,7 @@ __all__ = [
     "tolerances",
     "adjust_geometry",
     "corner_shift_jacobian",
+    "bias_terms",
 ]
 
 #: The Huber loss is quadratic within this distance of a point's model (px):
@@ -343,7 +344,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
             # What of the geometry's rows the pose cannot absorb, per pixel of bias.
             reduced = (jg - jp @ v_inv @ W[f].T) * sw[:, None]
             systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
-                                       _bias_terms(q[f]))  # fmt: skip
+                                       bias_terms(q[f]))  # fmt: skip
     # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
     is_shift = p.free >= n_geo
     k = p.free[is_shift] - n_geo
@@ -354,7 +355,7 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
 
 
-def _bias_terms(q3: np.ndarray) -> np.ndarray:
+def bias_terms(q3: np.ndarray) -> np.ndarray:
     """The tilt-dependent tracking error's terms at pose (dz, a, b), shape (3,)."""
     a, b = q3[1:3] / SYSTEMATIC_PHI0_RAD
     return np.array([a, b, a * a + b * b])

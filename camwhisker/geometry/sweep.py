@@ -75,6 +75,7 @@ __all__ = [
     "tilted_rim_scale",
     "rod_diameter_mm",
     "calibrate_sensor",
+    "adjust_tracked",
     "intrinsics_from_chessboard",
 ]
 
@@ -445,9 +446,7 @@ def calibrate_sensor(
             known, sd = known_dz_from_stage(tracked, len(videos) - len(dz_steps) + j, log)
             has = np.isfinite(known)
             known_dz[has], known_sd[has] = known[has], sd[has]
-        adj = adjust_geometry(pts, start, tracked.rest, fixed, tracked.q, corner_shifts=True,
-                              corner_offsets_uv=tracked.corner_offsets_uv, video=tracked.video,
-                              known_dz_mm=known_dz, known_dz_sd_mm=known_sd)  # fmt: skip
+        adj = adjust_tracked(tracked, pts, start, fixed, known_dz, known_sd)
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
@@ -460,6 +459,17 @@ def calibrate_sensor(
             break
         previous = adj
     return Calibration(adj, tracked, ok_fraction, radius_px, *used)
+
+
+def adjust_tracked(tracked: TrackedSweep, points_uv: np.ndarray, start: Sensor, fixed: dict,
+                   known_dz_mm: np.ndarray | None = None,
+                   known_dz_sd_mm: np.ndarray | float = KNOWN_DZ_SD_MM) -> Adjustment:  # fmt: skip
+    """One round's adjustment of ``points_uv`` (the tracked sweep's trusted points, NaN
+    elsewhere) from ``start``: the corners' shifts fitted about the sweep's measured
+    offsets, each frame starting at its tracked pose."""
+    return adjust_geometry(points_uv, start, tracked.rest, fixed, tracked.q, corner_shifts=True,
+                           corner_offsets_uv=tracked.corner_offsets_uv, video=tracked.video,
+                           known_dz_mm=known_dz_mm, known_dz_sd_mm=known_dz_sd_mm)  # fmt: skip
 
 
 def _start(sensor: Sensor, square_side_mm: float | None, intrinsics: dict | None,
