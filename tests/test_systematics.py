@@ -75,8 +75,9 @@ def _phi_error_deg(sensor: Sensor, build: Sensor) -> float:
 def test_true_points_for_the_biased_group_take_out_its_error(biased):
     build, cal, exact = biased
     as_tracked = _phi_error_deg(cal.sensor, build)
-    square, tip = (_phi_error_deg(refit_with_true_points(cal, Sensor(), exact, GROUPS[g], NOISE),
-                                  build) for g in ("square", "tip"))  # fmt: skip
+    square, tip = (_phi_error_deg(refit_with_true_points(cal, Sensor(), exact, GROUPS[g][0],
+                                                         NOISE), build)
+                   for g in ("square", "tip"))  # fmt: skip
     print(f"phi error at 20 deg: as tracked {as_tracked:.4f}, square true {square:.4f}, "
           f"tip true {tip:.4f} deg")  # fmt: skip
     # The square's error moves the fit (here 0.009 deg, the size of a quiet build's whole

@@ -6,17 +6,19 @@ last round's tracked points with where the build's true geometry and the
 scene's true poses put them. A tracked corner is the plate point its rest
 template is centred on, off the true corner by a constant in the plate
 (:mod:`camwhisker.geometry.adjust`): its true place carries its offset at rest
-as an in-plane shift. Per build and group of points (the square's corners, the
-cross's, the tip, all), it prints:
+as an in-plane shift. Per build and source of error (the tracked points of the
+square's corners, of the cross's, of the tip, or all of them; the rod's diameter,
+which the calibration measures apart), it prints:
 
 - the tracking error's tilt-dependent part: the RMS over the group's coordinates
   of the coefficients of ``adjust.SYSTEMATIC_PX``'s terms (a/PHI0, b/PHI0,
   phi^2/PHI0^2), fitted with dz and a constant, and the scatter left about them;
 - the clip's phi and dz RMSE, fitted file over true file, when the last round is
-  adjusted again with that group's tracked points replaced by their true places
-  plus white noise of each point's own (:func:`white_noise_px`): how much of the
-  fit's error that group's tracking errors cause. "as tracked" is the calibration
-  itself; "all" is what the white noise alone leaves. The noise is drawn
+  adjusted again with that source taken out: the points replaced by their true
+  places plus white noise of each point's own (:func:`white_noise_px`), the rod's
+  diameter held at the truth. "as tracked" is the calibration itself; "all points,
+  rod" is what the white noise alone leaves. The sources interact (the fit trades
+  one's error against another's), so the rows do not add up. The noise is drawn
   ``--draws`` times: the mean ratio, and the smallest and largest.
 
     python -m camwhisker.bench.systematics --seeds 169,179 [--draws 3] [--sweep-s 20] [--cache DIR]
@@ -51,9 +53,11 @@ from camwhisker.synth.scenarios import PoseTrack
 __all__ = ["GROUPS", "GroupRow", "true_poses", "true_tracked_points", "tilt_coefficients",
            "white_noise_px", "refit_with_true_points", "run_build", "main"]  # fmt: skip
 
-#: The tracked points by feature: indices into the 13 (12 corners, then the tip).
-GROUPS = {"square": (0, 1, 2, 3), "cross": tuple(range(4, TIP)), "tip": (TIP,),
-          "all": tuple(range(TIP + 1))}  # fmt: skip
+#: The sources of error taken out in turn: the tracked points replaced (indices into the
+#: 13: 12 corners, then the tip), and whether the rod's diameter is held at the truth.
+GROUPS = {"square": ((0, 1, 2, 3), False), "cross": (tuple(range(4, TIP)), False),
+          "tip": ((TIP,), False), "rod": ((), True), "all points": (tuple(range(TIP + 1)), False),
+          "all points, rod": (tuple(range(TIP + 1)), True)}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -121,18 +125,20 @@ def white_noise_px(error_uv: np.ndarray) -> np.ndarray:
 
 
 def refit_with_true_points(cal: Calibration, nominal: Sensor, true_uv: np.ndarray,
-                           points: tuple[int, ...], noise_px: np.ndarray,
-                           seed: int = 0) -> Sensor:  # fmt: skip
+                           points: tuple[int, ...], noise_px: np.ndarray, seed: int = 0,
+                           rod_diameter_mm: float | None = None) -> Sensor:  # fmt: skip
     """The calibration's last round adjusted again, the tracked ``points`` replaced by
     ``true_uv`` plus Gaussian noise of SD ``noise_px`` (13,) where they were tracked;
-    the square's side and the rod's diameter held at the calibration's."""
+    the square's side and the rod's diameter held at the calibration's, or the rod's
+    at ``rod_diameter_mm``."""
     tracked = cal.tracked
     pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
     noise = np.random.default_rng(seed).normal(size=pts.shape) * noise_px[:, None]
     idx = list(points)
     pts[:, idx] = np.where(np.isfinite(pts[:, idx]), true_uv[:, idx] + noise[:, idx], np.nan)
     plate = cal.sensor.plate
-    fixed = {SQUARE_SIDE: plate.square_side_mm, ROD_DIAMETER: plate.rod_diameter_mm}
+    rod = plate.rod_diameter_mm if rod_diameter_mm is None else rod_diameter_mm
+    fixed = {SQUARE_SIDE: plate.square_side_mm, ROD_DIAMETER: rod}
     start = nominal.replace(plate={"square_side_mm": plate.square_side_mm})
     return adjust_tracked(tracked, pts, start, fixed).sensor
 
@@ -161,12 +167,15 @@ def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
         return r.phi_rmse_deg / true_row.phi_rmse_deg, r.dz_rmse_mm / true_row.dz_rmse_mm
 
     rows = [GroupRow(seed, "as tracked", math.nan, math.nan, *ratios(cal.sensor))]
-    for name, points in GROUPS.items():
+    true_rod = build.sensor.plate.rod_diameter_mm
+    for name, (points, rod) in GROUPS.items():
         idx = list(points)
-        tilt, left = (float(np.sqrt(np.nanmean(a[idx] ** 2))) for a in (coef, scatter))
+        tilt, left = (float(np.sqrt(np.nanmean(a[idx] ** 2))) if idx else math.nan
+                      for a in (coef, scatter))  # fmt: skip
+        held = true_rod if rod else None
         phi, dz = np.array([ratios(refit_with_true_points(cal, nominal, true_uv, points,
-                                                          noise_px, draw))
-                            for draw in range(draws)]).T  # fmt: skip
+                                                          noise_px, draw, held))
+                            for draw in range(draws if idx else 1)]).T  # fmt: skip
         rows.append(GroupRow(seed, name, tilt, left, float(phi.mean()), float(dz.mean()),
                              (float(phi.min()), float(phi.max()))))  # fmt: skip
     return rows
@@ -177,8 +186,8 @@ def table(rows: list[GroupRow]) -> str:
     lines = ["| build | true points for | tilt terms RMS (px) | scatter (px) | phi fitted/true "
              "(range over draws) | dz fitted/true |", "|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
-        spread = "" if math.isnan(r.phi_ratio_range[0]) else "({:.2f}-{:.2f})".format(
-            *r.phi_ratio_range)
+        lo, hi = r.phi_ratio_range
+        spread = "" if math.isnan(lo) or lo == hi else f"({lo:.2f}-{hi:.2f})"
         lines.append(f"| {r.seed} | {r.group} | {r.tilt_px:.3f} | {r.scatter_px:.3f} | "
                      f"{r.phi_ratio:.2f} {spread} | {r.dz_ratio:.2f} |")  # fmt: skip
     return "\n".join(lines)
