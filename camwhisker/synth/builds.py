@@ -67,8 +67,9 @@ class RealitySuite:
 
 
 # 0-4 from the start, 5-29 seen since; 110's tip edge led to a change of the tip's search,
-# 126's pale cross to the rest colours' rule for a faint colour.
-_TUNING = (*range(30), 110, 126)
+# 126's pale cross to the rest colours' rule for a faint colour; 163, 168, 169 and 179
+# (quiet builds the calibration missed) were taken apart by the systematics bench.
+_TUNING = (*range(30), 110, 126, 163, 168, 169, 179)
 REALITY_SUITE = RealitySuite(
     tuning_seeds=_TUNING,
     held_out_seeds=tuple(s for s in range(100, 200) if s not in _TUNING),
