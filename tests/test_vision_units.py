@@ -426,6 +426,32 @@ def test_lk_without_the_apex_follows_a_tilted_blurred_corner():
     assert err[4.0] < 0.02
 
 
+
+def test_lk_on_the_squares_band_ignores_a_spring_in_the_far_cloth():
+    # The frame has a spring's end (a bar of the cloth's level less 0.4) 7 px out from
+    # both edges, inside the window, which the rest template lacks. The whole window
+    # follows it by ~0.1 px; the square and an 8 px band around its edges, which its blur
+    # barely reaches, by ~0.01 px. Without the spring either reads within 0.002 px.
+    from camwhisker.vision.tracker import _square_band
+
+    apex0, apex1, inside = np.array([32.3, 31.6]), np.array([33.1, 30.9]), np.array([1.2, 1.0])
+    rest = _warped_corner_image(np.eye(2), apex0, 1.7)
+    moved = _warped_corner_image(np.eye(2), apex1, 1.7)
+    v, u = np.mgrid[0:64, 0:64]
+    spring = (np.abs((u - apex1[0]) - (v - apex1[1])) < 3) & (u < apex1[0] - 7) & (
+        v < apex1[1] - 7)
+    moved = moved - 0.4 * cv2.GaussianBlur(spring.astype(np.float32), (0, 0), 1.7)
+    tmpl = warp_templates(rest, np.zeros(2), (apex0 + inside)[None], np.eye(2)[None])
+    expect = apex1 + inside
+    keep = _square_band(np.eye(2)[None], tmpl.shape[1] // 2, 8.0)
+    err = {}
+    for label, k in (("all", None), ("band", keep)):
+        uv, _ = refine_first_template(moved, np.zeros(2), tmpl, expect[None] + 0.3,
+                                      np.array([True]), 4.0, k)  # fmt: skip
+        err[label] = float(np.hypot(*(uv[0] - expect)))
+    assert err["all"] > 0.05
+    assert err["band"] < 0.02
+
 def test_lk_float32_and_float64_inputs_agree():
     rest = _corner_image()
     moved = _corner_image(corner=(53.125, 42.25))

@@ -90,6 +90,11 @@ MAX_ROUNDS = 6
 #: the phi scale comes from the corners' foreshortening, which blur's rounding of the
 #: apex biases at the 0.02 px level under tilt; the edges' half levels it does not move.
 SWEEP_APEX_MASK_PX = 4.0
+#: ... and their square's corners without the cloth farther than this outside the square's
+#: edges (px, FrontEndOptions.square_band_px): the springs' ends reach into those windows
+#: as the plate tilts, an error that grows with the tilt and that the fit takes into the
+#: depths; beyond ~3 blur sigma the edge's profile has no more to give.
+SWEEP_SQUARE_BAND_PX = 8.0
 #: The tip's size is measured in frames tilted at least this far (deg): the face then
 #: lies on the cloth, as in use; at rest it lies on the cross and its light centre,
 #: whose dark red the edge search can leave out.
@@ -425,7 +430,8 @@ def calibrate_sensor(
         raise ValueError(f"rounds must be >= 1, got {rounds}")
     start, fixed = _start(sensor, square_side_mm, intrinsics, bool(dz_steps))
     videos = [*videos, *(v for v, _ in dz_steps)]
-    options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX)
+    options = replace(options or FrontEndOptions(), apex_mask_px=SWEEP_APEX_MASK_PX,
+                      square_band_px=SWEEP_SQUARE_BAND_PX)  # fmt: skip
     current, previous, ok_fraction = start, None, []
     scale, n_scaled, blur = float("nan"), 0, float("nan")
     for k in range(rounds):

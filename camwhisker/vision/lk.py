@@ -104,6 +104,7 @@ def refine_first_template(
     start_uv: np.ndarray,
     active: np.ndarray,
     apex_px: float = 0.0,
+    keep: np.ndarray | None = None,
 ):
     """Inverse-compositional translation LK of each template in ``image``.
 
@@ -123,6 +124,9 @@ def refine_first_template(
         Points to refine; the others come back NaN.
     apex_px : float
         The fit leaves out the window's pixels closer than this to its centre (px).
+    keep : ndarray of bool, shape (K, n - 2, n - 2), optional
+        Each window's pixels the fit may use (the template's border excluded);
+        default all.
 
     Returns
     -------
@@ -140,9 +144,14 @@ def refine_first_template(
     origins[:] = origin
     d0 = np.asarray(start_uv, float) - origins
     ok = np.asarray(active, bool) & np.isfinite(d0).all(axis=1)
-    weights = _fit_weights(templates.shape[1] - 2, apex_px)
+    weights = np.broadcast_to(_fit_weights(templates.shape[1] - 2, apex_px),
+                              (k_all, *[templates.shape[1] - 2] * 2))  # fmt: skip
+    weights = np.ascontiguousarray(weights if keep is None else weights * keep)
+    # The intensity offset is taken over the pixels kept: what lies outside them (a
+    # spring crossing the window) must not move it.
+    in_mean = np.ones_like(weights) if keep is None else np.ascontiguousarray(keep, np.float64)
     d, quality = _refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
-                         weights, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
+                         weights, in_mean, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
     return d + origins, quality
 
 
@@ -154,10 +163,11 @@ def _fit_weights(m: int, apex_px: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _refine(images, which, templates, d0, ok, weights, tol, max_iter):
+def _refine(images, which, templates, d0, ok, weights, in_mean, tol, max_iter):
     """Per point: inverse-compositional translation LK on the mean-removed window
     (the template without its one-pixel gradient border), each pixel's equation
-    weighted by ``weights`` (m, m), iterated until the step is below ``tol``; then
+    weighted by ``weights`` (K, m, m) and the offset removed over ``in_mean`` (K, m, m),
+    iterated until the step is below ``tol``; then
     the zero-mean NCC of the whole window at the result. NaN where it failed."""
     k_all, n, _ = templates.shape
     m = n - 2
@@ -181,7 +191,7 @@ def _refine(images, which, templates, d0, ok, weights, tol, max_iter):
                 t[i, j] = tk[i + 1, j + 1]
                 tx[i, j] = (tk[i + 1, j + 2] - tk[i + 1, j]) * 0.5
                 ty[i, j] = (tk[i + 2, j + 1] - tk[i, j + 1]) * 0.5
-                wx, wy = weights[i, j] * tx[i, j], weights[i, j] * ty[i, j]
+                wx, wy = weights[k, i, j] * tx[i, j], weights[k, i, j] * ty[i, j]
                 hxx += wx * tx[i, j]
                 hxy += wx * ty[i, j]
                 hyy += wy * ty[i, j]
@@ -195,17 +205,18 @@ def _refine(images, which, templates, d0, ok, weights, tol, max_iter):
                 alive = False
                 break
             _sample(img, dx, dy, half, m, e)
-            mean = 0.0
+            mean = count = 0.0
             for i in range(m):
                 for j in range(m):
                     e[i, j] -= t[i, j]
-                    mean += e[i, j]
-            mean /= m * m
+                    mean += in_mean[k, i, j] * e[i, j]
+                    count += in_mean[k, i, j]
+            mean /= count
             bx = by = 0.0
             for i in range(m):
                 for j in range(m):
-                    bx += weights[i, j] * tx[i, j] * (e[i, j] - mean)
-                    by += weights[i, j] * ty[i, j] * (e[i, j] - mean)
+                    bx += weights[k, i, j] * tx[i, j] * (e[i, j] - mean)
+                    by += weights[k, i, j] * ty[i, j] * (e[i, j] - mean)
             sx = (hyy * bx - hxy * by) / det
             sy = (hxx * by - hxy * bx) / det
             dx -= sx

@@ -149,6 +149,9 @@ class FrontEndOptions:
         each hinted feature around its hint; None: where the model puts them.
     apex_mask_px : the corners' LK leaves out its window's pixels this close to
         the centre (px; :func:`~camwhisker.vision.lk.refine_first_template`).
+    square_band_px : the square's corners' LK keeps the cloth only this close to
+        the square's edges (px; 0: all of it): a spring's end that enters the
+        window farther out then moves them no more.
     """
 
     mode: str = "model"
@@ -159,6 +162,7 @@ class FrontEndOptions:
     rest_frames: int = REST_FRAMES
     features: FeatureHints | None = None
     apex_mask_px: float = 0.0
+    square_band_px: float = 0.0
 
     def __post_init__(self):
         if self.mode not in ("model", "paper"):
@@ -169,6 +173,8 @@ class FrontEndOptions:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         if not 0.0 <= self.apex_mask_px < self.lk_half_px:
             raise ValueError(f"apex_mask_px must be in [0, lk_half_px), got {self.apex_mask_px!r}")
+        if not 0.0 <= self.square_band_px:
+            raise ValueError(f"square_band_px must be >= 0, got {self.square_band_px!r}")
         if self.features is not None and not isinstance(self.features, FeatureHints):
             raise ValueError(f"features must be FeatureHints or None, got {self.features!r}")
 
@@ -243,10 +249,31 @@ class _TipFind:
 
 @dataclass(frozen=True)
 class _Warped:
-    """The rest templates warped to a pose, and the rest offsets (13, 2) at that pose."""
+    """The rest templates warped to a pose, the rest offsets (13, 2) at that pose, and
+    the pixels of each window the LK keeps (None: all; :func:`_square_band`)."""
 
     templates: np.ndarray
     offsets: np.ndarray
+    keep: np.ndarray | None = None
+
+
+def _square_band(dirs: np.ndarray, half: int, band_px: float) -> np.ndarray:
+    """The pixels of each square corner's LK window (without the template's border)
+    inside the square or within ``band_px`` of its edges, shape (K, 2 half - 1, 2 half - 1).
+
+    ``dirs`` (K, 2, 2): the image directions of the corner's two edges, toward the
+    square's neighbouring corners. The window's centre is taken as the corner: the
+    tracked point lies within a pixel or two of it, inside."""
+    r = np.arange(2 * half - 1) - (half - 1.0)
+    pix = np.broadcast_to(np.stack(np.meshgrid(r, r), axis=-1), (len(dirs), len(r), len(r), 2))
+    keep = np.ones(pix.shape[:3], bool)
+    for edge, other in ((0, 1), (1, 0)):
+        normal = dirs[:, edge, ::-1] * np.array([1.0, -1.0])
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        # Toward the square's inside: the side of the corner's other edge.
+        normal *= np.sign(np.einsum("ki,ki->k", normal, dirs[:, other]))[:, None]
+        keep &= np.einsum("kyxi,ki->kyx", pix, normal) >= -band_px
+    return keep
 
 
 @dataclass
@@ -347,8 +374,7 @@ class FrontEnd:
         # The corners' step once at rest: its compiled kernels load now,
         # not on the first tracked frame, and the rest templates are ready.
         look = _Look(frame, self.rest.gains, self.rest.cloth_level)
-        templates = self._templates(self.q).templates
-        self._refine(look, templates, self.rest.uv[:TIP], np.ones(TIP, bool))
+        self._refine(look, self._templates(self.q), self.rest.uv[:TIP], np.ones(TIP, bool))
         return FrameResult(
             index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
             0.0, 0.0, 0.0, 0.0, TIP, "", self.rest.uv.copy(), np.ones(TIP + 1), np.zeros(5),
@@ -483,7 +509,7 @@ class FrontEnd:
     def _lock_at(self, look: _Look, q: np.ndarray, uv: np.ndarray, warped: _Warped) -> _Corners:
         """The visible corners at pose q, started from ``uv`` (12, 2)."""
         occluded = self._occluded(q, uv, warped.offsets)
-        uv_ref, quality = self._refine(look, warped.templates, uv, ~occluded)
+        uv_ref, quality = self._refine(look, warped, uv, ~occluded)
         return _Corners(q, occluded, uv_ref, quality, warped.offsets)
 
     def _try_other_depths(self, look: _Look, tip: _TipFind, corners: _Corners) -> _Corners:
@@ -521,7 +547,7 @@ class FrontEnd:
         if not fit.converged:
             return
         warped = self._templates(fit.q)
-        uv_r, q_r = self._refine(look, warped.templates, self._corners_at(fit.q, warped), retry)
+        uv_r, q_r = self._refine(look, warped, self._corners_at(fit.q, warped), retry)
         better = retry & (np.nan_to_num(q_r, nan=-1) > np.nan_to_num(corners.quality, nan=-1))
         corners.uv[better], corners.quality[better] = uv_r[better], q_r[better]
 
@@ -676,7 +702,7 @@ class FrontEnd:
                 break
         return q
 
-    def _refine(self, look: _Look, templates, start_uv, active):
+    def _refine(self, look: _Look, warped: _Warped, start_uv, active):
         """Drift correction of every active corner against its warped rest patch.
 
         The LK runs first in patches NEAR_MARGIN_PX around the start, then again
@@ -688,12 +714,13 @@ class FrontEnd:
         active = active & self._patches_inside(look.image, start_uv, half)[0]
         near = opts.lk_half_px + min(NEAR_MARGIN_PX, opts.roi_margin_px)
         patches, origins, _ = self._share_patches(look, start_uv, near)
-        apex = opts.apex_mask_px
-        uv, qual = refine_first_template(patches, origins, templates, start_uv, active, apex)
+        lk = (warped.templates, start_uv)
+        apex, keep = opts.apex_mask_px, warped.keep
+        uv, qual = refine_first_template(patches, origins, *lk, active, apex, keep)
         again = active & np.isnan(qual)
         if near < half and again.any():
             patches, origins, _ = self._share_patches(look, start_uv, half)
-            uv_f, q_f = refine_first_template(patches, origins, templates, start_uv, again, apex)
+            uv_f, q_f = refine_first_template(patches, origins, *lk, again, apex, keep)
             uv[again], qual[again] = uv_f[again], q_f[again]
         return uv, qual
 
@@ -740,7 +767,11 @@ class FrontEnd:
         # neighbourhood (blur pulls it inward), which moves with that neighbourhood.
         offsets = rest.offsets.copy()
         offsets[:TIP] = np.einsum("kij,kj->ki", a, rest.offsets[:TIP])
-        return _Warped(np.concatenate([sq, cr]), offsets)
+        keep = None
+        if self.options.square_band_px > 0:
+            keep = np.ones((TIP, 2 * half - 1, 2 * half - 1), bool)
+            keep[:N_SQUARE] = _square_band(d1[:N_SQUARE], half, self.options.square_band_px)
+        return _Warped(np.concatenate([sq, cr]), offsets, keep)
 
     def _occluded(self, q, uv, offsets):
         """Corners whose window something nearer covers (or nearly) at pose q, shape (12,).
