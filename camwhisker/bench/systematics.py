@@ -62,13 +62,13 @@ GROUPS = {"square": ((0, 1, 2, 3), False), "cross": (tuple(range(4, TIP)), False
 
 @dataclass(frozen=True)
 class GroupRow:
-    """One group of points on one build."""
+    """One source of error taken out, on one build."""
 
     seed: int
     group: str
     tilt_px: float  # RMS tilt-term coefficient over the group's coordinates (px)
     scatter_px: float  # RMS residual about the fitted terms (px)
-    phi_ratio: float  # clip phi RMSE, file refitted with the group's true points / true file
+    phi_ratio: float  # clip phi RMSE, the file refitted without the source / the true file
     dz_ratio: float
     phi_ratio_range: tuple[float, float] = (math.nan, math.nan)  # over the noise's draws
 
@@ -145,7 +145,7 @@ def refit_with_true_points(cal: Calibration, nominal: Sensor, true_uv: np.ndarra
 
 def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
               draws: int = 3) -> list[GroupRow]:  # fmt: skip
-    """Calibrate build ``seed`` on its sweep; one row per group, and "as tracked"."""
+    """Calibrate build ``seed`` on its sweep; one row per source, and "as tracked"."""
     nominal = Sensor()
     build = draw_build(seed, nominal)
     sweep_scene, sweep = render_build_clip(build, "calibration_sweep", sweep_frames, seed, folder)
@@ -182,8 +182,8 @@ def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
 
 
 def table(rows: list[GroupRow]) -> str:
-    """One Markdown row per build and group."""
-    lines = ["| build | true points for | tilt terms RMS (px) | scatter (px) | phi fitted/true "
+    """One Markdown row per build and source."""
+    lines = ["| build | taken out | tilt terms RMS (px) | scatter (px) | phi fitted/true "
              "(range over draws) | dz fitted/true |", "|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
         lo, hi = r.phi_ratio_range
