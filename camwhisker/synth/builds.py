@@ -72,7 +72,7 @@ class RealitySuite:
 _TUNING = (*range(30), 110, 126, 163, 168, 169, 179)
 REALITY_SUITE = RealitySuite(
     tuning_seeds=_TUNING,
-    held_out_seeds=tuple(s for s in range(100, 200) if s not in _TUNING),
+    held_out_seeds=tuple(s for s in range(100, 300) if s not in _TUNING),
     scenes=("nominal", "large_tilt"),
 )
 
