@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
+
 from camwhisker.contact.texture import estimate_texture
 from camwhisker.mechanics.texture import (
     FRAME_RATES,
@@ -27,7 +29,8 @@ from camwhisker.mechanics.texture import (
 )
 from camwhisker.mechanics.whisker import WhiskerMechanics
 
-__all__ = ["GAPS_MM", "AMPLITUDES_MM", "SPEEDS_MM_S", "run_cell", "resolution_table", "main"]
+__all__ = ["GAPS_MM", "AMPLITUDES_MM", "SPEEDS_MM_S", "run_cell", "resolution_table",
+           "coverage", "main"]
 
 TOLERANCE = 0.10
 SPEEDS_MM_S = (1.0, 3.0, 10.0)
@@ -48,13 +51,38 @@ def run_cell(gap_mm, amplitude_mm, speed_mm_s, fps, seed) -> dict:
     row = {"gap_mm": gap_mm, "amplitude_mm": amplitude_mm, "speed_mm_s": speed_mm_s,
            "fps": fps, "seed": seed, "texture_hz": speed_mm_s / gap_mm,
            "resolved": est.resolved, "gap_error": None, "amplitude_error": None,
+           "gap_se": None, "amplitude_se": None,
            "gap_min_mm": est.limits["gap_min_mm"],
            "nyquist_gap_min_mm": est.limits["nyquist_gap_min_mm"],
            "amplitude_min_mm": est.limits["amplitude_min_mm"]}
     if est.resolved:
         row["gap_error"] = est.gap_mm / gap_mm - 1.0
         row["amplitude_error"] = est.amplitude_mm / amplitude_mm - 1.0
+        row["gap_se"] = est.gap_se_mm / gap_mm  # relative, as the errors
+        row["amplitude_se"] = est.amplitude_se_mm / amplitude_mm
     return row
+
+
+def coverage(runs, key) -> dict:
+    """Of the numbers given: the share within 2 and 3 standard errors of the truth and the
+    RMS of error / SE (1 where the standard errors are right)."""
+    z = np.array([r[f"{key}_error"] / r[f"{key}_se"] for r in runs if r["resolved"]])
+    if z.size == 0:
+        return {"n": 0, "within_2se": None, "within_3se": None, "z_rms": None}
+    return {"n": int(z.size), "within_2se": float(np.mean(np.abs(z) <= 2.0)),
+            "within_3se": float(np.mean(np.abs(z) <= 3.0)),
+            "z_rms": float(np.sqrt(np.mean(z**2)))}
+
+
+def format_coverage(runs) -> str:
+    lines = []
+    for key in ("gap", "amplitude"):
+        c = coverage(runs, key)
+        if c["n"]:
+            lines.append(f"{key}s within 2 SE: {c['within_2se']:.0%}, within 3 SE: "
+                         f"{c['within_3se']:.0%}, RMS error / SE {c['z_rms']:.2f} "
+                         f"(of {c['n']} given)")
+    return "\n".join(lines)
 
 
 def _within(rows, key) -> bool:
@@ -140,6 +168,8 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     table, runs = resolution_table(seeds)
     print(format_table(table, seeds))
+    print()
+    print(format_coverage(runs))
     print(f"\n{len(runs)} runs in {time.perf_counter() - start:.0f} s")
     if args.out:
         from camwhisker.atomic import atomic_write_text
