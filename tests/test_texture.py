@@ -81,6 +81,25 @@ def test_estimator_on_front_end_noise_within_its_errors():
     assert abs(est.amplitude_mm - 0.1) < 4 * est.amplitude_se_mm + 0.008
 
 
+def test_gap_standard_error_covers_textures_near_the_corner():
+    # Near the corner (no second low-pass) neighbouring extrema share the filtered noise.
+    # 120 frames/s, not a tuning rate, 20 runs. Right standard errors give an RMS error / SE
+    # of 1 (+-0.16 over 20 runs); the gap's deterministic error adds to it (1.5 here). Taken
+    # as independent, the extrema gave 2.3 here: the bound 1.8 lies between.
+    z, ratio = [], []
+    for speed, gap in ((3.0, 1.0), (10.0, 3.0)):
+        for seed in range(10):
+            run = simulate_texture(TextureSurface(gap, 0.1),
+                                   TextureProtocol(speed_mm_s=speed, fps=120.0), seed)
+            est = estimate_texture(_signals(run), speed, LENGTH_MM)
+            assert est.resolved and est.details["tight_hz"] == est.limits["cutoff_hz"]
+            z.append((est.gap_mm - gap) / est.gap_se_mm)
+            ratio.append(est.details["timing_noise_mm"] / est.details["rest_sigma_mm"])
+    assert math.sqrt(np.mean(np.square(z))) < 1.8
+    # The extrema's scatter is the rest noise through the filters: the model's own check.
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.15)
+
+
 def test_texture_beyond_nyquist_returns_the_limit_not_a_number():
     # 10 mm/s over a 0.5 mm gap is 20 Hz, above half of 30 frames/s.
     run = simulate_texture(TextureSurface(0.5, 0.2), TextureProtocol(speed_mm_s=10.0, fps=30.0), 0)

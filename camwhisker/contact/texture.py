@@ -132,8 +132,8 @@ def _segments(t, u, fps: float, source: str):
 
 
 def _extrema_times(t, y, prominence: float):
-    """Times of maxima and minima standing out by ``prominence``, refined between frames
-    by a parabola."""
+    """Maxima and minima standing out by ``prominence``, refined between frames by a parabola:
+    for each, the times, frame indices and curvatures (y[i-1] - 2 y[i] + y[i+1])."""
     from scipy.signal import find_peaks
 
     out = []
@@ -143,12 +143,42 @@ def _extrema_times(t, y, prominence: float):
         a, b, c = y[idx - 1], y[idx], y[idx + 1]
         den = a - 2 * b + c
         shift = np.where(den != 0, 0.5 * (a - c) / np.where(den != 0, den, 1.0), 0.0)
-        out.append(t[idx] + np.clip(shift, -0.5, 0.5) * (t[1] - t[0]))
+        out.append((t[idx] + np.clip(shift, -0.5, 0.5) * (t[1] - t[0]), idx, den))
     return out
 
 
-def _period(maxima, minima):
-    """Common period (s) and its standard error from extrema times t_k = t0 + k T (LS)."""
+def _noise_acf(corners, fps: float, n: int):
+    """Autocovariance at lags 0..n-1 frames of unit white noise through the low-passes at
+    ``corners`` in turn (each forward and backward)."""
+    from scipy.signal import butter, sosfreqz
+
+    nfft = 2 ** int(math.ceil(math.log2(2 * n + 8)))  # no wrap-around within n lags
+    freqs = np.fft.rfftfreq(nfft, 1.0 / fps)
+    passed = np.ones(freqs.size)
+    for corner in corners:
+        sos = butter(BUTTER_ORDER, corner, fs=fps, output="sos")
+        passed *= np.abs(sosfreqz(sos, worN=freqs, fs=fps)[1]) ** 4  # |B|^2, twice
+    return np.fft.irfft(passed, nfft)[:n]
+
+
+def _timing_cov(idx, curvature, acf, dt: float):
+    """Covariance, per unit noise variance, of parabola-refined extremum times: each moves by
+    dt (n[i-1] - n[i+1]) / (2 curvature) with n the filtered noise, correlated between extrema."""
+    d = np.abs(idx[:, None] - idx[None, :])
+
+    def r(lag):
+        return acf[np.minimum(lag, acf.size - 1)]
+
+    diff_cov = 2.0 * r(d) - r(d + 2) - r(np.abs(d - 2))
+    return dt * dt * diff_cov / (4.0 * np.outer(curvature, curvature))
+
+
+def _period(maxima, minima, timing_cov):
+    """Common period (s) and its standard error from extrema times t_k = t0 + k T (LS), the
+    noise sigma the residuals imply, and the intervals' spread.
+
+    ``timing_cov``: the times' covariance per unit noise variance (maxima, then minima).
+    """
     diffs = np.r_[np.diff(maxima), np.diff(minima)]
     t_med = float(np.median(diffs))
     rows, times = [], []
@@ -160,10 +190,14 @@ def _period(maxima, minima):
     a, y = np.array(rows), np.array(times)
     coef, *_ = np.linalg.lstsq(a, y, rcond=None)
     res = y - a @ coef
-    dof = max(y.size - 3, 1)
-    cov = np.linalg.inv(a.T @ a) * float(res @ res) / dof
+    # The filtered noise moves neighbouring extrema together (or apart): the LS estimate's
+    # sandwich covariance with that correlation, scaled by the residuals it predicts.
+    proj = np.linalg.solve(a.T @ a, a.T)
+    resid_share = float(np.trace(timing_cov) - np.trace(a @ proj @ timing_cov))
+    noise_var = float(res @ res) / max(resid_share, 1e-300)
+    cov = noise_var * proj @ timing_cov @ proj.T
     cv = float(np.std(diffs) / np.mean(diffs))
-    return float(coef[0]), float(math.sqrt(cov[0, 0])), cv
+    return float(coef[0]), float(math.sqrt(cov[0, 0])), math.sqrt(noise_var), cv
 
 
 def _harmonics(t, u, f_hz, cutoff_hz, ringing: Ringing):
@@ -298,7 +332,9 @@ def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
     if tight < cutoff:  # else the seed's filter is as tight as it gets
         yw = _lowpass(yw, tight, fps)
         sigma_t = details["rest_sigma_mm"] * _noise_share([cutoff, tight], fps)
-    maxima, minima = _extrema_times(tw, yw, PROMINENCE_SIGMA * sigma_t)
+    corners = [cutoff, tight] if tight < cutoff else [cutoff]
+    extrema = _extrema_times(tw, yw, PROMINENCE_SIGMA * sigma_t)
+    (maxima, i_max, c_max), (minima, i_min, c_min) = extrema
     details.update(n_maxima=int(maxima.size), n_minima=int(minima.size),
                    tight_hz=min(tight, cutoff), window_s=[float(tw[0]), float(tw[-1])])
     trace.update(maxima=maxima, minima=minima)
@@ -308,9 +344,11 @@ def estimate_texture(signals: dict, speed_mm_s: float, length_mm: float,
               f"{limits['amplitude_min_mm']:.3g} mm")
     if min(maxima.size, minima.size) < MIN_INTERVALS + 1:
         return unresolved(f"no periodic ridges above the noise: the texture is {beyond}")
-    period, period_se, cv = _period(maxima, minima)
+    timing_cov = _timing_cov(np.r_[i_max, i_min], np.r_[c_max, c_min],
+                             _noise_acf(corners, fps, tw.size + 3), 1.0 / fps)
+    period, period_se, timing_sigma, cv = _period(maxima, minima, timing_cov)
     f_tex = 1.0 / period
-    details.update(interval_cv=cv, texture_hz=f_tex)
+    details.update(interval_cv=cv, texture_hz=f_tex, timing_noise_mm=timing_sigma)
     if cv > MAX_INTERVAL_CV or f_tex > cutoff:
         return unresolved(f"the extrema are not one texture (interval spread {cv:.0%}): the "
                           f"texture is {beyond}")
