@@ -183,3 +183,21 @@ def test_bench_takes_the_smallest_gap_with_every_larger_one_resolved():
     row = run_cell(2.0, 0.1, 3.0, 120.0, 5)
     assert row["resolved"] and abs(row["gap_error"]) < 0.02  # 2 %: the bench's worst is 1.8 %
     assert row["nyquist_gap_min_mm"] == pytest.approx(2 * 3.0 / 120.0, rel=1e-4)
+
+
+def test_a_flat_extremum_falls_back_to_the_plain_least_squares_se():
+    from camwhisker.contact.texture import _period, _timing_cov
+
+    rng = np.random.default_rng(3)
+    maxima = 0.5 * np.arange(12) + rng.normal(0, 0.01, 12)
+    minima = 0.25 + 0.5 * np.arange(12) + rng.normal(0, 0.01, 12)
+    cov = _timing_cov(np.arange(24), np.r_[np.ones(23), 0.0], np.ones(5), 1 / 30)
+    period, se, _, _ = _period(maxima, minima, cov)
+    # The identity covariance is the independent-times model: the slope's LS SE with 3 parameters.
+    k = np.r_[np.arange(12), np.arange(12)]
+    a = np.column_stack([k, np.r_[np.ones(12), np.zeros(12)], np.r_[np.zeros(12), np.ones(12)]])
+    y = np.r_[maxima, minima]
+    coef, res, *_ = np.linalg.lstsq(a, y, rcond=None)
+    plain = np.sqrt(np.linalg.inv(a.T @ a)[0, 0] * res[0] / (24 - 3))
+    assert np.isfinite(se) and se == pytest.approx(plain, rel=1e-9)
+    assert period == pytest.approx(coef[0], rel=1e-12)

@@ -163,7 +163,11 @@ def _noise_acf(corners, fps: float, n: int):
 
 def _timing_cov(idx, curvature, acf, dt: float):
     """Covariance, per unit noise variance, of parabola-refined extremum times: each moves by
-    dt (n[i-1] - n[i+1]) / (2 curvature) with n the filtered noise, correlated between extrema."""
+    dt (n[i-1] - n[i+1]) / (2 curvature) with n the filtered noise, correlated between extrema.
+    A flat extremum (zero curvature) has no such model: then the times count as independent
+    (the identity), which gives the plain least-squares SE."""
+    if np.any(curvature == 0):
+        return np.eye(idx.size)
     d = np.abs(idx[:, None] - idx[None, :])
 
     def r(lag):
