@@ -33,7 +33,8 @@ from camwhisker.synth.builds import REALITY_SUITE, draw_build
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_error_deg
 
-__all__ = ["CalibrationRow", "run_build", "table", "summary", "main"]
+__all__ = ["CalibrationRow", "run_build", "table", "summary", "add_sweep_arguments",
+           "sweep_frames_of", "main"]
 
 FPS = 30.0
 #: The clip's render seed is the build's plus this: its poses and noise differ from the sweep's.
@@ -171,19 +172,29 @@ def summary(rows: list[CalibrationRow]) -> str:
             f"{covered}/{len(fits)}")  # fmt: skip
 
 
+def add_sweep_arguments(p: argparse.ArgumentParser, sweep_s: float) -> None:
+    """The sweep's and clip's options of the benches that calibrate rendered builds."""
+    p.add_argument("--sweep-s", type=float, default=sweep_s, help="sweep length (s, at most 20)")
+    p.add_argument("--clip-frames", type=int, default=120, help="frames of the separate clip")
+    p.add_argument("--cache", metavar="DIR", help="folder for the renders, reused on a rerun")
+
+
+def sweep_frames_of(p: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """The sweep's frames from ``--sweep-s``; a sweep lasts at most 20 s, as a user's would."""
+    if not 0 < args.sweep_s <= 20:
+        p.error(f"--sweep-s must be in (0, 20], got {args.sweep_s}")
+    return round(args.sweep_s * FPS)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m camwhisker.bench.calibration", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
     p.add_argument("--seeds", type=seed_list, default=f"{held[0]}-{held[4]}",
                    help="e.g. 100-104, 100,107 or 100-104,107")  # fmt: skip
-    p.add_argument("--sweep-s", type=float, default=12.0, help="sweep length (s, at most 20)")
-    p.add_argument("--clip-frames", type=int, default=120, help="frames of the separate clip")
-    p.add_argument("--cache", metavar="DIR", help="folder for the renders, reused on a rerun")
+    add_sweep_arguments(p, sweep_s=12.0)
     args = p.parse_args(argv)
-    if not 0 < args.sweep_s <= 20:
-        p.error(f"--sweep-s must be in (0, 20], got {args.sweep_s}")
-    sweep_frames = round(args.sweep_s * FPS)
+    sweep_frames = sweep_frames_of(p, args)
     rows = []
     with tempfile.TemporaryDirectory(prefix="camwhisker-calbench-") as tmp:
         folder = Path(args.cache or tmp)

@@ -34,7 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.bench.calibration import CLIP_SEED_OFFSET, FPS
+from camwhisker.bench.calibration import (
+    CLIP_SEED_OFFSET,
+    add_sweep_arguments,
+    sweep_frames_of,
+)
 from camwhisker.bench.reality import clip_row, render_build_clip, seed_list
 from camwhisker.geometry.adjust import bias_terms, corner_shift_jacobian
 from camwhisker.geometry.sweep import (
@@ -198,12 +202,9 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--seeds", type=seed_list, required=True, help="e.g. 169,179 or 0-4")
     p.add_argument("--draws", type=int, default=3, help="draws of the true points' noise")
-    p.add_argument("--sweep-s", type=float, default=20.0, help="sweep length (s, at most 20)")
-    p.add_argument("--clip-frames", type=int, default=120, help="frames of the separate clip")
-    p.add_argument("--cache", metavar="DIR", help="folder for the renders, reused on a rerun")
+    add_sweep_arguments(p, sweep_s=20.0)
     args = p.parse_args(argv)
-    if not 0 < args.sweep_s <= 20:
-        p.error(f"--sweep-s must be in (0, 20], got {args.sweep_s}")
+    sweep_frames = sweep_frames_of(p, args)
     if args.draws < 1:
         p.error(f"--draws must be at least 1, got {args.draws}")
     rows = []
@@ -211,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(args.cache or tmp)
         folder.mkdir(parents=True, exist_ok=True)
         for seed in args.seeds:
-            rows += run_build(seed, round(args.sweep_s * FPS), args.clip_frames, folder,
+            rows += run_build(seed, sweep_frames, args.clip_frames, folder,
                               args.draws)  # fmt: skip
             print(table(rows[-len(GROUPS) - 1:]), flush=True)
     print()
