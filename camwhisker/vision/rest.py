@@ -67,6 +67,14 @@ class RestReference:
         Mean white-balanced cloth brightness (DN).
     paper : PaperRest
         The rest widths and tip of eqs. (2)-(4).
+    share_blur_px : float
+        The blur of the colour shares across the square's edges (Gaussian sigma,
+        px; :func:`~camwhisker.vision.blur.square_blur_px`), which the warped
+        templates are given back; NaN where it was not measured.
+    tip_blur_px : float
+        The blur of the luma across the tip's edge (px;
+        :func:`~camwhisker.vision.tip.edge_blur_px`), which moves the edge inward
+        (:func:`~camwhisker.vision.tip.blurred_rim`); NaN where not measured.
     """
 
     gains: np.ndarray
@@ -79,6 +87,8 @@ class RestReference:
     weights: np.ndarray
     cloth_level: float
     paper: PaperRest
+    share_blur_px: float
+    tip_blur_px: float
 
 
 def mean_image(images: list[np.ndarray]) -> np.ndarray:

@@ -29,6 +29,7 @@ from numba import njit
 
 from camwhisker.polygon import polygon_centroid
 from camwhisker.vision.blobs import blobs
+from camwhisker.vision.blur import erf_sigmas
 
 __all__ = [
     "TipMeasurement",
@@ -36,6 +37,7 @@ __all__ = [
     "tip_edge_points",
     "ellipse_centre",
     "rim_centre",
+    "blurred_rim",
     "rim_scale",
     "edge_blur_px",
     "brightness",
@@ -369,6 +371,21 @@ def rim_centre(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray | N
     return TipMeasurement(centre, r_mean, True)
 
 
+def blurred_rim(rim_uv: np.ndarray, blur_px: float) -> np.ndarray:
+    """Where the edge of a face with outline ``rim_uv`` (M, 2) is found under a blur of
+    Gaussian sigma ``blur_px``: each point moved toward the centroid by blur^2 / (2 r),
+    r the mean radius (see :func:`rim_scale`). Unmoved where the blur is NaN or 0.
+
+    Where the rod's body hides part of the edge (at tilt), a rim fitted to the rest of
+    it without this shift moves away from it by about that much."""
+    rim = np.asarray(rim_uv, float)
+    if not blur_px > 0:
+        return rim
+    c = polygon_centroid(rim)
+    r2 = float(np.mean(np.sum((rim - c) ** 2, axis=1)))
+    return c + (rim - c) * (1.0 - blur_px**2 / (2.0 * r2))
+
+
 def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray,
               blur_px: float = 0.0) -> float:  # fmt: skip
     """How much larger the face is than the model's rim: the relative scale s in the
@@ -423,47 +440,8 @@ def edge_blur_px(lum: np.ndarray, pts: np.ndarray, rim_uv: np.ndarray,
     x = np.arange(-BLUR_WINDOW_PX, BLUR_WINDOW_PX + 1e-9, BLUR_STEP_PX)
     mx, my = (pts[:, :, None] + u[:, :, None] * x).transpose(1, 0, 2).astype(np.float32)
     prof = cv2.remap(lum, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
-    sigma = _erf_sigmas(x, prof.astype(float))
+    sigma = erf_sigmas(x, prof.astype(float), BLUR_FIT_DN)
     return float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else math.nan
-
-
-def _erf_sigmas(x: np.ndarray, prof: np.ndarray) -> np.ndarray:
-    """Per row of ``prof`` (sampled at ``x``), the Gaussian sigma of a rising blurred
-    step a + b Phi((x - x0) / sigma) fitted to it (one sparse least-squares problem);
-    NaN where the fit does not rise or its step is wider than the window."""
-    # Here, not at the top: the CLI's parser imports this module and must stay light.
-    from scipy.optimize import least_squares
-    from scipy.sparse import csr_matrix
-    from scipy.special import erf
-
-    n, m = prof.shape
-    rows = np.arange(n * m)
-    cols = np.repeat(np.arange(n) * 4, m)[:, None] + np.arange(4)
-
-    def parts(q):
-        a, b, x0, sig = q.reshape(n, 4).T[:, :, None]
-        z = (x - x0) / sig
-        return a, b, sig, z, 0.5 * (1.0 + erf(z / math.sqrt(2.0)))
-
-    def resid(q):
-        a, b, _, _, cdf = parts(q)
-        return (a + b * cdf - prof).ravel()
-
-    def jac(q):
-        _, b, sig, z, cdf = parts(q)
-        pdf = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
-        d = np.stack(np.broadcast_arrays(1.0, cdf, -b * pdf / sig, -b * pdf * z / sig), -1)
-        return csr_matrix((d.reshape(-1, 4).ravel(), (np.repeat(rows, 4), cols.ravel())),
-                          shape=(n * m, 4 * n))  # fmt: skip
-
-    q0 = np.column_stack([prof[:, 0], prof[:, -1] - prof[:, 0], np.zeros(n), np.ones(n)])
-    q0[:, 1] = np.maximum(q0[:, 1], 1.0)
-    lo = np.tile([-np.inf, 0.0, x[0], 0.05], n)
-    hi = np.tile([np.inf, np.inf, x[-1], 2.0 * x[-1]], n)
-    fit = least_squares(resid, q0.ravel(), jac=jac, bounds=(lo, hi), loss="soft_l1",
-                        f_scale=BLUR_FIT_DN, x_scale="jac")  # fmt: skip
-    _, b, _, sig = fit.x.reshape(n, 4).T
-    return np.where((b > 0) & (sig < x[-1]), sig, np.nan)
 
 
 def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> np.ndarray:

@@ -46,6 +46,7 @@ from numba import njit
 from camwhisker.model import N_SQUARE, TIP, PlateModel
 from camwhisker.polygon import polygon_area
 from camwhisker.sensor import Sensor
+from camwhisker.vision.blur import REBLUR_PAD_PX, reblur_templates, square_blur_px
 from camwhisker.vision.colour import (
     cloth_level,
     cloth_samples,
@@ -62,6 +63,9 @@ from camwhisker.vision.pose import PoseFit, fit_pose, refit_pose
 from camwhisker.vision.rest import RestReference, region_origin, region_size, rest_colours
 from camwhisker.vision.tip import (
     TipMeasurement,
+    blurred_rim,
+    brightness,
+    edge_blur_px,
     face_near,
     rim_centre,
     tip_edge_points,
@@ -641,14 +645,18 @@ class FrontEnd:
         offsets = uv - model_uv
         # Measure the tip exactly as update() will, until its window stops moving.
         radius = math.sqrt(polygon_area(rest_rim) / math.pi)
+        # At rest the whole edge shows: the blur moves it inward evenly, not its centre.
         for _ in range(REST_TIP_PASSES):
             edges, _, why = tip_edge_points(frame, gains, uv[TIP], radius, TIP_SEARCH_PX)
             tip = None if edges is None else _tip_with_rim(self.model, edges, np.zeros(5),
-                                                           offsets[TIP])  # fmt: skip
+                                                           offsets[TIP], 0.0)  # fmt: skip
             if tip is None or not tip.ok:
                 raise FeaturesNotFound(["magnifier tip"], why or tip.reason)
             uv[TIP] = tip.centre_uv
             offsets[TIP] = tip.centre_uv - model_uv[TIP]
+        rim, rod, _ = self.model.outlines(np.zeros(5))
+        tip_blur = edge_blur_px(brightness(frame, gains)[1], edges, rim + offsets[TIP],
+                                rod + offsets[TIP])  # fmt: skip
         # Rest colour shares over the corners' region: the first templates.
         size = region_size(frame.shape, uv[:TIP], self.options.lk_half_px)
         origin = region_origin(frame.shape, uv[:TIP], size)
@@ -657,8 +665,9 @@ class FrontEnd:
         weights, cloth_dn = rest_colours(frame, gains, contrast_map(region, gains), origin,
                                          *self._cloth)  # fmt: skip
         red, blue = unmixed_maps(region, weights, gains)
+        blur = square_blur_px(blue, uv[:N_SQUARE] - origin)
         return RestReference(gains, uv, offsets, origin, size, red, blue, weights, cloth_dn,
-                             PaperRest.from_points(uv))  # fmt: skip
+                             PaperRest.from_points(uv), blur, tip_blur)  # fmt: skip
 
     def _detected_pose(self, frame, gains, tip_uv=None) -> PoseFit | None:
         """A pose fitted to the features :func:`detect_features` finds (searching
@@ -684,7 +693,7 @@ class FrontEnd:
 
     def _tip_at(self, edges, q) -> TipMeasurement:
         """The tip's centroid from its edge points, with the model's rim at pose q."""
-        return _tip_with_rim(self.model, edges, q, self.rest.offsets[TIP])
+        return _tip_with_rim(self.model, edges, q, self.rest.offsets[TIP], self.rest.tip_blur_px)
 
     def _tilt_from_tip(self, q: np.ndarray, tip_uv: np.ndarray) -> np.ndarray:
         """Solve (a, b) so the model's tip meets the measured one, dz and shift held."""
@@ -761,8 +770,10 @@ class FrontEnd:
         a = np.swapaxes(d1, 1, 2) @ self._rest_dirs_inv
         half = self.options.lk_half_px
         rest = self.rest
-        sq = warp_templates(rest.blue, rest.origin, rest.uv[:N_SQUARE], a[:N_SQUARE], half)
-        cr = warp_templates(rest.red, rest.origin, rest.uv[N_SQUARE:TIP], a[N_SQUARE:TIP], half)
+        big = half + REBLUR_PAD_PX
+        sq = warp_templates(rest.blue, rest.origin, rest.uv[:N_SQUARE], a[:N_SQUARE], big)
+        cr = warp_templates(rest.red, rest.origin, rest.uv[N_SQUARE:TIP], a[N_SQUARE:TIP], big)
+        templates = reblur_templates(np.concatenate([sq, cr]), a, rest.share_blur_px)
         # A corner's offset is where its detected point sits in the corner's
         # neighbourhood (blur pulls it inward), which moves with that neighbourhood.
         offsets = rest.offsets.copy()
@@ -771,7 +782,7 @@ class FrontEnd:
         if self.options.square_band_px > 0:
             keep = np.ones((TIP, 2 * half - 1, 2 * half - 1), bool)
             keep[:N_SQUARE] = _square_band(d1[:N_SQUARE], half, self.options.square_band_px)
-        return _Warped(np.concatenate([sq, cr]), offsets, keep)
+        return _Warped(templates, offsets, keep)
 
     def _occluded(self, q, uv, offsets):
         """Corners whose window something nearer covers (or nearly) at pose q, shape (12,).
@@ -823,11 +834,11 @@ class FrontEnd:
         return FrameResult.untrusted(self._index, reason)
 
 
-def _tip_with_rim(model: PlateModel, edges, q, tip_offset) -> TipMeasurement:
+def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> TipMeasurement:
     """The tip's centroid from its edge points, with the model's rim at pose q
-    moved by the tip's rest offset (px)."""
+    moved by the tip's rest offset (px) and to where a blur of ``blur_px`` shows it."""
     rim, rod, _ = model.outlines(q)
-    return rim_centre(edges, rim + tip_offset, rod + tip_offset)
+    return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -1,0 +1,143 @@
+"""The image's blur: measured across straight edges, and given back to warped templates.
+
+A rest template warped to a tilted pose (:func:`~camwhisker.vision.lk.warp_templates`)
+carries the rest image's blur warped with it: foreshortened by the affine map A, its
+covariance sigma^2 A A^T is narrower than the sigma^2 I of the tilted image itself.
+The blurred corner then matches a little inward of where it lies, the more so the
+larger the tilt, and the features read smaller: dz low, growing with phi^2.
+:func:`reblur_templates` adds the difference, sigma^2 (I - A A^T) (its positive
+part), with sigma measured once at rest across the square's edges
+(:func:`square_blur_px`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from camwhisker.model import N_SQUARE
+
+__all__ = [
+    "REBLUR_PAD_PX",
+    "erf_sigmas",
+    "square_blur_px",
+    "reblur_templates",
+]
+
+#: Half-width (px) of the profiles across the square's edges: 3 sigma of the
+#: blurriest webcam, short of the cross's arm ends (12 px inside the edge).
+SQUARE_PROFILE_PX = 8.0
+PROFILE_STEP_PX = 0.25
+#: Where along each edge of the square the profiles lie (fractions of the side):
+#: clear of the corners (a spring may end there) and of the cross's arms (0.36-0.64).
+SQUARE_PROFILE_AT = np.concatenate([np.linspace(0.12, 0.30, 4), np.linspace(0.70, 0.88, 4)])
+#: Soft-L1 scale of that fit, in colour share: noise and ringing of a few per cent count fully.
+SHARE_FIT_SCALE = 0.03
+#: Templates are warped this much larger (px) than the LK window, so the added
+#: blur's kernel (3 sigma of sigma^2 (1 - cos^2 36 deg) at sigma 2.6: 4.6 px) reads
+#: real pixels at the window's edge.
+REBLUR_PAD_PX = 5
+
+
+def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
+    """Per row of ``prof`` (sampled at ``x``), the Gaussian sigma of a rising blurred
+    step a + b Phi((x - x0) / sigma) fitted to it (one sparse least-squares problem,
+    soft-L1 loss of scale ``f_scale``, the profile's units); NaN where the fit does
+    not rise or its step is wider than the window."""
+    # Here, not at the top: the CLI's parser imports this module and must stay light.
+    from scipy.optimize import least_squares
+    from scipy.sparse import csr_matrix
+    from scipy.special import erf
+
+    n, m = prof.shape
+    rows = np.arange(n * m)
+    cols = np.repeat(np.arange(n) * 4, m)[:, None] + np.arange(4)
+
+    def parts(q):
+        a, b, x0, sig = q.reshape(n, 4).T[:, :, None]
+        z = (x - x0) / sig
+        return a, b, sig, z, 0.5 * (1.0 + erf(z / math.sqrt(2.0)))
+
+    def resid(q):
+        a, b, _, _, cdf = parts(q)
+        return (a + b * cdf - prof).ravel()
+
+    def jac(q):
+        _, b, sig, z, cdf = parts(q)
+        pdf = np.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+        d = np.stack(np.broadcast_arrays(1.0, cdf, -b * pdf / sig, -b * pdf * z / sig), -1)
+        return csr_matrix((d.reshape(-1, 4).ravel(), (np.repeat(rows, 4), cols.ravel())),
+                          shape=(n * m, 4 * n))  # fmt: skip
+
+    # The start rises, by at least half the loss's scale.
+    rise = np.maximum(prof[:, -1] - prof[:, 0], 0.5 * f_scale)
+    q0 = np.column_stack([prof[:, 0], rise, np.zeros(n), np.ones(n)])
+    lo = np.tile([-np.inf, 0.0, x[0], 0.05], n)
+    hi = np.tile([np.inf, np.inf, x[-1], 2.0 * x[-1]], n)
+    fit = least_squares(resid, q0.ravel(), jac=jac, bounds=(lo, hi), loss="soft_l1",
+                        f_scale=f_scale, x_scale="jac")  # fmt: skip
+    _, b, _, sig = fit.x.reshape(n, 4).T
+    return np.where((b > 0) & (sig < x[-1]), sig, np.nan)
+
+
+def square_blur_px(blue: np.ndarray, corners_uv: np.ndarray) -> float:
+    """The image's blur (Gaussian sigma, px) across the square's edges in its colour
+    share map ``blue``: the median of erf fits to profiles from the cloth into the
+    square along each edge, between the corners (4, 2; map pixels, in order around
+    the square) and clear of the cross's arms. NaN where no profile fits."""
+    c = np.asarray(corners_uv, float)[:N_SQUARE]
+    if not np.isfinite(c).all():
+        return math.nan
+    a, b = c, np.roll(c, -1, axis=0)
+    along = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    normal = along[:, ::-1] * (1.0, -1.0)
+    inward = np.sign(np.sum(normal * (c.mean(axis=0) - a), axis=1))[:, None] * normal
+    pts = (a[:, None] + SQUARE_PROFILE_AT[None, :, None] * (b - a)[:, None]).reshape(-1, 2)
+    inward = np.repeat(inward, len(SQUARE_PROFILE_AT), axis=0)
+    x = np.arange(-SQUARE_PROFILE_PX, SQUARE_PROFILE_PX + 1e-9, PROFILE_STEP_PX)
+    mx, my = (pts[:, :, None] + inward[:, :, None] * x).transpose(1, 0, 2).astype(np.float32)
+    prof = cv2.remap(np.asarray(blue, np.float32), mx, my, cv2.INTER_CUBIC,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)  # fmt: skip
+    whole = np.isfinite(prof).all(axis=1)
+    if not whole.any():
+        return math.nan
+    sigma = erf_sigmas(x, prof[whole].astype(float), SHARE_FIT_SCALE)
+    return float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else math.nan
+
+
+def reblur_templates(big: np.ndarray, affine: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Warped templates given back the blur their warp took away.
+
+    Parameters
+    ----------
+    big : ndarray, shape (K, n + 2 REBLUR_PAD_PX, n + 2 REBLUR_PAD_PX), float32
+        Templates warped REBLUR_PAD_PX larger on each side than wanted.
+    affine : ndarray, shape (K, 2, 2)
+        Each template's warp, rest -> current (:func:`~camwhisker.vision.lk.warp_templates`).
+    sigma_px : float
+        The image's blur; NaN or 0: none added.
+
+    Returns
+    -------
+    ndarray, shape (K, n, n), float32
+        Each template convolved with the Gaussian of covariance the positive part of
+        sigma^2 (I - A A^T), cropped to n x n.
+    """
+    p = REBLUR_PAD_PX
+    if not sigma_px > 0:
+        return np.ascontiguousarray(big[:, p:-p, p:-p])
+    w, v = np.linalg.eigh(sigma_px**2 * (np.eye(2) - affine @ np.swapaxes(affine, 1, 2)))
+    cov = np.einsum("kij,kj,klj->kil", v, np.clip(w, 0.0, None), v)  # (K, 2, 2), (u, v)
+    # In the Fourier domain: a Gaussian of any covariance, however thin (a tilt
+    # foreshortens one direction only), without sampling its kernel on the pixel grid.
+    # The padding takes the transform's wrap-around (3 sigma < REBLUR_PAD_PX).
+    n = big.shape[-1]
+    ku = 2.0 * np.pi * np.fft.rfftfreq(n)[None, :]
+    kv = 2.0 * np.pi * np.fft.fftfreq(n)[:, None]
+    c = cov[:, None, None]
+    quad = c[..., 0, 0] * ku**2 + 2.0 * c[..., 0, 1] * ku * kv + c[..., 1, 1] * kv**2
+    gain = np.exp(-0.5 * quad)
+    out = np.fft.irfft2(np.fft.rfft2(big) * gain, s=big.shape[-2:])
+    return np.ascontiguousarray(out[:, p:-p, p:-p], dtype=np.float32)
