@@ -82,19 +82,23 @@ ONE_FRAME_WARNING = ("rest reference from one frame (no frame at rest after it):
 @dataclass(frozen=True)
 class RestRecord:
     """One rest reference the stream built: its first frame, how many frames it
-    was built from, the mismatch check, and the warnings given."""
+    was built from, the mismatch check, the warnings given, and the blur measured
+    at it (colour shares, tip's edge; Gaussian sigma, px; NaN: not measured)."""
 
     frame: int
     frames_used: int
     mismatch: MismatchCheck
     warnings: tuple[str, ...] = ()
+    blur_px: tuple[float, float] = (math.nan, math.nan)
 
     def as_dict(self) -> dict:
+        shares, tip = (round(b, 3) if math.isfinite(b) else None for b in self.blur_px)
         return {
             "frame": self.frame,
             "frames_used": self.frames_used,
             "mismatch_check": self.mismatch.as_dict(),
             "warnings": list(self.warnings),
+            "blur_px": {"colour_shares": shares, "tip_edge": tip},
         }
 
 
@@ -108,7 +112,8 @@ def _record(fe: FrontEnd, segment: _RestSegment, used: int, warnings: list[str],
     for text in warnings:
         log.warning("frame %d: %s", index, text)
     if rest_log is not None:
-        rest_log.append(RestRecord(index, used, check, tuple(warnings)))
+        blur = (fe.rest.share_blur_px, fe.rest.tip_blur_px)
+        rest_log.append(RestRecord(index, used, check, tuple(warnings), blur))
 
 
 def at_rest(r: FrameResult) -> bool:

@@ -39,6 +39,9 @@ SHARE_FIT_SCALE = 0.03
 #: blur's kernel (3 sigma of sigma^2 (1 - cos^2 36 deg) at sigma 2.6: 4.6 px) reads
 #: real pixels at the window's edge.
 REBLUR_PAD_PX = 5
+#: Below this added variance (px^2) in every template, none is reblurred: at rest A is
+#: I up to rounding.
+MIN_REBLUR_VAR = 1e-6
 
 
 def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
@@ -126,18 +129,22 @@ def reblur_templates(big: np.ndarray, affine: np.ndarray, sigma_px: float) -> np
         sigma^2 (I - A A^T), cropped to n x n.
     """
     p = REBLUR_PAD_PX
-    if not sigma_px > 0:
-        return np.ascontiguousarray(big[:, p:-p, p:-p])
+    big = np.asarray(big, np.float32)
     w, v = np.linalg.eigh(sigma_px**2 * (np.eye(2) - affine @ np.swapaxes(affine, 1, 2)))
+    if not np.nanmax(w, initial=0.0) > MIN_REBLUR_VAR:  # also a NaN sigma
+        return np.ascontiguousarray(big[:, p:-p, p:-p])
+    # Here, not at the top: the CLI's parser imports this module and must stay light.
+    from scipy import fft
+
     cov = np.einsum("kij,kj,klj->kil", v, np.clip(w, 0.0, None), v)  # (K, 2, 2), (u, v)
     # In the Fourier domain: a Gaussian of any covariance, however thin (a tilt
     # foreshortens one direction only), without sampling its kernel on the pixel grid.
     # The padding takes the transform's wrap-around (3 sigma < REBLUR_PAD_PX).
     n = big.shape[-1]
-    ku = 2.0 * np.pi * np.fft.rfftfreq(n)[None, :]
-    kv = 2.0 * np.pi * np.fft.fftfreq(n)[:, None]
+    ku = (2.0 * np.pi * fft.rfftfreq(n))[None, :]
+    kv = (2.0 * np.pi * fft.fftfreq(n))[:, None]
     c = cov[:, None, None]
     quad = c[..., 0, 0] * ku**2 + 2.0 * c[..., 0, 1] * ku * kv + c[..., 1, 1] * kv**2
-    gain = np.exp(-0.5 * quad)
-    out = np.fft.irfft2(np.fft.rfft2(big) * gain, s=big.shape[-2:])
+    gain = np.exp(-0.5 * quad).astype(np.float32)
+    out = fft.irfft2(fft.rfft2(big) * gain, s=big.shape[-2:])
     return np.ascontiguousarray(out[:, p:-p, p:-p], dtype=np.float32)

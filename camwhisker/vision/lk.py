@@ -6,8 +6,10 @@ Matthews, Ishikawa & Baker, 2004). The rest patch is first warped by the
 affine map the plate model predicts between the rest pose and the current
 pose (:func:`warp_templates`), so the remaining motion is a pure translation
 even at large tilts. The fit may leave out each corner's apex (``apex_px``):
-under tilt the warped template's blurred rounding stretches with the plate
-while the image's stays round, and an edge's half level does not move with blur.
+a blurred apex is rounded, while an edge's half level does not move with blur
+(the front end gives the warped templates the image's blur back,
+:func:`~camwhisker.vision.blur.reblur_templates`; the calibration's sweep leaves
+the apex out).
 
 References
 ----------
