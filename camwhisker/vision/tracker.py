@@ -12,9 +12,10 @@ first templates, and the rest offsets of the points against the model).
 3. tip: the tip segmented near where the predictions put it, a coarse search
    of its whole reach if not there (straight away when no pixel near either
    prediction is dark enough to be the face: a jump); its centroid from its
-   edge and the model's rim (moved to where the rest frame's blur shows its
-   edge, :func:`~camwhisker.vision.tip.blurred_rim`); a first tilt guess from the tip alone (after a
-   jump, from the dark blob's centroid: the rim waits for the corners' fit);
+   edge and the model's rim (moved to where the rest frame's blur shows the
+   edge, :func:`~camwhisker.vision.tip.blurred_rim`); a first tilt guess from
+   the tip alone (after a jump, from the dark blob's centroid: the rim waits
+   for the corners' fit);
 4. corners: drift correction of the square's and the cross's corners against
    their rest patches, warped by the model's rest-to-current affine map and
    given back the blur the warp took away (:mod:`~camwhisker.vision.blur`), from
