@@ -657,8 +657,8 @@ class FrontEnd:
                 raise FeaturesNotFound(["magnifier tip"], why or tip.reason)
             uv[TIP] = tip.centre_uv
             offsets[TIP] = tip.centre_uv - model_uv[TIP]
-        rim, rod, _ = self.model.outlines(np.zeros(5))
-        tip_blur = edge_blur_px(brightness(frame, gains)[1], edges, rim + offsets[TIP],
+        rod = self.model.outlines(np.zeros(5))[1]
+        tip_blur = edge_blur_px(brightness(frame, gains)[1], edges, rest_rim + offsets[TIP],
                                 rod + offsets[TIP])  # fmt: skip
         # Rest colour shares over the corners' region: the first templates.
         size = region_size(frame.shape, uv[:TIP], self.options.lk_half_px)
