@@ -126,3 +126,12 @@ def test_mf_is_a_weighted_mean_of_table_radii_or_empty(phi, dz, floor):
     r = res.r_mm[0]
     assert np.isnan(r) == (phi < floor)
     assert np.isnan(r) or 22.5 - 1e-9 <= r <= 90.0 + 1e-9
+
+
+def test_a_query_past_the_largest_radius_is_a_lower_bound():
+    """Past the outermost curve by more than half its dz gap to the next one in, MF keeps
+    its estimate (the outermost radius) and flags it; on that curve, or inside, it does not."""
+    t = table()  # at phi 10: dz 0.2 (r 30) and 0.4 (r 80), half the gap 0.1
+    res = r_mf(t, [10.0, 10.0, 10.0, 10.0], [0.2, 0.4, 0.49, 0.51], k=1, domain_radius=np.inf)
+    assert res.past_top.tolist() == [False, False, False, True]
+    assert res.r_mm[3] == 80.0 and not res.outside[3]

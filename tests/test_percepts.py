@@ -228,9 +228,11 @@ def test_simulated_sweeps_of_each_object():
     assert all(r["correct"] for r in rows)
     s = summarise(rows)
     # These seeds' errors (looked at while tuning), with room for a change in the
-    # simulator's numerics: radius 0.04 mm, centre 2.4 mm, apex 0.5 mm, wall angle 3.6 deg
-    # (4.5 deg with the fused r_hat on slipping contacts).
+    # simulator's numerics: radius 0.04 mm, centre 2.4 mm, apex 0.15 mm, wall angle 0.56 deg
+    # and distance 0.82 mm (3.6 deg and 4.6 mm while the fusion averaged seed 3's slide
+    # back into its stuck start: contact.slip).
     assert s["radius_err_mm"]["max"] < 1.0
     assert s["center_err_mm"]["max"] < 3.5
     assert s["apex_err_mm"]["max"] < 1.5
-    assert s["angle_err_deg"]["max"] < 4.2
+    assert s["angle_err_deg"]["max"] < 1.5
+    assert s["distance_err_mm"]["max"] < 1.5

@@ -258,6 +258,9 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
             continue
         e = ev[role]
         drawn = np.isfinite(e["profile_dist_mm"])
+        # Past the MF table's largest radius (the box's face rises beyond it): MF a lower bound.
+        past = drawn & np.asarray(e["mf_past_top"], bool)
+        inside = drawn & ~past
         low = (e["z_score"] < LOW_Z) & drawn
         d = e["profile_dist_mm"][low]
         # Fig. 9's slip stretch: slipping points with a defined score, and those shown doubtful.
@@ -268,7 +271,10 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
             "max_dist_mm": float(d.max()) if d.size else math.nan,
             # Every point, each from the fused r: the shape as drawn.
             "n_points": int(drawn.sum()),
-            "max_dist_all_mm": float(e["profile_dist_mm"][drawn].max()) if drawn.any()
+            "max_dist_all_mm": float(e["profile_dist_mm"][inside].max()) if inside.any()
+            else math.nan,
+            "n_past_mf_table": int(past.sum()),
+            "max_dist_past_mm": float(e["profile_dist_mm"][past].max()) if past.any()
             else math.nan,
             "within_tol": int((d <= SHAPE_TOL_MM).sum()),
             "n_slipping": int(slip.sum()),
@@ -349,9 +355,11 @@ def format_summary(s: dict) -> str:
         trusted = (f"{sh['n_low_z']} trusted, {sh['within_tol']} of them within "
                    f"{SHAPE_TOL_MM:g} mm (max {_num(sh['max_dist_mm'], '.2f')} mm)"
                    if sh["n_low_z"] else "none trusted")
+        past = (f" ({sh['n_past_mf_table']} past the MF table's largest radius: within "
+                f"{_num(sh['max_dist_past_mm'], '.2f')} mm)" if sh["n_past_mf_table"] else "")
         lines.append(
-            f"{role} shape (Fig. 9): {sh['n_points']} points, all within "
-            f"{_num(sh['max_dist_all_mm'], '.2f')} mm of the true profile; {trusted}; "
+            f"{role} shape (Fig. 9): {sh['n_points']} points, those inside the MF table within "
+            f"{_num(sh['max_dist_all_mm'], '.2f')} mm of the true profile{past}; {trusted}; "
             f"{sh['slipping_flagged']} of {sh['n_slipping']} slipping points flagged"
         )
     t = s["timings"]

@@ -23,6 +23,12 @@ the MF evidence where it is not. (Where p >= :data:`KEEP_GM_POSTERIOR` the
 posterior-mean correction is under a tenth of m, and m is then mostly MF's own
 per-contact error, so applying it would move a good GM toward MF's bias.)
 Where MF is undefined, GM is returned; where GM is undefined, MF.
+
+A slipping contact (:mod:`~camwhisker.contact.slip`) is its own segment: GM's
+fixed contact is broken there by construction and its bias grows along the
+slide, so m is the value of a weighted two-sided line through d (not its mean,
+which lags the growth by the memory at both ends of the slide) and is taken
+off whole: r_fused = r_GM - m.
 """
 
 from __future__ import annotations
@@ -48,25 +54,53 @@ MF_BIAS_FLOOR_MM = 2.0
 KEEP_GM_POSTERIOR = 0.9
 
 
-def _two_sided_sums(d, w, segment, memory):
-    """Two-sided exponentially weighted sums of w d and of w, per segment.
+def _two_sided(v, segment, memory):
+    """Two-sided exponentially weighted sums of v within each segment.
 
-    Forward and backward first-order recursions (lambda = 1 - 1/memory); the
-    sample itself is counted once.
+    Forward and backward first-order recursions (lambda = 1 - 1/memory) over the
+    whole array, each segment's share of the one before it taken off (a sample i
+    places after a segment starting at s carries lambda^(i - s + 1) of the sum at
+    s - 1); the sample itself is counted once.
     """
     lam = 1.0 - 1.0 / memory
-    num = np.zeros_like(d)
-    den = np.zeros_like(d)
-    edges = np.flatnonzero(np.diff(segment) != 0) + 1
-    for lo, hi in zip(np.r_[0, edges], np.r_[edges, d.size], strict=True):
-        for out, v in ((num, w[lo:hi] * d[lo:hi]), (den, w[lo:hi])):
-            fwd = lfilter([1.0], [1.0, -lam], v)
-            bwd = lfilter([1.0], [1.0, -lam], v[::-1])[::-1]
-            out[lo:hi] = fwd + bwd - v
-    return num, den
+    idx = np.arange(v.size)
+
+    def forward(x, seg):
+        f = lfilter([1.0], [1.0, -lam], x)
+        start = np.maximum.accumulate(np.where(np.r_[True, np.diff(seg) != 0], idx, 0))
+        before = np.where(start > 0, f[np.maximum(start - 1, 0)], 0.0)
+        return f - lam ** (idx - start + 1.0) * before
+
+    return forward(v, segment) + forward(v[::-1], segment[::-1])[::-1] - v
 
 
-def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
+def _bias(d, w, segment, memory, trend):
+    """The GM bias m and its variance at each sample: the weighted two-sided mean of d,
+    or where ``trend``, the value at the sample of a weighted two-sided line through d."""
+    sums = {"w": _two_sided(w, segment, memory), "wd": _two_sided(w * d, segment, memory)}
+    seen = sums["w"] > 0
+    m = np.divide(sums["wd"], sums["w"], out=np.full(d.shape, np.nan), where=seen)
+    var = np.divide(1.0, sums["w"], out=np.ones(d.shape), where=seen)
+    if trend is None or not np.any(trend):
+        return m, var, seen
+    # Sample index from the segment's start: small numbers, no cancellation in k^2.
+    k = np.arange(d.size)
+    k = k - np.maximum.accumulate(np.where(np.r_[True, np.diff(segment) != 0], k, 0))
+    k = k.astype(float)
+    s1 = _two_sided(w * k, segment, memory) - k * sums["w"]
+    s2 = (_two_sided(w * k * k, segment, memory) - 2 * k * _two_sided(w * k, segment, memory)
+          + k * k * sums["w"])
+    t1 = _two_sided(w * d * k, segment, memory) - k * sums["wd"]
+    det = sums["w"] * s2 - s1 * s1
+    # A line needs two samples of weight: det > 0 by more than rounding.
+    line = np.asarray(trend, bool) & (det > 1e-9 * np.maximum(sums["w"] * s2, 1e-300))
+    m = np.where(line, np.divide(sums["wd"] * s2 - t1 * s1, det, out=m.copy(), where=line), m)
+    # Never below the mean's variance (rounding in s2 could take it there).
+    var = np.where(line, np.maximum(np.divide(s2, det, out=var.copy(), where=line), var), var)
+    return m, var, seen
+
+
+def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None, trend=None,
          prior_good=PRIOR_GM_GOOD, memory=MEMORY_SAMPLES, floor_mm=MF_BIAS_FLOOR_MM,
          keep_gm=KEEP_GM_POSTERIOR):
     """Fuse GM and MF (module docstring); samples of a segment must be in time order.
@@ -78,6 +112,9 @@ def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
     segment : array_like of int, shape (N,), optional
         Contact (run) id per sample; the bias estimate does not cross a change.
         Default: one segment.
+    trend : array_like of bool, shape (N,), optional
+        Samples whose segment has a GM bias that grows along it (a slipping contact:
+        :mod:`~camwhisker.contact.slip`): m there is a local line's value, not a mean.
     floor_mm : float
         Per-contact systematic error of MF allowed for a good GM.
     keep_gm : float
@@ -91,8 +128,8 @@ def fuse(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, segment=None,
     """
     r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
     seg = np.zeros(r_gm.shape, int) if segment is None else np.asarray(segment)
-    num, den = _two_sided_sums(d, w, seg, memory)
-    return _posterior(num, den, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm)
+    m, var, seen = _bias(d, w, seg, memory, trend)
+    return _posterior(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, trend)
 
 
 def _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm):
@@ -108,18 +145,19 @@ def _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm):
     return r_gm, r_mf, np.where(both, 1.0 / var, 0.0), np.where(both, r_gm - r_mf, 0.0)
 
 
-def _posterior(num, den, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm):
-    """The bias estimate m = num / den, P(GM good) and the fused estimate (module docstring)."""
-    seen = den > 0
-    m = np.divide(num, den, out=np.full(r_gm.shape, np.nan), where=seen)
-    # Variance of a weighted mean with weights w_i = 1 / variance_i: 1 / sum(w).
-    se2 = np.divide(1.0, den, out=np.ones(r_gm.shape), where=seen) + floor_mm**2
+def _posterior(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, trend=None):
+    """P(GM good) and the fused estimate from the bias estimate m (module docstring);
+    ``var``: m's variance (a weighted mean's, weights w_i = 1 / variance_i: 1 / sum(w)).
+    Where ``trend`` (a slip), GM is known to be broken: m is taken off whole."""
+    se2 = var + floor_mm**2
     like_good = prior_good * np.exp(-0.5 * np.nan_to_num(m) ** 2 / se2) / np.sqrt(
         2.0 * np.pi * se2)
     like_bad = (1.0 - prior_good) / l_w_mm
     p_good = np.where(seen & np.isfinite(r_gm), like_good / (like_good + like_bad), np.nan)
     shift = np.where(np.nan_to_num(p_good) >= keep_gm, 0.0,
                      (1.0 - np.nan_to_num(p_good)) * np.nan_to_num(m))
+    if trend is not None:
+        shift = np.where(trend, np.nan_to_num(m), shift)
     fused = np.where(seen & np.isfinite(r_gm), r_gm - shift, np.nan)
     fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)
     fused = np.where(~np.isfinite(r_gm) & np.isfinite(r_mf), r_mf, fused)
@@ -146,4 +184,7 @@ class OnlineFusion:
         r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
         self._num = self._lam * self._num + w * d
         self._den = self._lam * self._den + w
-        return _posterior(self._num, self._den, r_gm, r_mf, l_w_mm, *self._args)
+        seen = self._den > 0
+        m = np.divide(self._num, self._den, out=np.full(r_gm.shape, np.nan), where=seen)
+        var = np.divide(1.0, self._den, out=np.ones(r_gm.shape), where=seen)
+        return _posterior(m, var, seen, r_gm, r_mf, l_w_mm, *self._args)

@@ -17,7 +17,13 @@ Defined outputs for degenerate cases:
 - NaN inputs, or phi below the table's ``phi_min_deg`` (at least
   :data:`~camwhisker.contact.gm.PHI_MIN_DEG`), give NaN;
 - a query farther than :data:`MF_DOMAIN_RADIUS` from every table point is
-  outside the table's domain: NaN and ``outside = True``.
+  outside the table's domain: NaN and ``outside = True``;
+- a query past the table's largest radius keeps its estimate, with
+  ``past_top = True``: at its phi, dz grows with r, and a dz above the
+  outermost curve's by more than half the gap to the next curve in is nearer a
+  radius never calibrated than the largest one. The nearest rows all lie on
+  that curve, so eq. (10) returns its radius however far beyond it the contact
+  is: the estimate is a lower bound there.
 
 The table a calibration builds (:meth:`MFTable.from_runs`) is not the pause
 medians themselves but points every :data:`MF_CURVE_STEP_DEG` along a smooth
@@ -55,6 +61,8 @@ MF_DOMAIN_RADIUS = 0.1
 # half the paper's per-frame phi noise (0.22 deg), 0.003 in eq. (9)'s units, about
 # the dz gap between neighbouring calibration radii at phi = 5 deg.
 MF_CURVE_STEP_DEG = 0.1
+# Two radii closer than this (mm) are one curve when the outermost is looked for.
+SAME_RADIUS_MM = 1.0
 # Fewest pauses for which a run's curves are fitted (twice the 4 coefficients of
 # r(phi)); a shorter run enters the table as its pause rows.
 MIN_CURVE_PAUSES = 8
@@ -87,6 +95,10 @@ class MFTable:
     # Queries below this phi get no estimate (a calibration sets it where MF's scatter
     # from noise exceeds what it must detect: camwhisker.calibrate.MF_MAX_SPREAD_MM).
     phi_min_deg: float = PHI_MIN_DEG
+    # Per phi bin of MF_CURVE_STEP_DEG from bin phi_bin0: the dz above which a query is
+    # past the outermost curve (inf where a bin has one radius only; module docstring).
+    dz_past_top: np.ndarray = field(repr=False, compare=False, default=None)
+    phi_bin0: int = 0
 
     @classmethod
     def build(cls, phi_deg, dz_mm, r_mm, phi_min_deg: float = PHI_MIN_DEG) -> MFTable:
@@ -95,7 +107,8 @@ class MFTable:
         if not phi.size:
             raise ValueError("MF table needs at least one row with finite phi >= "
                              f"{PHI_MIN_DEG} deg, dz and r")
-        return cls(phi, dz, r, cKDTree(_coords(phi, dz)), max(PHI_MIN_DEG, float(phi_min_deg)))
+        return cls(phi, dz, r, cKDTree(_coords(phi, dz)), max(PHI_MIN_DEG, float(phi_min_deg)),
+                   *_past_top(phi, dz, r))
 
     @classmethod
     def from_runs(cls, phi_deg, dz_mm, r_mm, run, step_deg: float = MF_CURVE_STEP_DEG,
@@ -115,6 +128,22 @@ class MFTable:
         return self.r_mm.size
 
 
+def _past_top(phi, dz, r):
+    """(dz_past_top, phi_bin0): per phi bin, the outermost curve's dz plus half its gap
+    to the next curve in (the module docstring)."""
+    b = np.round(phi / MF_CURVE_STEP_DEG).astype(int)
+    b0 = int(b.min())
+    out = np.full(int(b.max()) - b0 + 1, np.inf)
+    for k in np.unique(b):
+        rk, dk = r[b == k], dz[b == k]
+        top = int(np.argmax(rk))
+        inner = rk < rk[top] - SAME_RADIUS_MM
+        if inner.any():
+            nxt = np.flatnonzero(inner)[int(np.argmax(rk[inner]))]
+            out[k - b0] = dk[top] + 0.5 * max(dk[top] - dk[nxt], 0.0)
+    return out, b0
+
+
 def _finite_rows(phi_deg, dz_mm, r_mm):
     phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
     keep = np.isfinite(phi) & np.isfinite(dz) & np.isfinite(r) & (phi >= PHI_MIN_DEG)
@@ -128,11 +157,13 @@ def _coords(phi_deg, dz_mm):
 
 @dataclass(frozen=True)
 class MFResult:
-    """r_MF (NaN where undefined), the out-of-domain flag and the nearest distance."""
+    """r_MF (NaN where undefined), the out-of-domain flag, the nearest distance and the
+    past-the-largest-radius flag (r_MF a lower bound)."""
 
     r_mm: np.ndarray
     outside: np.ndarray
     nearest: np.ndarray
+    past_top: np.ndarray
 
 
 def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
@@ -155,10 +186,11 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     r_out = np.full(n, np.nan)
     outside = np.zeros(n, bool)
     nearest = np.full(n, np.nan)
+    past_top = np.zeros(n, bool)
     valid = np.isfinite(phi) & np.isfinite(dz) & (phi >= table.phi_min_deg)
     kk = min(k, len(table))
     if not valid.any() or kk < 1:
-        return MFResult(r_out, outside, nearest)
+        return MFResult(r_out, outside, nearest, past_top)
     d, j = table.tree.query(_coords(phi[valid], dz[valid]), k=kk)  # Eq. (9), Euclidean
     d = d.reshape(-1, kk)
     j = j.reshape(-1, kk)
@@ -169,8 +201,11 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     w = np.where(any_exact[:, None], exact.astype(float), w)
     est = np.sum(w * labels, axis=1) / np.sum(w, axis=1)  # Eq. (10)
     near = d[:, 0]
+    k = np.clip(np.round(phi[valid] / MF_CURVE_STEP_DEG).astype(int) - table.phi_bin0, 0,
+                table.dz_past_top.size - 1)
     out = near > domain_radius
     r_out[valid] = np.where(out, np.nan, est)
     outside[valid] = out
     nearest[valid] = near
-    return MFResult(r_out, outside, nearest)
+    past_top[valid] = ~out & (dz[valid] > table.dz_past_top[k])
+    return MFResult(r_out, outside, nearest, past_top)

@@ -17,6 +17,7 @@ from camwhisker.contact.fusion import fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
 from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.slip import slip_segments, slip_state, slipping
 from camwhisker.contact.smooth import local_line
 from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
 from camwhisker.stage import (
@@ -123,13 +124,15 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
              segment=None, fusion=None) -> dict:
     """GM, MF, both Z scores, fusion and the reconstructed point, vectorised.
 
-    Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside,
-    sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, p_gm_good,
-    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm.
-    Samples of one ``segment`` (contact) must be in time order (see
-    :func:`~camwhisker.contact.fusion.fuse`). ``fusion``, an
+    Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside, mf_past_top,
+    sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, slipping (1 or 0 where GM is
+    defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere and live), p_gm_good,
+    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm. Samples of
+    one ``segment`` (contact) must be in time order (see
+    :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
+    starts or stops. ``fusion``, an
     :class:`~camwhisker.contact.fusion.OnlineFusion`, fuses one new sample with the
-    earlier ones instead (live: no later samples).
+    earlier ones instead (live: no later samples, no slip).
     """
     phi = np.asarray(phi_deg, float)
     dz = np.asarray(dz_mm, float)
@@ -140,16 +143,23 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     z = z_dissimilarity(rg, mf.r_mm, sg)
     zc = z_combined(rg, mf.r_mm, sg, sm)
     noise = calib.mf_noise.sigma_at(phi)
+    state = np.full(rg.shape, np.nan)
     if fusion is None:
-        fused, p_good, bias = fuse(rg, mf.r_mm, sg, noise, calib.l_w_mm, segment)
+        slip = slipping(rg, dx_mm, sg, segment)
+        sliding = slip_state(slip, segment) > 0
+        state = np.where(np.isfinite(rg), sliding, np.nan)
+        # A slide's line through GM's bias leaves out MF's lower bounds past its table.
+        r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
+        fused, p_good, bias = fuse(rg, r_mf_fused, sg, noise, calib.l_w_mm,
+                                   slip_segments(slip, segment), trend=sliding)
     else:
         fused, p_good, bias = fusion(rg, mf.r_mm, sg, noise, calib.l_w_mm)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign)
     return {
-        "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside,
+        "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,
-        "p_gm_good": p_good, "gm_bias_mm": bias, "r_fused_mm": fused, "r_hat_mm": fused,
-        "x_hat_mm": x_hat, "y_hat_mm": y_hat,
+        "slipping": state, "p_gm_good": p_good, "gm_bias_mm": bias, "r_fused_mm": fused,
+        "r_hat_mm": fused, "x_hat_mm": x_hat, "y_hat_mm": y_hat,
     }
 
 
@@ -170,7 +180,7 @@ EXTRA_COLUMNS = ("y_hat_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_
                  "pause", "speed_mm_s", "doubt", "ok")
 # Estimates that a frame takes from the stage pause it lies in.
 _PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "z_combined",
-              "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm")
+              "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm", "slipping")
 #: How the estimates of a row are made: from the frame itself, or from its pause's medians.
 MODES = ("frame", "pause")
 # Base travel per frame above which a row is "fast": a clock error of one frame
@@ -200,13 +210,20 @@ def base_speed(log: StageLog, t_stage_s) -> np.ndarray:
     return np.where((t >= log.t_s[0]) & (t <= log.t_s[-1]), v[k], np.nan)
 
 
-def doubt(speed_mm_s, dx_mm, frame_s: float) -> np.ndarray:
-    """Why the quasi-static estimate of a row is doubtful: "", "fast", "onset" or "fast;onset"."""
-    fast = np.asarray(speed_mm_s, float) * frame_s > FAST_MM_PER_FRAME
+def doubt(speed_mm_s, dx_mm, frame_s: float, slip=None) -> np.ndarray:
+    """Why a row's estimate is doubtful: "", or some of "fast", "onset", "slip" joined by ";".
+
+    ``slip`` (1 where :mod:`~camwhisker.contact.slip` finds the contact slipping): GM's
+    fixed contact no longer holds there; the fusion takes GM's growing bias off whole.
+    """
+    flags = {"fast": np.asarray(speed_mm_s, float) * frame_s > FAST_MM_PER_FRAME}
     dx = np.asarray(dx_mm, float)
-    onset = np.isfinite(dx) & (dx < ONSET_DX_MM)
-    reasons = np.array(["", "fast", "onset", "fast;onset"], dtype=object)
-    return reasons[fast.astype(int) + 2 * onset.astype(int)]
+    flags["onset"] = np.isfinite(dx) & (dx < ONSET_DX_MM)
+    flags["slip"] = np.zeros(dx.shape, bool) if slip is None else np.asarray(slip) == 1
+    out = np.full(dx.shape, "", dtype=object)
+    for name, on in flags.items():
+        out = np.where(on, np.where(out == "", name, out + ";" + name), out)
+    return out
 
 
 def contact_rows(signals: dict, log: StageLog, calib: Calibration,
@@ -261,6 +278,6 @@ def contact_rows(signals: dict, log: StageLog, calib: Calibration,
     cols["pause"] = np.where(idx >= 0, idx, np.nan)
     speed = base_speed(log, t - run.offset_s)
     cols["speed_mm_s"] = speed
-    cols["doubt"] = doubt(speed, dx, frame_s)
+    cols["doubt"] = doubt(speed, dx, frame_s, cols.pop("slipping"))
     cols["ok"] = ok.astype(int)
     return {name: cols[name] for name in CONTACT_COLUMNS + EXTRA_COLUMNS}, run

@@ -1,0 +1,88 @@
+"""Slip from GM's own estimates: a stuck contact keeps its distance, a slipping one runs away.
+
+Eq. (8) assumes the contact point stays where it was touched. While it does,
+r_GM stays put as the base travels (it drifts outward only as far as the
+contact rolls along the bending whisker, well under :data:`STUCK_RATE` mm per
+mm of travel). When the contact slips along a surface, phi stops growing while
+the base goes on, and r_GM runs away at several mm per mm. A sample slips where
+r_GM has risen since the sample :data:`BASELINE_MM` of travel before it by more
+than a stuck contact's drift plus :data:`NOISE_SIGMAS` of the pair's GM
+spread.
+
+Stick and slip are then separate segments of the fusion (:func:`slip_segments`):
+the bias a slide gives GM is not averaged back into the stuck samples before it,
+where GM is right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["STUCK_RATE", "BASELINE_MM", "NOISE_SIGMAS", "slipping", "slip_state",
+           "slip_segments"]
+
+# Largest outward drift of a stuck contact's r_GM per mm of travel: the contact rolls
+# along the bending whisker by 0.1-0.5 mm per mm on the calibration's pegs; a contact
+# slipping up a wall gives an r_GM that runs out at 2.7-9.5 mm per mm (tuning sweeps 0,
+# 3, 6, 13, 53; the contact bench's box: 4).
+STUCK_RATE = 1.0
+# Travel over which the rise is measured: one stage step, the pauses' spacing.
+BASELINE_MM = 1.0
+# Rises within this many of the pair's GM spreads are noise.
+NOISE_SIGMAS = 3.0
+
+
+def slipping(r_gm_mm, dx_mm, sigma_gm_mm, segment=None) -> np.ndarray:
+    """Per sample (time order within a segment): has r_GM run away since BASELINE_MM before?
+
+    Parameters
+    ----------
+    r_gm_mm, dx_mm, sigma_gm_mm : array_like, shape (N,)
+        GM's estimate, the travel since the contact's onset and GM's spread.
+    segment : array_like of int, shape (N,), optional
+        Contact id per sample; no comparison crosses a change.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        1.0 slipping, 0.0 stuck, NaN where undecided (between the two thresholds), where any
+        input is undefined or where no sample lies a baseline back.
+    """
+    r = np.asarray(r_gm_mm, float)
+    dx = np.asarray(dx_mm, float)
+    sg = np.asarray(sigma_gm_mm, float)
+    seg = np.zeros(r.shape, int) if segment is None else np.asarray(segment)
+    out = np.full(r.shape, np.nan)
+    good = np.isfinite(r) & np.isfinite(dx) & np.isfinite(sg)
+    for s in np.unique(seg):
+        idx = np.flatnonzero((seg == s) & good)
+        if idx.size < 2:
+            continue
+        # The travel only grows within a contact: the latest sample a baseline back.
+        travel = np.maximum.accumulate(dx[idx])
+        j = np.searchsorted(travel, travel - BASELINE_MM, side="right") - 1
+        has = j >= 0
+        i, b = idx[has], idx[j[has]]
+        rise = r[i] - r[b]
+        drift = STUCK_RATE * (dx[i] - dx[b])
+        slip = rise > drift + NOISE_SIGMAS * np.hypot(sg[i], sg[b])
+        out[i] = np.where(slip, 1.0, np.where(rise < drift, 0.0, np.nan))
+    return out
+
+
+def slip_state(slip, segment=None) -> np.ndarray:
+    """Per sample 1.0 (slipping) or 0.0: an undefined state keeps the one before it in its
+    segment, and is stuck at the segment's start."""
+    slip = np.asarray(slip, float)
+    seg = np.zeros(slip.shape, int) if segment is None else np.asarray(segment)
+    new = np.r_[True, np.diff(seg) != 0]
+    state = np.where(np.isnan(slip) & new, 0.0, slip)
+    last = np.where(~np.isnan(state), np.arange(state.size), 0)
+    return state[np.maximum.accumulate(last)]
+
+
+def slip_segments(slip, segment=None) -> np.ndarray:
+    """Segment ids (from 0) that also change wherever :func:`slip_state` does."""
+    seg = np.zeros(np.shape(slip), int) if segment is None else np.asarray(segment)
+    change = np.r_[True, (np.diff(seg) != 0) | (np.diff(slip_state(slip, seg)) != 0)]
+    return np.cumsum(change) - 1
