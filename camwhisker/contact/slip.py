@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["STUCK_RATE", "BASELINE_MM", "NOISE_SIGMAS", "slipping", "slip_state",
+__all__ = ["STUCK_RATE", "BASELINE_MM", "TRAVEL_BIN_MM", "NOISE_SIGMAS", "slipping", "slip_state",
            "slip_segments"]
 
 # Largest outward drift of a stuck contact's r_GM per mm of travel: the contact rolls
@@ -28,6 +28,8 @@ __all__ = ["STUCK_RATE", "BASELINE_MM", "NOISE_SIGMAS", "slipping", "slip_state"
 STUCK_RATE = 1.0
 # Travel over which the rise is measured: one stage step, the pauses' spacing.
 BASELINE_MM = 1.0
+# r_GM is compared bin by bin of travel (the median of each): a quarter of a stage step.
+TRAVEL_BIN_MM = 0.25
 # Rises within this many of the pair's GM spreads are noise.
 NOISE_SIGMAS = 3.0
 
@@ -58,15 +60,25 @@ def slipping(r_gm_mm, dx_mm, sigma_gm_mm, segment=None) -> np.ndarray:
         idx = np.flatnonzero((seg == s) & good)
         if idx.size < 2:
             continue
-        # The travel only grows within a contact: the latest sample a baseline back.
+        # The travel only grows within a contact. Per bin of travel, the median r_GM: a
+        # pause's frames share one bin, and a few frames of the moves between do not move it.
         travel = np.maximum.accumulate(dx[idx])
-        j = np.searchsorted(travel, travel - BASELINE_MM, side="right") - 1
+        _, first, which = np.unique(np.floor(travel / TRAVEL_BIN_MM), return_index=True,
+                                    return_inverse=True)
+        parts = np.split(np.arange(idx.size), first[1:])
+        rb = np.array([np.median(r[idx[p]]) for p in parts])
+        tb = np.array([travel[p[-1]] for p in parts])
+        sb = np.array([np.max(sg[idx[p]]) for p in parts])
+        # The latest bin a baseline back.
+        j = np.searchsorted(tb, tb - BASELINE_MM, side="right") - 1
         has = j >= 0
-        i, b = idx[has], idx[j[has]]
-        rise = r[i] - r[b]
-        drift = STUCK_RATE * (dx[i] - dx[b])
-        slip = rise > drift + NOISE_SIGMAS * np.hypot(sg[i], sg[b])
-        out[i] = np.where(slip, 1.0, np.where(rise < drift, 0.0, np.nan))
+        i, b = np.flatnonzero(has), j[has]
+        rise = rb[i] - rb[b]
+        drift = STUCK_RATE * (tb[i] - tb[b])
+        slip = rise > drift + NOISE_SIGMAS * np.hypot(sb[i], sb[b])
+        state = np.full(rb.size, np.nan)
+        state[i] = np.where(slip, 1.0, np.where(rise < drift, 0.0, np.nan))
+        out[idx] = state[which]
     return out
 
 
