@@ -7,7 +7,8 @@ With phi in degrees and dx in mm::
 :func:`r_gm_eq8` gives the contact distance (the contact back end's GM
 estimate, :mod:`camwhisker.contact.gm`); :func:`eq8_phi_deg` gives the
 rotation that produces a distance (the simulator's eq.-8 runs,
-:mod:`camwhisker.mechanics.experiment`). Both import it from here, so the two
+:mod:`camwhisker.mechanics.experiment`); :func:`eq8_dx_mm` the travel, which is
+the contact's lateral offset (:mod:`camwhisker.contact.shape`). Both import it from here, so the two
 directions stay one equation.
 
 References
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PHI_MIN_DEG", "defined", "r_gm_eq8", "eq8_phi_deg"]
+__all__ = ["PHI_MIN_DEG", "defined", "r_gm_eq8", "eq8_phi_deg", "eq8_dx_mm"]
 
 # Below 1 deg the paper's 0.22 deg phi noise alone is > 20 % of phi per frame;
 # pause medians bring it to ~5 %. No GM (or MF) estimate is made below it.
@@ -68,3 +69,14 @@ def eq8_phi_deg(r_mm, dx_mm, c, l_w_mm):
     """
     r = np.asarray(r_mm, dtype=float)
     return c * np.asarray(dx_mm, dtype=float) * (l_w_mm - r) / (r * l_w_mm)
+
+
+def eq8_dx_mm(r_mm, phi_deg, c, l_w_mm):
+    """Eq. (8) read for the travel: the dx after which a stuck contact at r tilts the base by
+    phi, dx = phi r l_w / (C (l_w - r)); the contact's lateral offset from the base line.
+    NaN outside 0 < r < l_w."""
+    r = np.asarray(r_mm, dtype=float)
+    ok = (r > 0.0) & (r < l_w_mm)
+    dx = np.divide(np.asarray(phi_deg, dtype=float) * r * l_w_mm, c * (l_w_mm - r),
+                   out=np.full(np.broadcast(r, phi_deg).shape, np.nan), where=ok)
+    return dx

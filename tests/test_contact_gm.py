@@ -10,8 +10,11 @@ from hypothesis import strategies as st
 from camwhisker.bench.contact import calibrate_simulated, evaluate_kind, summary
 from camwhisker.contact.gm import (
     PHI_MIN_DEG,
+    GMFit,
+    deflection_mm,
     eq8_phi_deg,
     fit_c,
+    r_gm,
     r_gm_beam,
     r_gm_eq8,
 )
@@ -137,3 +140,17 @@ def test_beam_model_beats_eq8_on_physics():
     beam, eq8 = calib.gm.alternatives["beam"], calib.gm.alternatives["eq8"]
     assert beam.aic < eq8.aic
     assert beam.rmse_mm < 0.2 * eq8.rmse_mm
+
+
+@pytest.mark.parametrize("fit", [
+    GMFit("eq8", {"c": 102.6}, {}, 0.0, 0.0, 0, 150.0),
+    GMFit("beam", {"beta_per_mm": 6.3e-4, "kappa_per_mm": 6.7e-3}, {}, 0.0, 0.0, 0, 150.0),
+])
+def test_deflection_is_gm_read_backwards(fit):
+    """The contact's lateral offset is the travel after which a stuck contact at r gives phi:
+    GM of it returns r (to 1e-9 mm); outside the model's range it is NaN."""
+    r = np.array([25.0, 50.0, 90.0, 120.0])
+    phi = np.array([3.0, 10.0, 20.0, 30.0])
+    d = deflection_mm(fit, r, phi)
+    assert np.allclose(r_gm(fit, d, phi), r, rtol=0, atol=1e-9)
+    assert np.isnan(deflection_mm(fit, [0.0, 150.0], [5.0, 5.0])).all()

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from camwhisker.eq8 import PHI_MIN_DEG, defined, eq8_phi_deg, r_gm_eq8
+from camwhisker.eq8 import PHI_MIN_DEG, defined, eq8_dx_mm, eq8_phi_deg, r_gm_eq8
 
 # scipy.optimize and scipy.stats are imported where they are used: together they
 # take ~1 s to import, and every command line builds its parser from modules
@@ -44,6 +44,7 @@ __all__ = [
     "eq8_phi_deg",
     "r_gm_beam",
     "r_gm",
+    "deflection_mm",
     "fit_gm",
     "fit_c",
 ]
@@ -59,6 +60,16 @@ CONFIDENCE = 0.95
 BOOTSTRAP_RESAMPLES = 400
 
 
+def _beam_travel(r, sin_phi, bend, kappa_per_mm):
+    """The beam's dx = r sin(phi) + beta phi r^2 / (3 (1 - kappa r)), with sin(phi) and
+    bend = beta phi / 3 (phi in radians) given: the bisection reuses them."""
+    return r * sin_phi + bend * r * r / (1.0 - kappa_per_mm * r)
+
+
+def _beam_r_max(kappa_per_mm, l_w_mm):
+    return l_w_mm if kappa_per_mm * l_w_mm < 1.0 else (1.0 - 1e-9) / kappa_per_mm
+
+
 def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI_MIN_DEG):
     """Radial contact distance from the small-deflection beam (module docstring).
 
@@ -72,12 +83,12 @@ def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI
     ok = defined(dx, phi_deg, phi_min_deg)
     phi = np.radians(np.where(ok, phi_deg, PHI_MIN_DEG))
     dxv = np.where(ok, dx, 0.0)
-    r_max = l_w_mm if kappa_per_mm * l_w_mm < 1.0 else (1.0 - 1e-9) / kappa_per_mm
+    r_max = _beam_r_max(kappa_per_mm, l_w_mm)
     sin_phi = np.sin(phi)
     bend = beta_per_mm * phi / 3.0
 
     def travel(r):
-        return r * sin_phi + bend * r * r / (1.0 - kappa_per_mm * r)
+        return _beam_travel(r, sin_phi, bend, kappa_per_mm)
 
     ok &= travel(np.full(dx.shape, r_max)) >= dxv
     lo = np.zeros(dx.shape)
@@ -120,6 +131,23 @@ def r_gm(fit: GMFit, dx_mm, phi_deg, phi_min_deg=PHI_MIN_DEG):
         p = fit.params
         return r_gm_beam(dx_mm, phi_deg, p["beta_per_mm"], p["kappa_per_mm"], fit.l_w_mm,
                          phi_min_deg)
+    raise ValueError(f"unknown GM model kind {fit.kind!r} (known: eq8, beam)")
+
+
+def deflection_mm(fit: GMFit, r_mm, phi_deg):
+    """The lateral offset (mm) from the base's line of a contact at r with the base tilted by
+    phi: the travel after which a stuck contact at r gives that phi (the fitted model read
+    backwards). NaN where r lies outside the model's range or an input is NaN."""
+    r = np.asarray(r_mm, dtype=float)
+    phi = np.asarray(phi_deg, dtype=float)
+    if fit.kind == "eq8":
+        return eq8_dx_mm(r, phi, fit.params["c"], fit.l_w_mm)
+    if fit.kind == "beam":
+        k = fit.params["kappa_per_mm"]
+        ok = (r > 0.0) & (r < _beam_r_max(k, fit.l_w_mm))
+        ph = np.radians(phi)
+        d = _beam_travel(np.where(ok, r, 0.0), np.sin(ph), fit.params["beta_per_mm"] * ph / 3.0, k)
+        return np.where(ok, d, np.nan)
     raise ValueError(f"unknown GM model kind {fit.kind!r} (known: eq8, beam)")
 
 

@@ -127,7 +127,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside, mf_past_top,
     sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, slipping (1 or 0 where GM is
     defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere and live), p_gm_good,
-    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm. Samples of
+    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm (eq. 12 on the
+    whisker bent as the GM model has it) and x_mf_mm, y_mf_mm (the same from r_MF). Samples of
     one ``segment`` (contact) must be in time order (see
     :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
     starts or stops. ``fusion``, an
@@ -154,12 +155,14 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
                                    slip_segments(slip, segment), trend=sliding)
     else:
         fused, p_good, bias = fusion(rg, mf.r_mm, sg, noise, calib.l_w_mm)
-    x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign)
+    x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign, calib.gm)
+    x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, travel_sign, calib.gm)
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,
         "slipping": state, "p_gm_good": p_good, "gm_bias_mm": bias, "r_fused_mm": fused,
-        "r_hat_mm": fused, "x_hat_mm": x_hat, "y_hat_mm": y_hat,
+        "r_hat_mm": fused, "x_hat_mm": x_hat, "y_hat_mm": y_hat, "x_mf_mm": x_mf,
+        "y_mf_mm": y_mf,
     }
 
 
@@ -175,12 +178,13 @@ def pause_estimates(calib: Calibration, run: RunAnalysis) -> dict:
 CONTACT_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_gm_mm", "r_mf_mm", "z_score",
                    "x_hat_mm", "r_hat_mm")
 #: Diagnostics written after the contract's columns.
-EXTRA_COLUMNS = ("y_hat_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm",
-                 "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm", "r_hat_pause_mm",
-                 "pause", "speed_mm_s", "doubt", "ok")
+EXTRA_COLUMNS = ("y_hat_mm", "x_mf_mm", "y_mf_mm", "z_combined", "r_fused_mm", "p_gm_good",
+                 "sigma_gm_mm", "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm",
+                 "r_hat_pause_mm", "pause", "speed_mm_s", "doubt", "ok")
 # Estimates that a frame takes from the stage pause it lies in.
-_PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "z_combined",
-              "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm", "slipping")
+_PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "x_mf_mm",
+              "y_mf_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm",
+              "slipping")
 #: How the estimates of a row are made: from the frame itself, or from its pause's medians.
 MODES = ("frame", "pause")
 # Base travel per frame above which a row is "fast": a clock error of one frame

@@ -4,28 +4,42 @@ from __future__ import annotations
 
 import numpy as np
 
+from camwhisker.contact.gm import GMFit, deflection_mm
+
 __all__ = ["reconstruct"]
 
 
-def reconstruct(x_mm, r_hat_mm, phi_deg, travel_sign):
+def reconstruct(x_mm, r_hat_mm, phi_deg, travel_sign, gm: GMFit | None = None):
     """Contact point (x_hat, y_hat) from the base position, r_hat and phi.
 
     The whisker lags behind the base, so the contact lies behind it along the
-    direction of travel: x_hat = x - sign(travel) r_hat sin(phi) (eq. (12),
-    the sign from the travel), and y_hat = r_hat cos(phi) along the rest axis.
+    direction of travel by its lateral offset d: x_hat = x - sign(travel) d
+    (eq. (12), the sign from the travel). Eq. (12) takes the whisker straight at
+    phi: d = r_hat sin(phi), y_hat = r_hat cos(phi) along the rest axis. With the
+    calibration's GM model ``gm`` it is bent as that model has it: d is the travel
+    after which a stuck contact at r_hat tilts the base by phi (the model read
+    backwards, :func:`~camwhisker.contact.gm.deflection_mm`), larger than r sin(phi)
+    by the bending, and y_hat = sqrt(r_hat^2 - d^2) (the arc taken as its chord).
 
     Parameters
     ----------
     x_mm, r_hat_mm, phi_deg : array_like, shape (N,)
     travel_sign : float or array_like
         +1 for travel toward +x, -1 toward -x.
+    gm : GMFit, optional
 
     Returns
     -------
     x_hat_mm, y_hat_mm : ndarray
-        NaN where any input is NaN.
+        NaN where any input is NaN, or where the GM model puts the contact farther off the
+        base's line than r_hat (r_hat outside its range).
     """
-    phi = np.radians(np.asarray(phi_deg, float))
+    phi = np.asarray(phi_deg, float)
     r = np.asarray(r_hat_mm, float)
-    x_hat = np.asarray(x_mm, float) - np.sign(travel_sign) * r * np.sin(phi)  # Eq. (12)
-    return x_hat, r * np.cos(phi)
+    if gm is None:
+        d, y = r * np.sin(np.radians(phi)), r * np.cos(np.radians(phi))
+    else:
+        d = deflection_mm(gm, r, phi)
+        d = np.where(d <= r, d, np.nan)  # an offset past the whisker's length: no point
+        y = np.sqrt(r * r - d * d)
+    return np.asarray(x_mm, float) - np.sign(travel_sign) * d, y  # Eq. (12)

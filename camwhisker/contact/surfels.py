@@ -46,7 +46,8 @@ MIN_CHORD_MM = 0.8
 #: What a contact table must have (docs/sensor.md section 7).
 REQUIRED_COLUMNS = ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm")
 #: Columns used where the table has them (camwhisker contact writes them).
-OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "phi_pause_deg", "mf_outside")
+OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "phi_pause_deg", "mf_outside", "x_mf_mm",
+                    "y_mf_mm")
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,8 @@ def _travel_sign(x_mm) -> float:
 
 def _points(cols: dict):
     """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
-    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good keeps r_hat)."""
+    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good keeps r_hat). The table's
+    own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has one, else eq. 12's."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
@@ -109,7 +111,10 @@ def _points(cols: dict):
     if "mf_outside" in cols:  # MF clamped at its table's edge says nothing about r
         use_mf &= np.asarray(cols["mf_outside"], float) == 0
     use_mf &= np.isfinite(x_hat)
-    x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, _travel_sign(cols["x_mm"]))
+    if "x_mf_mm" in cols and "y_mf_mm" in cols:
+        x_mf, y_mf = (np.asarray(cols[k], float) for k in ("x_mf_mm", "y_mf_mm"))
+    else:
+        x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, _travel_sign(cols["x_mm"]))
     return np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat)
 
 
