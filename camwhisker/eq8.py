@@ -8,8 +8,8 @@ With phi in degrees and dx in mm::
 estimate, :mod:`camwhisker.contact.gm`); :func:`eq8_phi_deg` gives the
 rotation that produces a distance (the simulator's eq.-8 runs,
 :mod:`camwhisker.mechanics.experiment`); :func:`eq8_dx_mm` the travel, which is
-the contact's lateral offset (:mod:`camwhisker.contact.shape`). Both import it from here, so the two
-directions stay one equation.
+the contact's lateral offset (:mod:`camwhisker.contact.shape`). All import it
+from here, so the directions stay one equation.
 
 References
 ----------
@@ -76,7 +76,6 @@ def eq8_dx_mm(r_mm, phi_deg, c, l_w_mm):
     phi, dx = phi r l_w / (C (l_w - r)); the contact's lateral offset from the base line.
     NaN outside 0 < r < l_w."""
     r = np.asarray(r_mm, dtype=float)
+    r, phi = np.broadcast_arrays(r, np.asarray(phi_deg, dtype=float))
     ok = (r > 0.0) & (r < l_w_mm)
-    dx = np.divide(np.asarray(phi_deg, dtype=float) * r * l_w_mm, c * (l_w_mm - r),
-                   out=np.full(np.broadcast(r, phi_deg).shape, np.nan), where=ok)
-    return dx
+    return np.divide(phi * r * l_w_mm, c * (l_w_mm - r), out=np.full(r.shape, np.nan), where=ok)

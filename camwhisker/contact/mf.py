@@ -201,11 +201,11 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     w = np.where(any_exact[:, None], exact.astype(float), w)
     est = np.sum(w * labels, axis=1) / np.sum(w, axis=1)  # Eq. (10)
     near = d[:, 0]
-    k = np.clip(np.round(phi[valid] / MF_CURVE_STEP_DEG).astype(int) - table.phi_bin0, 0,
-                table.dz_past_top.size - 1)
+    phi_bin = np.clip(np.round(phi[valid] / MF_CURVE_STEP_DEG).astype(int) - table.phi_bin0, 0,
+                      table.dz_past_top.size - 1)
     out = near > domain_radius
     r_out[valid] = np.where(out, np.nan, est)
     outside[valid] = out
     nearest[valid] = near
-    past_top[valid] = ~out & (dz[valid] > table.dz_past_top[k])
+    past_top[valid] = ~out & (dz[valid] > table.dz_past_top[phi_bin])
     return MFResult(r_out, outside, nearest, past_top)

@@ -4,10 +4,14 @@ Eq. (8) assumes the contact point stays where it was touched. While it does,
 r_GM stays put as the base travels (it drifts outward only as far as the
 contact rolls along the bending whisker, well under :data:`STUCK_RATE` mm per
 mm of travel). When the contact slips along a surface, phi stops growing while
-the base goes on, and r_GM runs away at several mm per mm. A sample slips where
-r_GM has risen since the sample :data:`BASELINE_MM` of travel before it by more
-than a stuck contact's drift plus :data:`NOISE_SIGMAS` of the pair's GM
-spread.
+the base goes on, and r_GM runs away at several mm per mm. r_GM is summarised
+per :data:`TRAVEL_BIN_MM` of travel by its median (frame by frame, the frames
+of a stage pause share a bin, and the few of the moves between, whose local
+line straddles a start or a stop, cannot outvote them). A bin slips where its
+r_GM has risen since the bin :data:`BASELINE_MM` of travel before by more than
+a stuck contact's drift plus :data:`NOISE_SIGMAS` of the pair's GM spread, and
+is stuck where it has risen by less than that drift; in between, the state is
+the one before (a slide near the noise does not flicker).
 
 Stick and slip are then separate segments of the fusion (:func:`slip_segments`):
 the bias a slide gives GM is not averaged back into the stuck samples before it,
