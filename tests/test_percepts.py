@@ -11,7 +11,7 @@ from camwhisker.cli import main
 from camwhisker.contact.fusion import KEEP_GM_POSTERIOR
 from camwhisker.contact.percepts import MIN_SURFELS, fit_model, perceive
 from camwhisker.contact.shape import reconstruct
-from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
+from camwhisker.contact.surfels import MF_POINT_SCALE, Pose, merge, surfels_from_columns
 from camwhisker.tables import write_csv
 
 # Contact points scatter 0.2 mm about the surface here, as the fused points of the
@@ -135,6 +135,9 @@ def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
     r_used = np.array([40.0, 47.0, 50.0, 55.0, 60.0])
     # Same arithmetic (eq. 12) on both sides: equal to rounding.
     assert np.allclose(s.xy_mm, np.c_[reconstruct(base_x, r_used, phi, 1.0)], atol=1e-9, rtol=0)
+    # The point from MF's r weighs as one scattering MF_POINT_SCALE times as far.
+    assert s.scale.tolist() == [1.0, MF_POINT_SCALE, 1.0, 1.0, 1.0]
+    assert merge([s, s]).scale.size == 10
 
 
 def test_wall_from_a_slide_where_the_fused_estimate_lags():

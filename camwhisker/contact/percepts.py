@@ -144,7 +144,7 @@ _SD = {"line": _line_sd, "circle": _circle_sd, "corner": _corner_sd}
 def _residuals(model, x, s: Surfels):
     """Eqs. 3-7 as residuals in units of their scale: distance, misalignment, intrusion."""
     sd, tang = _SD[model](x, s.xy_mm)
-    res = [s.belief * sd / POINT_SIGMA_MM]
+    res = [s.belief * sd / (POINT_SIGMA_MM * s.scale)]
     has = np.isfinite(s.dir[:, 0])
     cross = tang[has, 0] * s.dir[has, 1] - tang[has, 1] * s.dir[has, 0]
     res.append(s.belief[has] * cross / DIR_SIGMA_RAD)  # sin of the misalignment

@@ -38,8 +38,14 @@ from camwhisker.contact.shape import reconstruct
 from camwhisker.tables import TableError, read_columns
 
 __all__ = ["Pose", "Surfels", "surfels_from_columns", "read_surfels", "merge", "MIN_CHORD_MM",
+           "MF_POINT_SCALE",
            "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
+# A point from MF's r scatters this many times as far from the surface as a fused one:
+# MF's r errs by 3.2 mm (sd) on the tuning walls' slides, twice the 1.5 mm a fused point
+# is given (percepts.POINT_SIGMA_MM). Tuning sweeps 0-99: walls within 1 deg 22 -> 26/30,
+# 1 mm 21 -> 27/30 (a trial weighting chords too: 26-27/30 from 1.4 to 3).
+MF_POINT_SCALE = 2.0
 # Neighbouring contacts closer than this give no direction: it is the
 # contact points' own scatter (fused r_hat, ~0.2-0.3 mm) times a few.
 MIN_CHORD_MM = 0.8
@@ -72,7 +78,9 @@ class Surfels:
     """Contacts as surfels and the base positions as free space (common frame).
 
     xy_mm : shape (N, 2); dir : shape (N, 2), unit or NaN; belief : shape (N,);
-    table : shape (N,), which input each came from; free_xy_mm : shape (M, 2).
+    table : shape (N,), which input each came from; free_xy_mm : shape (M, 2);
+    scale : shape (N,), each point's distance scale relative to a fused one's (1, or
+    :data:`MF_POINT_SCALE` for a point from MF's r).
     """
 
     xy_mm: np.ndarray
@@ -80,6 +88,7 @@ class Surfels:
     belief: np.ndarray
     table: np.ndarray
     free_xy_mm: np.ndarray
+    scale: np.ndarray
 
     @property
     def n(self) -> int:
@@ -95,7 +104,8 @@ def _travel_sign(x_mm) -> float:
 def _points(cols: dict):
     """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
     GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good keeps r_hat). The table's
-    own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has one, else eq. 12's."""
+    own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has one, else eq. 12's.
+    Returns x, y and where MF's was taken."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
@@ -104,7 +114,7 @@ def _points(cols: dict):
     else:
         y_hat = r_hat * np.cos(np.radians(phi))  # Eq. (12)
     if "r_mf_mm" not in cols or "p_gm_good" not in cols:
-        return x_hat, y_hat
+        return x_hat, y_hat, np.zeros(x_hat.shape, bool)
     r_mf = np.asarray(cols["r_mf_mm"], float)
     with np.errstate(invalid="ignore"):
         use_mf = (np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR) & np.isfinite(r_mf)
@@ -115,7 +125,7 @@ def _points(cols: dict):
         x_mf, y_mf = (np.asarray(cols[k], float) for k in ("x_mf_mm", "y_mf_mm"))
     else:
         x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, _travel_sign(cols["x_mm"]))
-    return np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat)
+    return np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat), use_mf
 
 
 def _pause_points(x_hat, y_hat):
@@ -153,20 +163,21 @@ def surfels_from_columns(cols: dict, pose: Pose = Pose(), table: int = 0,
     n_rows = np.asarray(cols["t_s"]).size
     if n_rows == 0:
         raise TableError(f"{source}: no rows (a header only): nothing to perceive from")
-    x_hat, y_hat = _points(cols)
+    x_hat, y_hat, from_mf = _points(cols)
     keep = _pause_points(x_hat, y_hat)
     xy = pose.apply(np.c_[x_hat[keep], y_hat[keep]])
     dirs = pose.rotate(_directions(np.c_[x_hat[keep], y_hat[keep]]))
     x_base = np.asarray(cols["x_mm"], float)
     x_base = np.unique(np.round(x_base[np.isfinite(x_base)]))  # one per mm of travel
     free = pose.apply(np.c_[x_base, np.zeros(x_base.size)])
-    return Surfels(xy, dirs, np.ones(keep.size), np.full(keep.size, table), free)
+    scale = np.where(from_mf[keep], MF_POINT_SCALE, 1.0)
+    return Surfels(xy, dirs, np.ones(keep.size), np.full(keep.size, table), free, scale)
 
 
 def merge(parts: list[Surfels]) -> Surfels:
     """One surfel set from several tables' (already in the common frame)."""
     return Surfels(*(np.concatenate([getattr(p, f) for p in parts])
-                     for f in ("xy_mm", "dir", "belief", "table", "free_xy_mm")))
+                     for f in ("xy_mm", "dir", "belief", "table", "free_xy_mm", "scale")))
 
 
 def read_surfels(paths: list[str | Path], poses: list[Pose] | None = None) -> Surfels:
