@@ -4,9 +4,15 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from camwhisker.contact.fusion import MEMORY_SAMPLES, _two_sided, fuse
+from camwhisker.contact.fusion import MEMORY_SAMPLES, OnlineFusion, _two_sided, fuse
 from camwhisker.contact.pipeline import doubt
-from camwhisker.contact.slip import STUCK_RATE, slip_segments, slip_state, slipping
+from camwhisker.contact.slip import (
+    STUCK_RATE,
+    OnlineSlip,
+    slip_segments,
+    slip_state,
+    slipping,
+)
 
 
 def _stick_then_slide(rng, n_stick=10, n_slide=25, rate=2.5, sigma=0.3):
@@ -108,3 +114,26 @@ def test_a_slide_is_fused_from_a_line_through_the_growing_bias():
 def test_doubt_names_every_reason(slip, want):
     assert doubt([0.0], [0.5], 1 / 30, slip)[0] == want
     assert doubt([10.0], [5.0], 1 / 30, slip)[0] == want.replace("onset", "fast")
+
+
+def test_live_slip_and_fusion_are_batch_at_the_newest_sample():
+    # Pauses (one sample per bin of travel): OnlineSlip gives slip_state(slipping()) sample
+    # by sample, and OnlineFusion, told the state, gives fuse() with slip's segments and
+    # line at the newest sample (float rounding only: 1e-12 relative).
+    rng = np.random.default_rng(8)
+    dx, r_gm, sg = _stick_then_slide(rng, rate=4.0)
+    want = slip_state(slipping(r_gm, dx, sg))
+    live = OnlineSlip()
+    got = np.array([live(r, x, s) for r, x, s in zip(r_gm, dx, sg, strict=True)])
+    assert np.array_equal(got, want)
+    r_mf = 40.0 + 2.2 * np.maximum(dx - 10.0, 0.0) + 2.0 * rng.standard_normal(dx.size)
+    s_mf = np.full(dx.size, 2.0)
+    seg = slip_segments(slipping(r_gm, dx, sg))
+    fusion = OnlineFusion()
+    for i in range(dx.size):
+        one = fusion(r_gm[i:i + 1], r_mf[i:i + 1], sg[i:i + 1], s_mf[i:i + 1], 150.0,
+                     bool(want[i]))
+        whole = fuse(r_gm[:i + 1], r_mf[:i + 1], sg[:i + 1], s_mf[:i + 1], 150.0,
+                     segment=seg[:i + 1], trend=want[:i + 1] > 0)
+        for g, w in zip(one, whole, strict=True):
+            np.testing.assert_allclose(g[0], w[-1], rtol=1e-12, atol=1e-9, equal_nan=True)

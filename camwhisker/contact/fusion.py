@@ -169,22 +169,36 @@ class OnlineFusion:
 
     The two-sided sums of :func:`fuse` at the newest sample of a segment are its
     forward sums (no later sample to add), so each call returns what :func:`fuse`
-    gives for the newest sample of all the samples so far (one segment).
+    gives for the newest sample of all the samples so far (one segment). A change
+    of ``trend`` (a slip starting or ending) starts a new segment, as in :func:`fuse`;
+    in a slip the line's sums are carried too, with offsets from the newest sample.
     """
 
     def __init__(self, prior_good=PRIOR_GM_GOOD, memory=MEMORY_SAMPLES,
                  floor_mm=MF_BIAS_FLOOR_MM, keep_gm=KEEP_GM_POSTERIOR):
         self._lam = 1.0 - 1.0 / memory
         self._args = (prior_good, floor_mm, keep_gm)
-        self._num = np.zeros(1)
-        self._den = np.zeros(1)
+        self._trend = False
+        self._sums = np.zeros(5)  # sum of w, w d, w k, w k^2, w d k (k: offset, <= 0)
 
-    def __call__(self, r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm):
+    def __call__(self, r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, trend=False):
         """(r_mm, p_good, bias_mm), arrays shape (1,), for one sample (as :func:`fuse`)."""
         r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
-        self._num = self._lam * self._num + w * d
-        self._den = self._lam * self._den + w
-        seen = self._den > 0
-        m = np.divide(self._num, self._den, out=np.full(r_gm.shape, np.nan), where=seen)
-        var = np.divide(1.0, self._den, out=np.ones(r_gm.shape), where=seen)
-        return _posterior(m, var, seen, r_gm, r_mf, l_w_mm, *self._args)
+        if bool(trend) != self._trend:
+            self._trend = bool(trend)
+            self._sums = np.zeros(5)
+        s0, s_d, s1, s2, t1 = self._sums
+        lam = self._lam
+        # Every earlier sample's offset from the newest grows by one: k -> k - 1.
+        self._sums = np.array([lam * s0 + w[0], lam * s_d + w[0] * d[0], lam * (s1 - s0),
+                               lam * (s2 - 2.0 * s1 + s0), lam * (t1 - s_d)])
+        s0, s_d, s1, s2, t1 = self._sums
+        seen = np.array([s0 > 0])
+        m = np.array([s_d / s0 if s0 > 0 else np.nan])
+        var = np.array([1.0 / s0 if s0 > 0 else 1.0])
+        det = s0 * s2 - s1 * s1
+        if self._trend and det > 1e-9 * max(s0 * s2, 1e-300):
+            m = np.array([(s_d * s2 - t1 * s1) / det])
+            var = np.maximum(np.array([s2 / det]), var)
+        trend_arr = np.array([self._trend])
+        return _posterior(m, var, seen, r_gm, r_mf, l_w_mm, *self._args, trend_arr)

@@ -19,7 +19,8 @@ from its frame and the earlier ones, with the same functions:
   ends: batch takes one per run);
 - GM, MF, Z, fusion and eq. 12 by :func:`~camwhisker.contact.pipeline.estimate`
   with :class:`~camwhisker.contact.fusion.OnlineFusion` (the forward half of
-  batch's two-sided bias estimate);
+  batch's two-sided bias estimate) and :class:`~camwhisker.contact.slip.OnlineSlip`
+  (batch's slip test over the contact's samples so far; new for each contact);
 - ``doubt`` by :func:`~camwhisker.contact.pipeline.doubt`.
 
 Base positions (:class:`BaseTrack`, camera clock) are interpolated to the frame
@@ -47,6 +48,7 @@ from camwhisker.contact.belief import (
 )
 from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
+from camwhisker.contact.slip import OnlineSlip
 from camwhisker.contact.smooth import local_line
 from camwhisker.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
@@ -188,6 +190,7 @@ class OnlineContact:
         self._state = False
         self._onset = _Onset()
         self._fusion = OnlineFusion()
+        self._slip = OnlineSlip()
 
     def fields(self) -> tuple[str, ...]:
         return (BELIEF_FIELDS + (MF_FIELDS if self.calib is not None else ())
@@ -229,6 +232,7 @@ class OnlineContact:
             self._state = next_contact(self._state, b)
             if was and not self._state:
                 self._onset = _Onset()  # a contact ended: the next one has its own onset
+                self._slip = OnlineSlip()
         out["contact_b"], out["contact"] = b, int(self._state)
         if self.calib is None:
             return out
@@ -246,7 +250,7 @@ class OnlineContact:
             if math.isfinite(x0) and math.isfinite(x) and sign * (x - x0) > 0:
                 dx = sign * (x - x0)
         e = estimate(self.calib, np.array([x]), np.array([dx]), np.array([phi_s]),
-                     np.array([dz_s]), sign, fusion=self._fusion)
+                     np.array([dz_s]), sign, fusion=self._fusion, slip=self._slip)
         use = ok and math.isfinite(x)
         out["r_mf_mm"] = float(e["r_mf_mm"][0]) if ok else math.nan
         out["sigma_mf_mm"] = float(e["sigma_mf_mm"][0]) if ok else math.nan
@@ -256,5 +260,5 @@ class OnlineContact:
         for name in BASE_FIELDS[2:-2]:
             out[name] = float(e[name][0]) if use else math.nan
         out["speed_mm_s"] = speed
-        out["doubt"] = str(doubt([speed], [dx], self.frame_s)[0])
+        out["doubt"] = str(doubt([speed], [dx], self.frame_s, e["slipping"])[0])
         return out

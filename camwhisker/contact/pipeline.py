@@ -121,19 +121,20 @@ def _travel(x_mm, x0, sign):
 
 
 def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
-             segment=None, fusion=None) -> dict:
+             segment=None, fusion=None, slip=None) -> dict:
     """GM, MF, both Z scores, fusion and the reconstructed point, vectorised.
 
     Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside, mf_past_top,
     sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, slipping (1 or 0 where GM is
-    defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere and live), p_gm_good,
+    defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere), p_gm_good,
     gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm (eq. 12 on the
     whisker bent as the GM model has it) and x_mf_mm, y_mf_mm (the same from r_MF). Samples of
     one ``segment`` (contact) must be in time order (see
     :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
     starts or stops. ``fusion``, an
     :class:`~camwhisker.contact.fusion.OnlineFusion`, fuses one new sample with the
-    earlier ones instead (live: no later samples, no slip).
+    earlier ones instead, its slip state from ``slip``, an
+    :class:`~camwhisker.contact.slip.OnlineSlip` (live: no later samples).
     """
     phi = np.asarray(phi_deg, float)
     dz = np.asarray(dz_mm, float)
@@ -144,17 +145,21 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     z = z_dissimilarity(rg, mf.r_mm, sg)
     zc = z_combined(rg, mf.r_mm, sg, sm)
     noise = calib.mf_noise.sigma_at(phi)
-    state = np.full(rg.shape, np.nan)
     if fusion is None:
-        slip = slipping(rg, dx_mm, sg, segment)
-        sliding = slip_state(slip, segment) > 0
-        state = np.where(np.isfinite(rg), sliding, np.nan)
-        # A slide's line through GM's bias leaves out MF's lower bounds past its table.
-        r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
-        fused, p_good, bias = fuse(rg, r_mf_fused, sg, noise, calib.l_w_mm,
-                                   slip_segments(slip, segment), trend=sliding)
+        found = slipping(rg, dx_mm, sg, segment)
+        sliding = slip_state(found, segment) > 0
     else:
-        fused, p_good, bias = fusion(rg, mf.r_mm, sg, noise, calib.l_w_mm)
+        dx1 = np.atleast_1d(np.asarray(dx_mm, float))
+        sliding = np.array([slip(float(rg[0]), float(dx1[0]), float(sg[0])) > 0]
+                           if slip is not None else [False])
+    # A slide's line through GM's bias leaves out MF's lower bounds past its table.
+    r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
+    if fusion is None:
+        fused, p_good, bias = fuse(rg, r_mf_fused, sg, noise, calib.l_w_mm,
+                                   slip_segments(found, segment), trend=sliding)
+    else:
+        fused, p_good, bias = fusion(rg, r_mf_fused, sg, noise, calib.l_w_mm, bool(sliding[0]))
+    state = np.where(np.isfinite(rg), sliding, np.nan)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign, calib.gm)
     x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, travel_sign, calib.gm)
     return {

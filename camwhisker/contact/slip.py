@@ -20,10 +20,13 @@ where GM is right.
 
 from __future__ import annotations
 
+import math
+from collections import deque
+
 import numpy as np
 
 __all__ = ["STUCK_RATE", "BASELINE_MM", "TRAVEL_BIN_MM", "NOISE_SIGMAS", "slipping", "slip_state",
-           "slip_segments"]
+           "slip_segments", "OnlineSlip"]
 
 # Largest outward drift of a stuck contact's r_GM per mm of travel: the contact rolls
 # along the bending whisker by 0.1-0.5 mm per mm on the calibration's pegs; a contact
@@ -36,6 +39,10 @@ BASELINE_MM = 1.0
 TRAVEL_BIN_MM = 0.25
 # Rises within this many of the pair's GM spreads are noise.
 NOISE_SIGMAS = 3.0
+# Live: the bins kept (a baseline back is 4 bins), and the samples whose median a bin
+# takes (a pause of 2 s at 30 frames/s; the median of a longer pause hardly moves).
+ONLINE_BINS = 8
+ONLINE_BIN_SAMPLES = 64
 
 
 def slipping(r_gm_mm, dx_mm, sigma_gm_mm, segment=None) -> np.ndarray:
@@ -102,3 +109,40 @@ def slip_segments(slip, segment=None) -> np.ndarray:
     seg = np.zeros(np.shape(slip), int) if segment is None else np.asarray(segment)
     change = np.r_[True, (np.diff(seg) != 0) | (np.diff(slip_state(slip, seg)) != 0)]
     return np.cumsum(change) - 1
+
+
+class OnlineSlip:
+    """:func:`slip_state` of :func:`slipping` one sample at a time, for live use.
+
+    The same bins and thresholds over one contact's samples so far: the newest bin's
+    median is over its samples up to now (its newest :data:`ONLINE_BIN_SAMPLES`).
+    """
+
+    def __init__(self):
+        self._bins: deque = deque(maxlen=ONLINE_BINS)
+        self._travel = -math.inf
+        self.state = 0.0
+
+    def __call__(self, r_gm_mm: float, dx_mm: float, sigma_gm_mm: float) -> float:
+        """The slip state (1.0 or 0.0) after one sample; an undefined one keeps it."""
+        if not (math.isfinite(r_gm_mm) and math.isfinite(dx_mm) and math.isfinite(sigma_gm_mm)):
+            return self.state
+        self._travel = max(self._travel, dx_mm)
+        b = math.floor(self._travel / TRAVEL_BIN_MM)
+        if not self._bins or self._bins[-1][0] != b:
+            self._bins.append([b, self._travel, deque(maxlen=ONLINE_BIN_SAMPLES), sigma_gm_mm])
+        cur = self._bins[-1]
+        cur[1] = self._travel
+        cur[2].append(r_gm_mm)
+        cur[3] = max(cur[3], sigma_gm_mm)
+        base = next((q for q in reversed(self._bins) if q[1] <= self._travel - BASELINE_MM),
+                    None)
+        if base is None:
+            return self.state
+        rise = float(np.median(cur[2]) - np.median(base[2]))
+        drift = STUCK_RATE * (cur[1] - base[1])
+        if rise > drift + NOISE_SIGMAS * math.hypot(cur[3], base[3]):
+            self.state = 1.0
+        elif rise < drift:
+            self.state = 0.0
+        return self.state
