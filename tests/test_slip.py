@@ -73,7 +73,7 @@ def test_slip_state_keeps_through_gaps_and_restarts_at_each_contact():
     s = np.array([np.nan, 0.0, 1.0, np.nan, 1.0, np.nan, 0.0, 1.0])
     seg = np.array([0, 0, 0, 0, 0, 1, 1, 1])
     assert slip_state(s, seg).tolist() == [0, 0, 1, 1, 1, 0, 0, 1]
-    assert slip_segments(s, seg).tolist() == [0, 0, 1, 1, 1, 2, 2, 3]
+    assert slip_segments(slip_state(s, seg), seg).tolist() == [0, 0, 1, 1, 1, 2, 2, 3]
 
 
 def test_two_sided_sums_match_each_segment_filtered_alone():
@@ -128,7 +128,7 @@ def test_live_slip_and_fusion_are_batch_at_the_newest_sample():
     assert np.array_equal(got, want)
     r_mf = 40.0 + 2.2 * np.maximum(dx - 10.0, 0.0) + 2.0 * rng.standard_normal(dx.size)
     s_mf = np.full(dx.size, 2.0)
-    seg = slip_segments(slipping(r_gm, dx, sg))
+    seg = slip_segments(want)
     fusion = OnlineFusion()
     for i in range(dx.size):
         one = fusion(r_gm[i:i + 1], r_mf[i:i + 1], sg[i:i + 1], s_mf[i:i + 1], 150.0,

@@ -87,9 +87,9 @@ def _bias(d, w, segment, memory, trend):
     k = np.arange(d.size)
     k = k - np.maximum.accumulate(np.where(np.r_[True, np.diff(segment) != 0], k, 0))
     k = k.astype(float)
-    s1 = _two_sided(w * k, segment, memory) - k * sums["w"]
-    s2 = (_two_sided(w * k * k, segment, memory) - 2 * k * _two_sided(w * k, segment, memory)
-          + k * k * sums["w"])
+    wk = _two_sided(w * k, segment, memory)
+    s1 = wk - k * sums["w"]
+    s2 = _two_sided(w * k * k, segment, memory) - 2 * k * wk + k * k * sums["w"]
     t1 = _two_sided(w * d * k, segment, memory) - k * sums["wd"]
     det = sums["w"] * s2 - s1 * s1
     # A line needs two samples of weight: det > 0 by more than rounding.

@@ -146,8 +146,7 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     zc = z_combined(rg, mf.r_mm, sg, sm)
     noise = calib.mf_noise.sigma_at(phi)
     if fusion is None:
-        found = slipping(rg, dx_mm, sg, segment)
-        sliding = slip_state(found, segment) > 0
+        sliding = slip_state(slipping(rg, dx_mm, sg, segment), segment) > 0
     else:
         dx1 = np.atleast_1d(np.asarray(dx_mm, float))
         sliding = np.array([slip(float(rg[0]), float(dx1[0]), float(sg[0])) > 0]
@@ -156,7 +155,7 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
     if fusion is None:
         fused, p_good, bias = fuse(rg, r_mf_fused, sg, noise, calib.l_w_mm,
-                                   slip_segments(found, segment), trend=sliding)
+                                   slip_segments(sliding, segment), trend=sliding)
     else:
         fused, p_good, bias = fusion(rg, r_mf_fused, sg, noise, calib.l_w_mm, bool(sliding[0]))
     state = np.where(np.isfinite(rg), sliding, np.nan)

@@ -37,7 +37,8 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, travel_sign, gm: GMFit | None = None):
     phi = np.asarray(phi_deg, float)
     r = np.asarray(r_hat_mm, float)
     if gm is None:
-        d, y = r * np.sin(np.radians(phi)), r * np.cos(np.radians(phi))
+        rad = np.radians(phi)
+        d, y = r * np.sin(rad), r * np.cos(rad)
     else:
         d = deflection_mm(gm, r, phi)
         d = np.where(d <= r, d, np.nan)  # an offset past the whisker's length: no point

@@ -104,10 +104,10 @@ def slip_state(slip, segment=None) -> np.ndarray:
     return state[np.maximum.accumulate(last)]
 
 
-def slip_segments(slip, segment=None) -> np.ndarray:
-    """Segment ids (from 0) that also change wherever :func:`slip_state` does."""
-    seg = np.zeros(np.shape(slip), int) if segment is None else np.asarray(segment)
-    change = np.r_[True, (np.diff(seg) != 0) | (np.diff(slip_state(slip, seg)) != 0)]
+def slip_segments(state, segment=None) -> np.ndarray:
+    """Segment ids (from 0) that also change wherever the :func:`slip_state` ``state`` does."""
+    seg = np.zeros(np.shape(state), int) if segment is None else np.asarray(segment)
+    change = np.r_[True, (np.diff(seg) != 0) | (np.diff(np.asarray(state, float)) != 0)]
     return np.cumsum(change) - 1
 
 
