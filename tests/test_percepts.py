@@ -222,6 +222,18 @@ def test_bad_pose_is_refused(tmp_path, capsys):
     assert "X0,Y0,DEG" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("args", "message"), [
+    (["--seeds", "5-2"], "the last seed is before the first"),
+    (["--seeds", "0-1", "--calib-pegs", "1"], "two or more pegs"),
+])
+def test_percept_bench_refuses_bad_arguments(tmp_path, capsys, args, message):
+    out = tmp_path / "r.json"
+    assert main(["percept-bench", *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("camwhisker percept-bench: error: ") and message in err
+    assert not out.exists()
+
+
 def test_simulated_sweeps_of_each_object():
     from camwhisker.bench.percepts import run_campaign, summarise
 

@@ -25,7 +25,13 @@ from camwhisker.bench.contact import _log, calibrate_simulated
 from camwhisker.contact.percepts import OBJECT_OF, outline, perceive
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
-from camwhisker.mechanics.experiment import FRONT_END_NOISE, StageProtocol, simulate_run
+from camwhisker.mechanics.experiment import (
+    FRONT_END_NOISE,
+    PAPER_RIGID_RADII_MM,
+    StageProtocol,
+    peg_radii,
+    simulate_run,
+)
 from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
@@ -136,9 +142,11 @@ def _wrap_like(name: str, true: float, fitted: float) -> float:
     return true
 
 
-def run_campaign(seeds, calib_seed: int = CALIB_SEED, progress=None) -> list[dict]:
-    """Every sweep of ``seeds`` (calibration on simulated rigid pegs of ``calib_seed``)."""
-    calib = calibrate_simulated(calib_seed, noise=FRONT_END_NOISE)
+def run_campaign(seeds, calib_seed: int = CALIB_SEED, progress=None,
+                 pegs: int = len(PAPER_RIGID_RADII_MM)) -> list[dict]:
+    """Every sweep of ``seeds`` (calibration on ``pegs`` simulated rigid pegs,
+    :func:`~camwhisker.mechanics.experiment.peg_radii`, of ``calib_seed``)."""
+    calib = calibrate_simulated(calib_seed, noise=FRONT_END_NOISE, radii_mm=peg_radii(pegs))
     rows = []
     for seed in seeds:
         rows.append(run_sweep(seed, calib))

@@ -88,6 +88,9 @@ def add_percept_bench(sub) -> None:
                                              "localisation error, interval coverage")
     p.add_argument("--seeds", default="1000-1199", metavar="A-B",
                    help="sweep seeds, inclusive (0-99 were used to choose the constants)")
+    p.add_argument("--calib-pegs", type=int, default=8, metavar="N",
+                   help="rigid pegs the simulated calibration is made on: 8, the paper's radii "
+                        "(default), or N spaced evenly in log r over 22.5-90 mm")
     p.add_argument("--out", metavar="R.json", help="also write every sweep's result here")
     p.set_defaults(func=_run_percept_bench)
 
@@ -96,6 +99,7 @@ def _run_percept_bench(args) -> int:
     from camwhisker.atomic import atomic_write_text
     from camwhisker.bench.percepts import format_summary, run_campaign, summarise
     from camwhisker.jsonfile import dumps
+    from camwhisker.mechanics.experiment import peg_radii
 
     try:
         a, b = (int(v) for v in args.seeds.split("-"))
@@ -103,7 +107,11 @@ def _run_percept_bench(args) -> int:
         raise CommandError(f"--seeds {args.seeds!r}: expected A-B (two integers)") from None
     if b < a:
         raise CommandError(f"--seeds {args.seeds!r}: the last seed is before the first")
-    rows = run_campaign(range(a, b + 1))
+    try:
+        peg_radii(args.calib_pegs)
+    except ValueError as exc:
+        raise CommandError(f"--calib-pegs {args.calib_pegs}: {exc}") from None
+    rows = run_campaign(range(a, b + 1), pegs=args.calib_pegs)
     s = summarise(rows)
     print(format_summary(s))
     if args.out:

@@ -45,6 +45,7 @@ __all__ = [
     "KINDS",
     "PAPER_RIGID_RADII_MM",
     "PAPER_COMPLIANT_RADII_MM",
+    "peg_radii",
     "PAPER_C",
     "StageProtocol",
     "continuous_protocol",
@@ -160,10 +161,14 @@ class StageRun:
     info: dict = field(default_factory=dict)
 
 
-def _scenes(kind: str):
-    """The runs of an experiment kind: (name, scene in the lab frame, travel sign)."""
+def _scenes(kind: str, radii_mm=None):
+    """The runs of an experiment kind: (name, scene in the lab frame, travel sign);
+    ``radii_mm``: a rigid or eq8 kind's pegs (default: the paper's)."""
+    if radii_mm is not None and kind not in ("rigid", "eq8"):
+        raise ValueError(f"radii_mm applies to rigid and eq8 runs, not {kind!r}")
     if kind in ("rigid", "eq8"):
-        return [(f"r{r:g}", PegScene(r), 1.0) for r in PAPER_RIGID_RADII_MM]
+        radii = PAPER_RIGID_RADII_MM if radii_mm is None else radii_mm
+        return [(f"r{r:g}", PegScene(float(r)), 1.0) for r in radii]
     if kind == "compliant":
         return [(f"c{r:g}", PegScene(r, k_obj_n_per_mm=COMPLIANT_K_N_PER_MM), 1.0)
                 for r in PAPER_COMPLIANT_RADII_MM]
@@ -385,12 +390,24 @@ def measure_signals(phi_deg, dz_mm, theta_deg, noise: NoiseModel, rng):
     return {"dz_mm": dz_m, "phi_deg": phi_m, "theta_deg": theta_m, "ok": ok.astype(int)}
 
 
-def simulate_runs(kind: str, seed: int, **kwargs) -> list[StageRun]:
+def peg_radii(n: int = len(PAPER_RIGID_RADII_MM)) -> tuple[float, ...]:
+    """Radii (mm) of ``n`` calibration pegs: the paper's eight, or ``n`` spaced evenly in
+    log r over the same 22.5-90 mm (rounded to 0.1 mm)."""
+    if n == len(PAPER_RIGID_RADII_MM):
+        return PAPER_RIGID_RADII_MM
+    if n < 2:
+        raise ValueError(f"calibration needs two or more pegs, got {n}")
+    lo, hi = PAPER_RIGID_RADII_MM[0], PAPER_RIGID_RADII_MM[-1]
+    return tuple(float(r) for r in np.round(np.geomspace(lo, hi, n), 1))
+
+
+def simulate_runs(kind: str, seed: int, radii_mm=None, **kwargs) -> list[StageRun]:
     """All runs of an experiment kind, each with its own clock offset and noise.
 
+    ``radii_mm``: the pegs of a "rigid" or "eq8" experiment (default: the paper's).
     ``kwargs`` go to :func:`simulate_run` (mech, protocol, noise, model, c).
     """
-    scenes = _scenes(kind)
+    scenes = _scenes(kind, radii_mm)
     children = np.random.SeedSequence(seed).spawn(len(scenes))
     return [
         simulate_run(name, kind, scene, np.random.default_rng(child), travel_sign=sign, **kwargs)
