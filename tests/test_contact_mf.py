@@ -138,8 +138,9 @@ def test_a_query_past_the_largest_radius_is_a_lower_bound():
 
 
 def _mf_error_per_contact(pegs):
-    """MF's error averaged over each contact, for rigid pegs between the paper's radii and
-    at five radii between those (front-end noise; calibration on ``pegs`` pegs, seed 500)."""
+    """MF's error averaged over each contact, for rigid pegs at the geometric means of the
+    paper's neighbouring radii and at five other radii none of whose runs calibrated MF
+    (front-end noise; calibration on ``pegs`` pegs, seed 500)."""
     from camwhisker.bench.contact import calibrate_simulated, evaluate_run
     from camwhisker.mechanics.experiment import (
         FRONT_END_NOISE,
