@@ -20,6 +20,7 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.atomic import atomic_write_text
+from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, mf_bias_floor_mm
 from camwhisker.contact.gm import PHI_MIN_DEG, GMFit, fit_gm, r_gm
 from camwhisker.contact.mf import (
     DZ_SCALE_MM,
@@ -105,6 +106,9 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         own = r_mf(table, data["phi_deg"], data["dz_mm"], domain_radius=np.inf)
         mf_noise = spread_table(data["phi_deg"], data["r_mm"] - own.r_mm)
         table = replace(table, phi_min_deg=mf_phi_floor(mf_noise))
+        # Each run's radius: r at its first contact, before it rolls out along the whisker.
+        floor = mf_bias_floor_mm([np.min(data["r_mm"][data["run"] == i])
+                                  for i in np.unique(data["run"])])
     except ValueError as exc:
         raise CalibrationError(f"calibration from {len(runs)} run(s) failed: {exc}") from exc
 
@@ -122,7 +126,8 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         ],
     }
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
-                        mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance)
+                        mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance,
+                        mf_bias_floor_mm=floor)
     return calib, analyses, data
 
 
@@ -148,7 +153,8 @@ def format_calibration(runs: list[CalibrationRun], analyses: list[RunAnalysis],
                        "MF, z_score and the fusion will be empty (calibrate with more runs, or "
                        "with less noise)")
     lines.append(f"MF: {len(calib.mf_table)} table points from {len(runs)} run(s), estimates "
-                 f"from phi >= {floor:g} deg")
+                 f"from phi >= {floor:g} deg; the fusion allows MF {calib.mf_bias_floor_mm:.2f} mm "
+                 "of error over a contact (2 mm for the paper's pegs, less on denser pegs)")
     return lines, None
 
 
@@ -253,6 +259,9 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         f"rows = {len(calib.mf_table)}",
         f"# No MF estimate below phi_min_deg: MF's noise scatter > {MF_MAX_SPREAD_MM:g} mm.",
         f"phi_min_deg = {toml_value(calib.mf_table.phi_min_deg)}",
+        "# MF's error over a contact between calibrated radii that the fusion allows a good",
+        "# GM: 2 mm for the paper's pegs, scaled by the widest relative gap between radii.",
+        f"bias_floor_mm = {toml_value(calib.mf_bias_floor_mm)}",
         "",
         *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave one run out)"),
         *_spread_lines("mf_noise", calib.mf_noise,
@@ -322,7 +331,12 @@ def read_calibration(path: str | Path) -> Calibration:
                               np.atleast_1d(arr["r_mm"]), phi_min)
     except (ValueError, KeyError) as exc:
         raise CalibrationError(f"{mf_path}: bad MF table ({exc})") from exc
+    # Files from before the key: made on the paper's pegs, whose floor is the default.
+    floor = float(mf_doc.get("bias_floor_mm", MF_BIAS_FLOOR_MM))
+    if not (math.isfinite(floor) and floor > 0):
+        raise CalibrationError(f"{path}: [mf] bias_floor_mm must be a positive number, "
+                               f"got {floor}")
     return Calibration(gm=gm, gm_spread=_spread_from(doc, "gm_spread", path), mf_table=table,
                        mf_spread=_spread_from(doc, "mf_spread", path),
                        mf_noise=_spread_from(doc, "mf_noise", path), l_w_mm=l_w,
-                       provenance=doc.get("provenance", {}))
+                       provenance=doc.get("provenance", {}), mf_bias_floor_mm=floor)

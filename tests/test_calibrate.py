@@ -15,9 +15,11 @@ from camwhisker.calibrate import (
     read_calibration,
     write_calibration,
 )
+from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, mf_bias_floor_mm
 from camwhisker.contact.pipeline import CONTACT_COLUMNS, contact_rows
 from camwhisker.contact.zscore import SpreadTable
 from camwhisker.mechanics import simulate_runs
+from camwhisker.mechanics.experiment import PAPER_RIGID_RADII_MM, peg_radii
 from camwhisker.stage import stage_log_from_arrays
 
 
@@ -47,7 +49,31 @@ def test_round_trip(tmp_path):
     assert np.allclose(back.mf_table.r_mm, calib.mf_table.r_mm, rtol=1e-8)
     assert back.mf_table.phi_min_deg == calib.mf_table.phi_min_deg
     assert np.allclose(back.mf_noise.std_mm, calib.mf_noise.std_mm, rtol=1e-12)
+    assert back.mf_bias_floor_mm == pytest.approx(calib.mf_bias_floor_mm, rel=1e-12)
     assert not list(tmp_path.glob(".*tmp"))  # atomic writes left no temporaries
+
+
+def test_mf_bias_floor_follows_the_calibrated_radii(tmp_path):
+    # The paper's pegs: the fusion's 2 mm, to rounding (each run's radius is r at its first
+    # contact, the peg's). 15 pegs evenly in log r: widest gap 0.42 of the paper's.
+    assert calibration().mf_bias_floor_mm == pytest.approx(MF_BIAS_FLOOR_MM, rel=1e-9)
+    assert mf_bias_floor_mm(peg_radii(15)) == pytest.approx(0.42 * MF_BIAS_FLOOR_MM, rel=0.01)
+    # Repeats of a radius (within 1 mm) do not narrow the gaps; two pegs far apart widen them.
+    paper = np.array(PAPER_RIGID_RADII_MM)
+    assert mf_bias_floor_mm(np.r_[paper, paper + 0.3]) == pytest.approx(MF_BIAS_FLOOR_MM)
+    assert mf_bias_floor_mm([30.0, 90.0]) > 4 * MF_BIAS_FLOOR_MM
+    with pytest.raises(ValueError, match="two or more radii"):
+        mf_bias_floor_mm([40.0, 40.5])
+    # A file from before the key reads as the paper's pegs; a bad value is named.
+    path = tmp_path / "calib.toml"
+    write_calibration(path, calibration())
+    text = path.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("bias_floor_mm = "))
+    path.write_text(text.replace(line + "\n", ""))
+    assert read_calibration(path).mf_bias_floor_mm == MF_BIAS_FLOOR_MM
+    path.write_text(text.replace(line, "bias_floor_mm = -1.0"))
+    with pytest.raises(CalibrationError, match=r"\[mf\] bias_floor_mm must be a positive"):
+        read_calibration(path)
 
 
 def test_mf_phi_floor_from_spread():

@@ -33,11 +33,13 @@ off whole: r_fused = r_GM - m.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR", "fuse",
-           "OnlineFusion"]
+__all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR",
+           "mf_bias_floor_mm", "fuse", "OnlineFusion"]
 
 # Prior share of good GM estimates: rigid, non-slipping contact is the common case,
 # and a 3 % prior of failure lets a consistent bias of a few sigma overturn it.
@@ -46,12 +48,33 @@ PRIOR_GM_GOOD = 0.97
 # noise over ~10 pauses yet follows a GM bias that changes by up to 1 mm a step.
 MEMORY_SAMPLES = 5.0
 # Floor on the standard error of the bias estimate: MF's systematic error over one
-# contact (it interpolates between calibrated radii), which averaging does not remove.
+# contact (it interpolates between calibrated radii), which averaging does not remove,
+# for calibration pegs spaced as the paper's; other spacings: mf_bias_floor_mm.
 MF_BIAS_FLOOR_MM = 2.0
+# The paper's pegs' widest gap between neighbouring radii, relative to their geometric
+# mean: 33.5 -> 42.5 mm.
+PAPER_PEG_GAP = 9.0 / math.sqrt(33.5 * 42.5)
+# Calibration runs closer than this (mm) are one radius when the gaps are measured.
+SAME_RADIUS_MM = 1.0
 # Posterior P(GM good) at or above which GM is returned unchanged: the correction
 # (1 - p) m would be under 0.1 m, i.e. under 0.2 mm for an m at the 2 mm floor
 # (GM's own spread, sigma_GM, is 0.3-1 mm), so it cannot be told from MF's bias.
 KEEP_GM_POSTERIOR = 0.9
+
+
+def mf_bias_floor_mm(radii_mm) -> float:
+    """The floor for MF calibrated on runs at ``radii_mm``: :data:`MF_BIAS_FLOOR_MM` scaled
+    by the widest gap between neighbouring radii (relative to their geometric mean) against
+    the paper's pegs'. MF answers near its calibrated curves, so its error over a contact
+    between two of them grows with their spacing (worst 3.4 mm on the paper's 8 pegs,
+    1.9 mm on 15 evenly in log r: tests/test_contact_mf.py)."""
+    r = np.sort(np.asarray(radii_mm, float).ravel())
+    r = r[np.isfinite(r) & (r > 0)]
+    r = r[np.r_[True, np.diff(r) >= SAME_RADIUS_MM]] if r.size else r
+    if r.size < 2:
+        raise ValueError("MF's floor needs runs at two or more radii")
+    gap = float(np.max(np.diff(r) / np.sqrt(r[:-1] * r[1:])))
+    return MF_BIAS_FLOOR_MM * gap / PAPER_PEG_GAP
 
 
 def _two_sided(v, segment, memory):

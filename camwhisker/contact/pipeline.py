@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camwhisker.clock import estimate_offset_motion
-from camwhisker.contact.fusion import fuse
+from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
 from camwhisker.contact.shape import reconstruct
@@ -46,6 +46,8 @@ class Calibration:
     mf_noise: SpreadTable  # from the pause medians' noise alone: what the fusion averages
     l_w_mm: float
     provenance: dict
+    # MF's error over a contact between its radii, which the fusion allows a good GM.
+    mf_bias_floor_mm: float = MF_BIAS_FLOOR_MM
 
 
 # A run with fewer pauses than this is aligned and its onset found from the motion:
@@ -155,7 +157,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
     if fusion is None:
         fused, p_good, bias = fuse(rg, r_mf_fused, sg, noise, calib.l_w_mm,
-                                   slip_segments(sliding, segment), trend=sliding)
+                                   slip_segments(sliding, segment), trend=sliding,
+                                   floor_mm=calib.mf_bias_floor_mm)
     else:
         fused, p_good, bias = fusion(rg, r_mf_fused, sg, noise, calib.l_w_mm, bool(sliding[0]))
     state = np.where(np.isfinite(rg), sliding, np.nan)
