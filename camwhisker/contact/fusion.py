@@ -38,6 +38,8 @@ import math
 import numpy as np
 from scipy.signal import lfilter
 
+from camwhisker.contact.mf import SAME_RADIUS_MM
+
 __all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR",
            "mf_bias_floor_mm", "fuse", "OnlineFusion"]
 
@@ -54,8 +56,6 @@ MF_BIAS_FLOOR_MM = 2.0
 # The paper's pegs' widest gap between neighbouring radii, relative to their geometric
 # mean: 33.5 -> 42.5 mm.
 PAPER_PEG_GAP = 9.0 / math.sqrt(33.5 * 42.5)
-# Calibration runs closer than this (mm) are one radius when the gaps are measured.
-SAME_RADIUS_MM = 1.0
 # Posterior P(GM good) at or above which GM is returned unchanged: the correction
 # (1 - p) m would be under 0.1 m, i.e. under 0.2 mm for an m at the 2 mm floor
 # (GM's own spread, sigma_GM, is 0.3-1 mm), so it cannot be told from MF's bias.
@@ -67,7 +67,8 @@ def mf_bias_floor_mm(radii_mm) -> float:
     by the widest gap between neighbouring radii (relative to their geometric mean) against
     the paper's pegs'. MF answers near its calibrated curves, so its error over a contact
     between two of them grows with their spacing (worst 3.4 mm on the paper's 8 pegs,
-    1.9 mm on 15 evenly in log r: tests/test_contact_mf.py)."""
+    1.9 mm on 15 evenly in log r: tests/test_contact_mf.py). Radii within
+    :data:`~camwhisker.contact.mf.SAME_RADIUS_MM` of the one before are one."""
     r = np.sort(np.asarray(radii_mm, float).ravel())
     r = r[np.isfinite(r) & (r > 0)]
     r = r[np.r_[True, np.diff(r) >= SAME_RADIUS_MM]] if r.size else r
