@@ -31,10 +31,13 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-__all__ = ["STOP_GRACE_S", "Stopped", "run_in_processes", "stop_signals_interrupt"]
+__all__ = ["STOP_GRACE_S", "REDELIVER_S", "Stopped", "run_in_processes",
+           "stop_signals_interrupt"]
 
 #: How long running calls get to unwind after SIGTERM before they are killed.
 STOP_GRACE_S = 2.0
+#: A stop signal that landed in a finaliser is sent again this much later.
+REDELIVER_S = 0.05
 
 _PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
 # PR_SET_PDEATHSIG watches the process that forked the worker: fork it from this one.
@@ -123,21 +126,39 @@ def _on_sigterm(_signum, _frame) -> None:
     raise Stopped()
 
 
+def _in_finaliser(frame) -> bool:
+    """Whether ``frame`` or a frame that called it is a ``__del__``."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
 @contextlib.contextmanager
 def stop_signals_interrupt() -> Iterator[None]:
     """In the main thread: the first SIGINT or SIGTERM raises KeyboardInterrupt, later
     ones are ignored (the stop under way is bounded). A SIGINT ignored on entry (a job
-    started in the background) stays ignored. Elsewhere: nothing changes."""
+    started in the background) stays ignored. Elsewhere: nothing changes.
+
+    A signal that arrives while a finaliser (``__del__``, or what it calls) runs is
+    sent again :data:`REDELIVER_S` later: Python ignores an exception raised in a
+    finaliser, and the stop would be lost (numba's compiler frees its LLVM objects in
+    finalisers, so a batch stopped in its first seconds would run on)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     raised = False
 
-    def interrupt(_signum, _frame):
+    def interrupt(signum, frame):
         nonlocal raised
-        if not raised:
-            raised = True
-            raise KeyboardInterrupt
+        if raised:
+            return
+        if _in_finaliser(frame):
+            threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum)).start()
+            return
+        raised = True
+        raise KeyboardInterrupt
 
     sigs = [signal.SIGTERM]
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:

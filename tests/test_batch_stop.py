@@ -275,3 +275,26 @@ def test_sigterm_to_a_single_output_run_leaves_nothing(tmp_path):
     assert proc.returncode == 130, stderr
     # Nothing of the unfinished run: no temporary, no table, no sidecar, no check image.
     assert sorted(p.name for p in out.parent.iterdir()) == []
+
+
+def test_a_stop_that_lands_in_a_finaliser_is_not_lost():
+    # Python ignores an exception raised in __del__ ("Exception ignored in ..."): numba's
+    # compiler frees LLVM objects there, and a SIGTERM caught in one was lost, so a batch
+    # stopped in its first seconds ran on. The signal is sent again and stops the run.
+    from camwhisker.workers import REDELIVER_S, stop_signals_interrupt
+
+    def free():  # as llvmlite's ObjectRef.__del__ calls into its ffi
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.01)  # the handler runs here, in a frame the finaliser called
+
+    class Finalised:
+        def __del__(self):
+            free()
+
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt), stop_signals_interrupt():
+        Finalised()  # dropped at once: __del__ runs now
+        while time.monotonic() - t0 < 2.0:
+            time.sleep(0.01)
+    # Stopped by the second delivery, within a few REDELIVER_S (2 s if it was lost).
+    assert time.monotonic() - t0 < 20 * REDELIVER_S
