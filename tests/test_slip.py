@@ -76,6 +76,14 @@ def test_slip_state_keeps_through_gaps_and_restarts_at_each_contact():
     assert slip_segments(slip_state(s, seg), seg).tolist() == [0, 0, 1, 1, 1, 2, 2, 3]
 
 
+def test_no_samples_no_segments():
+    # A run without pauses has no pause samples: no segment ids either (one id for none
+    # made the fusion's sums index past the empty data).
+    assert slip_segments(np.zeros(0)).size == 0
+    r, p, m = fuse([], [], [], [], 150.0, slip_segments(np.zeros(0)), trend=np.zeros(0, bool))
+    assert r.size == p.size == m.size == 0
+
+
 def test_two_sided_sums_match_each_segment_filtered_alone():
     rng = np.random.default_rng(1)
     v = rng.exponential(size=60) * np.repeat([1e-3, 1e3, 1.0, 10.0], 15)

@@ -78,6 +78,12 @@ def mf_bias_floor_mm(radii_mm) -> float:
     return MF_BIAS_FLOOR_MM * gap / PAPER_PEG_GAP
 
 
+def _segment_start(segment) -> np.ndarray:
+    """Per sample, the index of the first sample of its segment (a run of equal ids)."""
+    idx = np.arange(np.size(segment))
+    return np.maximum.accumulate(np.where(np.r_[True, np.diff(segment) != 0], idx, 0))
+
+
 def _two_sided(v, segment, memory):
     """Two-sided exponentially weighted sums of v within each segment.
 
@@ -91,7 +97,7 @@ def _two_sided(v, segment, memory):
 
     def forward(x, seg):
         f = lfilter([1.0], [1.0, -lam], x)
-        start = np.maximum.accumulate(np.where(np.r_[True, np.diff(seg) != 0], idx, 0))
+        start = _segment_start(seg)
         before = np.where(start > 0, f[np.maximum(start - 1, 0)], 0.0)
         return f - lam ** (idx - start + 1.0) * before
 
@@ -108,9 +114,7 @@ def _bias(d, w, segment, memory, trend):
     if trend is None or not np.any(trend):
         return m, var, seen
     # Sample index from the segment's start: small numbers, no cancellation in k^2.
-    k = np.arange(d.size)
-    k = k - np.maximum.accumulate(np.where(np.r_[True, np.diff(segment) != 0], k, 0))
-    k = k.astype(float)
+    k = (np.arange(d.size) - _segment_start(segment)).astype(float)
     wk = _two_sided(w * k, segment, memory)
     s1 = wk - k * sums["w"]
     s2 = _two_sided(w * k * k, segment, memory) - 2 * k * wk + k * k * sums["w"]

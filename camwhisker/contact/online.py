@@ -46,7 +46,7 @@ from camwhisker.contact.belief import (
     eta_from_rest,
     next_contact,
 )
-from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, OnlineFusion
+from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
 from camwhisker.contact.smooth import local_line
@@ -189,8 +189,7 @@ class OnlineContact:
         self._rest: deque[tuple[int, float]] = deque(maxlen=_REST_KEEP)
         self._state = False
         self._onset = _Onset()
-        self._fusion = OnlineFusion(
-            floor_mm=calib.mf_bias_floor_mm if calib is not None else MF_BIAS_FLOOR_MM)
+        self._fusion = OnlineFusion(floor_mm=calib.mf_bias_floor_mm) if calib is not None else None
         self._slip = OnlineSlip()
 
     def fields(self) -> tuple[str, ...]:

@@ -107,6 +107,8 @@ def slip_state(slip, segment=None) -> np.ndarray:
 def slip_segments(state, segment=None) -> np.ndarray:
     """Segment ids (from 0) that also change wherever the :func:`slip_state` ``state`` does."""
     seg = np.zeros(np.shape(state), int) if segment is None else np.asarray(segment)
+    if seg.size == 0:
+        return np.zeros(0, int)
     change = np.r_[True, (np.diff(seg) != 0) | (np.diff(np.asarray(state, float)) != 0)]
     return np.cumsum(change) - 1
 
