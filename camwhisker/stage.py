@@ -360,16 +360,54 @@ CONTACT_PHI_DEG = 1.0
 ONSET_PHI_MAX_DEG = 5.0
 # ... or through the first few contact pauses when fewer than two are that small.
 ONSET_FIT_PAUSES = 3
+# ... and only while phi still rises: a contact that starts to slip under 5 deg levels
+# phi off, and a line through that level puts x0 far too early. Two lines (rise, then
+# level) replace the one where they fit better by an F statistic over this (by chance
+# at p = 0.01 for 10 samples, 0.002 for 20) and the second rises at under this share of
+# the first's slope. A rise needs 3 samples to be fitted (2 always fit a line).
+ONSET_SPLIT_F = 10.0
+ONSET_LEVEL_RATIO = 0.5
+ONSET_RISE_MIN = 3
+
+
+def _line_rss(n, sx, sy, sxx, sxy, syy):
+    """Residual sum of squares and slope of the least-squares line, from its sums."""
+    vx = sxx - sx * sx / n
+    cxy = sxy - sx * sy / n
+    slope = np.divide(cxy, vx, out=np.zeros_like(cxy), where=vx > 0)
+    return np.maximum(syy - sy * sy / n - slope * cxy, 0.0), slope
+
+
+def _level_start(u, phi) -> int | None:
+    """Where phi (ordered by travel u) levels off: the number of samples in its rise, or
+    None where one line fits as well as a rise and a level (:data:`ONSET_SPLIT_F`)."""
+    n = u.size
+    if n < 5:
+        return None
+    sums = np.cumsum(np.stack([np.ones(n), u, phi, u * u, u * phi, phi * phi]), axis=1)
+    k = np.arange(2, n - 1)  # samples in the rise; the level keeps two or more
+    left, total = sums[:, k - 1], sums[:, -1:]
+    rss_l, slope_l = _line_rss(*left)
+    rss_r, slope_r = _line_rss(*(total - left))
+    rss_1, _ = _line_rss(*total)
+    i = int(np.argmin(rss_l + rss_r))
+    two = rss_l[i] + rss_r[i]
+    f = (rss_1[0] - two) / 2.0 / (two / (n - 4)) if two > 0 else np.inf
+    levels = slope_l[i] > 0 and slope_r[i] < ONSET_LEVEL_RATIO * slope_l[i]
+    return int(k[i]) if f > ONSET_SPLIT_F and levels else None
 
 
 def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     """Stage position of first contact, from pause medians or from frames of a continuous sweep.
 
     Fits phi = a (x - x0) through the pauses with :data:`CONTACT_PHI_DEG` <= phi <
-    :data:`ONSET_PHI_MAX_DEG` before phi first leaves that range (or the first
-    :data:`ONSET_FIT_PAUSES` contact pauses if fewer than two) and returns x0
-    (where phi extrapolates to zero). A single contact pause gives the midpoint
-    between it and the pause before. NaN if phi never reaches the threshold.
+    :data:`ONSET_PHI_MAX_DEG` before phi first leaves that range, up to where phi
+    levels off (:func:`_level_start`), or through the first
+    :data:`ONSET_FIT_PAUSES` contact pauses if fewer than two, and returns x0
+    (where phi extrapolates to zero); a rise of fewer than :data:`ONSET_RISE_MIN`
+    pauses before the level gives the line through the first contact pause and the
+    pause before it. A single contact pause gives the midpoint between it and the
+    pause before. NaN if phi never reaches the threshold.
     """
     x = np.asarray(x_mm, float)
     phi = np.asarray(phi_deg, float)
@@ -384,7 +422,17 @@ def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
     linear = phi[first:] < ONSET_PHI_MAX_DEG
     n_linear = int(np.argmin(linear)) if not linear.all() else linear.size
     use = np.arange(first, first + n_linear)
-    if use.size < 2:
+    # Not the samples after contact is lost (a whisker that slides off under 5 deg).
+    touching = np.flatnonzero(phi[use] >= CONTACT_PHI_DEG)
+    use = use[:touching[-1] + 1] if touching.size else use
+    rise = _level_start(travel_sign * x[use], phi[use])
+    if rise is not None and rise < ONSET_RISE_MIN:
+        # The second sample may be on the level already: the first and the one before it
+        # (at rest, or in contact under CONTACT_PHI_DEG) bracket the onset.
+        use = np.arange(max(first - 1, 0), first + 1)
+    elif rise is not None:
+        use = use[:rise]
+    elif use.size < 2:
         use = hit[:ONSET_FIT_PAUSES]
     if use.size < 2 or np.ptp(x[use]) == 0:  # frames at one position carry no slope
         return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))

@@ -96,3 +96,53 @@ def test_pause_medians_and_onset():
 def test_onset_without_contact_is_nan():
     assert np.isnan(contact_onset_x([0, 1, 2], [0.1, 0.2, 0.1]))
     assert np.isnan(contact_onset_x([0, 1, 2], [np.nan, np.nan, np.nan]))
+
+
+def test_onset_from_the_rise_when_contact_slips_under_5_deg():
+    """A contact that slips at 4.9 deg: phi rises 1.1 deg per mm from x0 = 0.1 mm, then
+    stays level (and sinks a little) until contact is lost. The onset line must end where
+    phi levels off: through the level it would reach back past the log's first pause."""
+    rng = np.random.default_rng(3)
+    x = np.arange(-3.0, 23.0)
+    phi = np.clip(1.1 * (x - 0.1), 0.0, 4.9) - 0.015 * np.clip(x - 4.0, 0.0, None)
+    phi[-1] = 0.0  # contact lost
+    phi = phi + 0.01 * rng.standard_normal(x.size) + 0.06  # pause medians' noise, rest bias
+    # The rise's 4 pauses alone give x0 within a tenth of a step (their noise: ~0.02 mm).
+    assert abs(contact_onset_x(x, phi) - 0.1) < 0.1
+    # Travelling the other way: the same contact mirrored.
+    assert abs(contact_onset_x(-x, phi, travel_sign=-1.0) + 0.1) < 0.1
+
+
+def test_onset_of_a_plain_rise_uses_every_small_pause():
+    """No level: the split is not taken and x0 is the line through all pauses under 5 deg."""
+    rng = np.random.default_rng(4)
+    x = np.arange(-2.0, 12.0)
+    phi = np.clip(0.4 * (x - 0.3), 0.0, None) + 0.01 * rng.standard_normal(x.size)
+    use = (phi >= 1.0) & (phi < 5.0)
+    slope, intercept = np.polyfit(x[use], phi[use], 1)
+    assert contact_onset_x(x, phi) == pytest.approx(-intercept / slope, abs=1e-9)
+
+
+@pytest.mark.parametrize("x_true, slope, level", [(0.1, 0.96, 2.4), (0.124, 2.08, 3.3)])
+def test_onset_when_contact_slips_within_two_pauses(x_true, slope, level):
+    """Slip after one or two contact pauses (phi under CONTACT_PHI_DEG at the first in the
+    first case): the onset comes from the first contact pause and the pause before it.
+    Error bound: 0.2 mm, a fifth of a step (a line through the level: 3 mm off)."""
+    x = np.arange(-3.0, 17.0)
+    phi = np.minimum(slope * np.clip(x - x_true, 0.0, None), level) - 0.01 * np.clip(x - 3, 0, None)
+    phi[-1] = 0.0
+    phi = phi + 0.06 + 0.01 * np.random.default_rng(5).standard_normal(x.size)
+    assert abs(contact_onset_x(x, phi) - x_true) < 0.2
+
+
+def test_onset_from_the_frames_of_a_slow_sweep():
+    """Frames of continuous sweeps at 1 mm/s (the front end's noise): single frames near
+    the onset dip under CONTACT_PHI_DEG and must not end the onset's fit. Seen: within
+    0.03 mm on every run; bound 0.2 mm, a fifth of the simulator's 1 mm step."""
+    from camwhisker.mechanics.experiment import FRONT_END_NOISE, continuous_protocol
+
+    for run in simulate_runs("rigid", 1, noise=FRONT_END_NOISE, protocol=continuous_protocol(1.0)):
+        log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
+        x = log.x_at(run.signals["t_s"] - run.offset_s)
+        x0 = contact_onset_x(x, run.signals["phi_deg"], log.travel_sign)
+        assert abs(x0 - run.info["x_first_contact_mm"]) < 0.2, run.name
