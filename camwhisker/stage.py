@@ -382,7 +382,7 @@ def _level_start(u, phi) -> int | None:
     """Where phi (ordered by travel u) levels off: the number of samples in its rise, or
     None where one line fits as well as a rise and a level (:data:`ONSET_SPLIT_F`)."""
     n = u.size
-    if n < 5:
+    if n < 5:  # two lines and a residual
         return None
     sums = np.cumsum(np.stack([np.ones(n), u, phi, u * u, u * phi, phi * phi]), axis=1)
     k = np.arange(2, n - 1)  # samples in the rise; the level keeps two or more
