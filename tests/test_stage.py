@@ -127,7 +127,7 @@ def test_onset_of_a_plain_rise_uses_every_small_pause():
 def test_onset_when_contact_slips_within_two_pauses(x_true, slope, level):
     """Slip after one or two contact pauses (phi under CONTACT_PHI_DEG at the first in the
     first case): the onset comes from the first contact pause and the pause before it.
-    Error bound: 0.2 mm, a fifth of a step (a line through the level: 3 mm off)."""
+    Error bound: 0.2 mm, a fifth of a step (a line through the level: 0.9-1.9 mm off)."""
     x = np.arange(-3.0, 17.0)
     phi = np.minimum(slope * np.clip(x - x_true, 0.0, None), level) - 0.01 * np.clip(x - 3, 0, None)
     phi[-1] = 0.0
