@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from camwhisker.mechanics import simulate_runs
 from camwhisker.stage import (
@@ -146,3 +148,22 @@ def test_onset_from_the_frames_of_a_slow_sweep():
         x = log.x_at(run.signals["t_s"] - run.offset_s)
         x0 = contact_onset_x(x, run.signals["phi_deg"], log.travel_sign)
         assert abs(x0 - run.info["x_first_contact_mm"]) < 0.2, run.name
+
+
+@settings(max_examples=200, deadline=None)
+@given(phi=st.lists(st.one_of(st.floats(-1.0, 40.0), st.just(float("nan"))), min_size=1,
+                    max_size=40),
+       step=st.sampled_from([0.0, 0.1, 1.0]), sign=st.sampled_from([1.0, -1.0]))
+def test_onset_is_nan_or_between_the_first_sample_and_the_first_contact(phi, step, sign):
+    """Any phi (levels, NaNs, repeated positions, a travel that does not move): the onset
+    is NaN without contact, else a finite x between the first sample and the first contact."""
+    phi = np.array(phi)
+    x = sign * step * np.arange(phi.size)
+    x0 = contact_onset_x(x, phi, sign)
+    ok = np.isfinite(phi)
+    hit = np.flatnonzero(phi[ok] >= 1.0)
+    if hit.size == 0:
+        assert np.isnan(x0)
+    else:
+        u0, first = sign * x0, sign * x[ok][hit[0]]
+        assert np.isfinite(x0) and sign * x[ok][0] - 1e-9 <= u0 <= first + 1e-9
