@@ -56,7 +56,7 @@ from camwhisker.stage import (
     read_stage_log,
     stage_log_from_arrays,
 )
-from camwhisker.synth.experiment import _pose_track
+from camwhisker.synth.experiment import pose_track
 from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, Scenario
 from camwhisker.synth.video import render_scenario
 from tests.test_calibrate import calibration
@@ -254,7 +254,7 @@ def _agrees_with_the_contact_command(out, rows, run, calib) -> None:
 def test_live_contact_on_a_rendered_mapping_run_agrees_with_batch(tmp_path):
     run = _run()
     video = tmp_path / "map.avi"
-    render_scenario(Scenario("map", "mapping run", _pose_track(run, FPS), NOMINAL_ARTEFACTS,
+    render_scenario(Scenario("map", "mapping run", pose_track(run), NOMINAL_ARTEFACTS,
                              FPS), Sensor(), video, seed=7)
     calib_path = tmp_path / "calib.toml"
     write_calibration(calib_path, calibration())

@@ -18,33 +18,47 @@ from camwhisker.contact.zscore import roc_auc
 from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
 from camwhisker.stage import stage_log_from_arrays
 
-__all__ = ["FRAME_KINDS", "PHI_MIN_DEG", "evaluate_frames", "format_frames"]
+__all__ = ["FRAME_KINDS", "PHI_MIN_DEG", "frame_runs", "evaluate_frames", "score_frames",
+           "format_frames"]
 
 FRAME_KINDS = ("rigid", "compliant", "slide-box", "slide-circle")
 # The issue's population: frames in contact with phi >= 2 deg.
 PHI_MIN_DEG = 2.0
 
 
-def evaluate_frames(calib: Calibration, seed: int, speed_mm_s: float | None, **sim) -> dict:
-    """Scores of one protocol (``speed_mm_s`` None: the paper's pauses) on runs of ``seed``."""
+def frame_runs(seed: int, speed_mm_s: float | None, **sim) -> list:
+    """(kind, run) of every run scored for one protocol (``speed_mm_s`` None: the paper's
+    pauses), in :data:`FRAME_KINDS` order."""
     kw = dict(sim)
     if speed_mm_s is not None:
         kw["protocol"] = continuous_protocol(speed_mm_s)
+    return [(kind, run) for kind in FRAME_KINDS for run in simulate_runs(kind, seed, **kw)]
+
+
+def evaluate_frames(calib: Calibration, seed: int, speed_mm_s: float | None, **sim) -> dict:
+    """Scores of one protocol (``speed_mm_s`` None: the paper's pauses) on runs of ``seed``,
+    their signals as the simulator writes them."""
+    runs = frame_runs(seed, speed_mm_s, **sim)
+    return score_frames(calib, runs, [run.signals for _, run in runs], speed_mm_s)
+
+
+def score_frames(calib: Calibration, runs: list, signals: list, speed_mm_s: float | None) -> dict:
+    """Scores of ``runs`` ((kind, run) pairs, :func:`frame_runs`) from ``signals`` (one
+    signal table per run, on the run's camera clock)."""
     parts, offset_err, offset_se = [], [], []
-    for kind in FRAME_KINDS:
-        for run in simulate_runs(kind, seed, **kw):
-            log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
-            cols, a = contact_rows(run.signals, log, calib)
-            frame_s = float(np.median(np.diff(run.signals["t_s"])))
-            offset_err.append((a.offset_s - run.offset_s) / frame_s)
-            offset_se.append(a.offset_se_s / frame_s)
-            tr = run.truth
-            sel = (tr["in_contact"] > 0) & (tr["phi_deg"] >= PHI_MIN_DEG)
-            parts.append({
-                "gm": cols["r_gm_mm"][sel], "mf": cols["r_mf_mm"][sel], "z": cols["z_score"][sel],
-                "r": tr["r_mm"][sel], "slip": np.asarray(tr["slipping"], bool)[sel],
-                "kind": np.full(int(sel.sum()), kind),
-            })
+    for (kind, run), sig in zip(runs, signals, strict=True):
+        log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
+        cols, a = contact_rows(sig, log, calib)
+        frame_s = float(np.median(np.diff(sig["t_s"])))
+        offset_err.append((a.offset_s - run.offset_s) / frame_s)
+        offset_se.append(a.offset_se_s / frame_s)
+        tr = run.truth
+        sel = (tr["in_contact"] > 0) & (tr["phi_deg"] >= PHI_MIN_DEG)
+        parts.append({
+            "gm": cols["r_gm_mm"][sel], "mf": cols["r_mf_mm"][sel], "z": cols["z_score"][sel],
+            "r": tr["r_mm"][sel], "slip": np.asarray(tr["slipping"], bool)[sel],
+            "kind": np.full(int(sel.sum()), kind),
+        })
     p = {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
     rigid = p["kind"] == "rigid"
     err = (p["r"] - p["gm"])[rigid & np.isfinite(p["gm"])]

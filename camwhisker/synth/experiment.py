@@ -45,6 +45,7 @@ __all__ = [
     "EXPERIMENT_FPS",
     "EXPERIMENT_CRF",
     "ExperimentRun",
+    "pose_track",
     "render_experiment",
     "read_experiment",
 ]
@@ -75,7 +76,8 @@ class ExperimentRun:
     offset_s: float
 
 
-def _pose_track(run, fps: float) -> PoseTrack:
+def pose_track(run) -> PoseTrack:
+    """The plate's pose per camera frame of a simulated stage run, for the renderer."""
     t = run.truth["t_s"]
     phi = np.nan_to_num(run.truth["phi_deg"])
     dz = np.nan_to_num(run.truth["dz_mm"])
@@ -90,7 +92,7 @@ def _render_one(args) -> dict:
     scenario = Scenario(
         stem,
         f"{role} run {run.name} ({run.kind}) of a simulated stage experiment",
-        _pose_track(run, fps),
+        pose_track(run),
         artefacts,
         fps,
     )
