@@ -31,7 +31,7 @@ from tqdm import tqdm
 from camwhisker.bench.contact import calibrate_simulated
 from camwhisker.bench.frames import format_frames, frame_runs, score_frames
 from camwhisker.bench.reality import seed_list
-from camwhisker.mechanics.experiment import FRONT_END_NOISE
+from camwhisker.mechanics.experiment import FRONT_END_NOISE, StageProtocol
 from camwhisker.sources import VideoSource
 from camwhisker.stream import REST_FRAMES, stream
 from camwhisker.synth.builds import REALITY_SUITE, draw_build
@@ -42,7 +42,8 @@ from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["film_run", "filmed_scores", "main"]
 
-FPS = 30.0
+#: The runs' camera rate: the videos play at it.
+FPS = StageProtocol.fps
 
 
 def film_run(kind: str, run, build_seed: int, render_seed: int, video: Path) -> dict:
