@@ -91,7 +91,7 @@ def fitted_outline(evaluation: dict):
     one stage frame), for :func:`~camwhisker.contact.plots.plot_shapes`."""
     runs = np.asarray(evaluation.get("run", np.zeros(len(evaluation["t_s"]))))
     keys = [k for k in ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm", "y_hat_mm", "r_mf_mm",
-                        "p_gm_good", "mf_outside") if k in evaluation]
+                        "p_gm_good", "sigma_mf_mm", "mf_outside") if k in evaluation]
     parts = [surfels_from_columns({k: np.asarray(evaluation[k])[runs == r] for k in keys},
                                   Pose(), int(r))
              for r in np.unique(runs)]

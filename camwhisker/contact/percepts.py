@@ -142,9 +142,15 @@ _SD = {"line": _line_sd, "circle": _circle_sd, "corner": _corner_sd}
 
 
 def _residuals(model, x, s: Surfels):
-    """Eqs. 3-7 as residuals in units of their scale: distance, misalignment, intrusion."""
+    """Eqs. 3-7 as residuals in units of their scale: distance, misalignment, intrusion.
+
+    A point's distance scale adds its error along the whisker (``s.spread``) as seen across
+    the surface: an error along the surface moves a point without moving it off the surface
+    (errors in variables; scaled by POINT_SIGMA_MM alone, the points' scatter along the
+    whisker tilts a steep wall toward it)."""
     sd, tang = _SD[model](x, s.xy_mm)
-    res = [s.belief * sd / (POINT_SIGMA_MM * s.scale)]
+    across = tang[:, 0] * s.spread[:, 1] - tang[:, 1] * s.spread[:, 0]  # normal . spread
+    res = [s.belief * sd / np.hypot(POINT_SIGMA_MM, across)]
     has = np.isfinite(s.dir[:, 0])
     cross = tang[has, 0] * s.dir[has, 1] - tang[has, 1] * s.dir[has, 0]
     res.append(s.belief[has] * cross / DIR_SIGMA_RAD)  # sin of the misalignment

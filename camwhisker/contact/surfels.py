@@ -11,7 +11,9 @@ there and the belief that the contact happened. Here
   it did not (when the table has those columns and MF lies inside its
   table): there GM is broken by slip, and the fused correction, a mean of
   the GM-MF difference over several pauses, lags a bias that grows with
-  every pause of the slide, while MF follows it;
+  every pause of the slide, while MF follows it. Such a point carries its
+  error, which lies along the whisker (MF errs in r): the calibration's
+  sigma_MF at its phi times the unit vector from the base to the point;
 - the direction is that of the chord between the neighbouring contacts of the
   same table (central difference), left undefined (NaN) where they lie closer
   than :data:`MIN_CHORD_MM` (a stuck contact says nothing about the surface);
@@ -38,22 +40,16 @@ from camwhisker.contact.shape import reconstruct
 from camwhisker.tables import TableError, read_columns
 
 __all__ = ["Pose", "Surfels", "surfels_from_columns", "read_surfels", "merge", "MIN_CHORD_MM",
-           "MF_POINT_SCALE",
            "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
-# A point from MF's r scatters this many times as far from the surface as a fused one:
-# MF's r errs by 3.2 mm (sd) on the tuning walls' slides, twice the 1.5 mm a fused point
-# is given (percepts.POINT_SIGMA_MM). Tuning sweeps 0-99: walls within 1 deg 22 -> 26/30,
-# 1 mm 21 -> 27/30 (a trial weighting chords too: 26-27/30 from 1.4 to 3).
-MF_POINT_SCALE = 2.0
 # Neighbouring contacts closer than this give no direction: it is the
 # contact points' own scatter (fused r_hat, ~0.2-0.3 mm) times a few.
 MIN_CHORD_MM = 0.8
 #: What a contact table must have (docs/sensor.md section 7).
 REQUIRED_COLUMNS = ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm")
 #: Columns used where the table has them (camwhisker contact writes them).
-OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "phi_pause_deg", "mf_outside", "x_mf_mm",
-                    "y_mf_mm")
+OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "sigma_mf_mm", "phi_pause_deg",
+                    "mf_outside", "x_mf_mm", "y_mf_mm")
 
 
 @dataclass(frozen=True)
@@ -79,8 +75,8 @@ class Surfels:
 
     xy_mm : shape (N, 2); dir : shape (N, 2), unit or NaN; belief : shape (N,);
     table : shape (N,), which input each came from; free_xy_mm : shape (M, 2);
-    scale : shape (N,), each point's distance scale relative to a fused one's (1, or
-    :data:`MF_POINT_SCALE` for a point from MF's r).
+    spread : shape (N, 2), a point's error along the whisker (mm): sigma_MF times the unit
+    vector from the base to a point from MF's r, zero for a fused one.
     """
 
     xy_mm: np.ndarray
@@ -88,7 +84,7 @@ class Surfels:
     belief: np.ndarray
     table: np.ndarray
     free_xy_mm: np.ndarray
-    scale: np.ndarray
+    spread: np.ndarray
 
     @property
     def n(self) -> int:
@@ -103,9 +99,9 @@ def _travel_sign(x_mm) -> float:
 
 def _points(cols: dict):
     """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
-    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good keeps r_hat). The table's
-    own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has one, else eq. 12's.
-    Returns x, y and where MF's was taken."""
+    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good or sigma_mf_mm keeps
+    r_hat). The table's own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has
+    one, else eq. 12's. Returns x, y and sigma_MF where MF's was taken (NaN elsewhere)."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
@@ -113,11 +109,13 @@ def _points(cols: dict):
         y_hat = np.asarray(cols["y_hat_mm"], float)
     else:
         y_hat = r_hat * np.cos(np.radians(phi))  # Eq. (12)
-    if "r_mf_mm" not in cols or "p_gm_good" not in cols:
-        return x_hat, y_hat, np.zeros(x_hat.shape, bool)
+    if any(k not in cols for k in ("r_mf_mm", "p_gm_good", "sigma_mf_mm")):
+        return x_hat, y_hat, np.full(x_hat.shape, np.nan)
     r_mf = np.asarray(cols["r_mf_mm"], float)
+    sigma = np.asarray(cols["sigma_mf_mm"], float)
     with np.errstate(invalid="ignore"):
-        use_mf = (np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR) & np.isfinite(r_mf)
+        use_mf = ((np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR) & np.isfinite(r_mf)
+                  & np.isfinite(sigma))
     if "mf_outside" in cols:  # MF clamped at its table's edge says nothing about r
         use_mf &= np.asarray(cols["mf_outside"], float) == 0
     use_mf &= np.isfinite(x_hat)
@@ -125,7 +123,8 @@ def _points(cols: dict):
         x_mf, y_mf = (np.asarray(cols[k], float) for k in ("x_mf_mm", "y_mf_mm"))
     else:
         x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, _travel_sign(cols["x_mm"]))
-    return np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat), use_mf
+    return (np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat),
+            np.where(use_mf, sigma, np.nan))
 
 
 def _pause_points(x_hat, y_hat):
@@ -163,21 +162,24 @@ def surfels_from_columns(cols: dict, pose: Pose = Pose(), table: int = 0,
     n_rows = np.asarray(cols["t_s"]).size
     if n_rows == 0:
         raise TableError(f"{source}: no rows (a header only): nothing to perceive from")
-    x_hat, y_hat, from_mf = _points(cols)
+    x_hat, y_hat, sigma_mf = _points(cols)
     keep = _pause_points(x_hat, y_hat)
-    xy = pose.apply(np.c_[x_hat[keep], y_hat[keep]])
-    dirs = pose.rotate(_directions(np.c_[x_hat[keep], y_hat[keep]]))
+    pts = np.c_[x_hat[keep], y_hat[keep]]
+    dirs = pose.rotate(_directions(pts))
+    ray = pts - np.c_[np.asarray(cols["x_mm"], float)[keep], np.zeros(keep.size)]
+    ray /= np.maximum(np.hypot(*ray.T), 1e-9)[:, None]
+    spread = pose.rotate(np.nan_to_num(sigma_mf[keep])[:, None] * ray)
     x_base = np.asarray(cols["x_mm"], float)
     x_base = np.unique(np.round(x_base[np.isfinite(x_base)]))  # one per mm of travel
     free = pose.apply(np.c_[x_base, np.zeros(x_base.size)])
-    scale = np.where(from_mf[keep], MF_POINT_SCALE, 1.0)
-    return Surfels(xy, dirs, np.ones(keep.size), np.full(keep.size, table), free, scale)
+    return Surfels(pose.apply(pts), dirs, np.ones(keep.size), np.full(keep.size, table), free,
+                   spread)
 
 
 def merge(parts: list[Surfels]) -> Surfels:
     """One surfel set from several tables' (already in the common frame)."""
     return Surfels(*(np.concatenate([getattr(p, f) for p in parts])
-                     for f in ("xy_mm", "dir", "belief", "table", "free_xy_mm", "scale")))
+                     for f in ("xy_mm", "dir", "belief", "table", "free_xy_mm", "spread")))
 
 
 def read_surfels(paths: list[str | Path], poses: list[Pose] | None = None) -> Surfels:
