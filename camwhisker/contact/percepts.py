@@ -194,8 +194,44 @@ def _circle_start(s: Surfels):
 
 
 def _corner_start(s: Surfels, n_apex: int = 12):
-    """Apex candidates among the contacts; faces the mean directions of the two angular groups."""
-    p = s.xy_mm
+    """Apex candidates among the contacts, faces the mean directions of the two angular groups;
+    and, for two tables, the corner of the lines fitted to each (a slide's scattered MF points
+    can hide a face's direction from the groups, not from a fit that allows their spread)."""
+    starts = _corner_starts_of(s.xy_mm, n_apex)
+    tables = np.unique(s.table)
+    if tables.size == 2:
+        parts = [_contacts_of(s, s.table == t) for t in tables]
+        fits = [fit_model("line", p) for p in parts if p.n >= MIN_SURFELS]
+        if len(fits) == 2:
+            starts += _corner_of_lines(fits, parts)
+    return starts
+
+
+def _contacts_of(s: Surfels, keep: np.ndarray) -> Surfels:
+    """Some of the contacts, without free space (whose table is not kept: another run's base
+    may lie beyond this face)."""
+    return Surfels(s.xy_mm[keep], s.dir[keep], s.belief[keep], s.table[keep], np.empty((0, 2)),
+                   s.spread[keep])
+
+
+def _corner_of_lines(fits, parts):
+    """Apex where two fitted lines cross; each face toward its table's contacts."""
+    (t1, d1), (t2, d2) = (f.x for f in fits)
+    a = np.array([[math.cos(t1), math.sin(t1)], [math.cos(t2), math.sin(t2)]])
+    try:
+        apex = np.linalg.solve(a, [d1, d2])
+    except np.linalg.LinAlgError:
+        return []
+    faces = []
+    for t, part in zip((t1, t2), parts, strict=True):
+        u = np.array([-math.sin(t), math.cos(t)])
+        if np.median((part.xy_mm - apex) @ u) < 0:
+            u = -u
+        faces.append(math.atan2(u[1], u[0]))
+    return [_corner_vector(apex, *faces)]
+
+
+def _corner_starts_of(p: np.ndarray, n_apex: int):
     starts = []
     for i in np.unique(np.linspace(0, len(p) - 1, min(n_apex, len(p))).astype(int)):
         v = np.delete(p, i, axis=0) - p[i]
@@ -210,14 +246,18 @@ def _corner_start(s: Surfels, n_apex: int = 12):
         g2 = np.r_[ang[k2 + 1:], ang[:k1 + 1]]
         if len(g1) < 2 or len(g2) < 2:
             continue
-        a1 = math.atan2(np.sin(g1).mean(), np.cos(g1).mean())
-        a2 = math.atan2(np.sin(g2).mean(), np.cos(g2).mean())
-        opening = (a1 - a2) % (2 * math.pi)
-        if opening > math.pi:  # face 1 the counter-clockwise one
-            a1, opening = a2, 2 * math.pi - opening
-        lo, hi = np.radians(CORNER_OPENING_DEG)
-        starts.append(np.array([p[i, 0], p[i, 1], a1, np.clip(opening, lo + 1e-3, hi - 1e-3)]))
+        starts.append(_corner_vector(p[i], math.atan2(np.sin(g1).mean(), np.cos(g1).mean()),
+                                     math.atan2(np.sin(g2).mean(), np.cos(g2).mean())))
     return starts
+
+
+def _corner_vector(apex, a1: float, a2: float) -> np.ndarray:
+    """The corner's parameters from its apex and two face directions (rad, either order)."""
+    opening = (a1 - a2) % (2 * math.pi)
+    if opening > math.pi:  # face 1 the counter-clockwise one
+        a1, opening = a2, 2 * math.pi - opening
+    lo, hi = np.radians(CORNER_OPENING_DEG)
+    return np.array([apex[0], apex[1], a1, np.clip(opening, lo + 1e-3, hi - 1e-3)])
 
 
 _STARTS = {"line": _line_start, "circle": _circle_start, "corner": _corner_start}
