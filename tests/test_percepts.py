@@ -149,17 +149,23 @@ def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
                        np.c_[reconstruct(base_x, r_hat, phi, 1.0)], atol=1e-9, rtol=0)
 
 
+def _slide(angle_deg, y_end, n, length, lag_mm):
+    """A contact sliding ``length`` mm up a wall from (0, y_end), the base ``lag_mm`` (from,
+    to) ahead of it: distance along the wall, base x, true r and phi per pause."""
+    a = math.radians(angle_deg)
+    along = np.linspace(0.0, length, n)
+    xc, yc = along * math.cos(a), y_end + along * math.sin(a)
+    base_x = xc + np.linspace(*lag_mm, n)
+    return along, base_x, np.hypot(base_x - xc, yc), np.degrees(np.arctan2(base_x - xc, yc))
+
+
 def test_wall_from_a_slide_where_the_fused_estimate_lags():
     # A slide up a wall at 78 deg: past the stuck start the fusion drops GM (P = 0) and its
     # fused r trails the truth by up to 6 mm (a mean over pauses of a bias that grows each
     # pause), while MF scatters 0.3 mm about it. From MF the angle comes within 0.5 deg
     # (the largest error over 20 noise seeds is 0.14 deg); from r_hat it is 2.9 deg off.
-    n, a = 30, math.radians(78.0)
-    along = np.linspace(0.0, 50.0, n)
-    xc, yc = along * math.cos(a), 40.0 + along * math.sin(a)
-    base_x = xc + np.linspace(2.0, 15.0, n)
-    r = np.hypot(base_x - xc, yc)
-    phi = np.degrees(np.arctan2(base_x - xc, yc))
+    n = 30
+    along, base_x, r, phi = _slide(78.0, 40.0, n, 50.0, (2.0, 15.0))
     stuck = along < 5.0
     p_good = np.where(stuck, 0.99, 0.0)
     r_hat = np.where(stuck, r, r - 6.0 * along / along[-1])
@@ -174,12 +180,8 @@ def test_wall_from_a_slide_where_the_fused_estimate_lags():
 
 def _slide_up_a_71_deg_wall(rng, sigma_mf):
     """A slide at phi ~4 deg from MF alone, its r off by 10 mm (sd) along the whisker."""
-    n, a = 25, math.radians(71.0)
-    along = np.linspace(0.0, 55.0, n)
-    xc, yc = along * math.cos(a), 35.0 + along * math.sin(a)
-    base_x = xc + np.linspace(0.5, 6.0, n)
-    r = np.hypot(base_x - xc, yc)
-    phi = np.degrees(np.arctan2(base_x - xc, yc))
+    n = 25
+    along, base_x, r, phi = _slide(71.0, 35.0, n, 55.0, (0.5, 6.0))
     r_mf = r + 10.0 * rng.standard_normal(n)
     p_good = np.where(along < 3.0, 0.99, 0.0)
     return _estimates_table(r, r_mf, p_good, np.zeros(n), phi, base_x, sigma_mf)
