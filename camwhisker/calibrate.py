@@ -174,13 +174,15 @@ def _mf_leave_one_run_out(data: dict) -> np.ndarray:
 
 
 def mf_phi_floor(spread: SpreadTable, max_spread_mm: float = MF_MAX_SPREAD_MM) -> float:
-    """The lower edge of the lowest phi bin from which every bin's spread <= max_spread_mm.
+    """The lower edge of the lowest phi bin from which every bin's spread <= max_spread_mm,
+    and never under PHI_MIN_DEG (the table's own floor: a quiet front end's spread is narrow
+    down to phi 0, where an untouched whisker's noise would get an MF estimate).
 
     inf if the highest bin's spread is wider (MF then gives no estimate at all).
     """
     wide = np.flatnonzero(~(spread.std_mm <= max_spread_mm))
     if not wide.size:
-        return float(spread.edges_deg[0])
+        return max(PHI_MIN_DEG, float(spread.edges_deg[0]))
     return float(spread.edges_deg[wide[-1] + 1]) if wide[-1] + 1 < spread.std_mm.size else math.inf
 
 

@@ -16,10 +16,12 @@ from camwhisker.calibrate import (
     write_calibration,
 )
 from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, mf_bias_floor_mm
+from camwhisker.contact.gm import PHI_MIN_DEG
+from camwhisker.contact.mf import r_mf
 from camwhisker.contact.pipeline import CONTACT_COLUMNS, contact_rows
 from camwhisker.contact.zscore import SpreadTable
 from camwhisker.mechanics import simulate_runs
-from camwhisker.mechanics.experiment import PAPER_RIGID_RADII_MM, peg_radii
+from camwhisker.mechanics.experiment import PAPER_RIGID_RADII_MM, NoiseModel, peg_radii
 from camwhisker.stage import stage_log_from_arrays
 
 
@@ -84,7 +86,8 @@ def test_mf_phi_floor_from_spread():
 
     assert mf_phi_floor(spread([25, 20, 9, 3, 1]), 15.0) == 5.0
     assert mf_phi_floor(spread([25, 12, 9, 3, 1]), 15.0) == 2.5
-    assert mf_phi_floor(spread([14, 12, 9, 3, 1]), 15.0) == 0.0
+    # Narrow down to phi 0 (a quiet front end): the table's own floor, eq. 8's 1 deg.
+    assert mf_phi_floor(spread([14, 12, 9, 3, 1]), 15.0) == PHI_MIN_DEG == 1.0
     assert mf_phi_floor(spread([25, 12, 16, 3, 1]), 15.0) == 10.0  # every bin above it
     assert mf_phi_floor(spread([25, 12, 9, 3, 16]), 15.0) == np.inf  # no MF at all
 
@@ -98,6 +101,22 @@ def test_calibration_mf_floor_and_spreads():
     above = calib.mf_spread.edges_deg[:-1] >= calib.mf_table.phi_min_deg
     assert np.all(calib.mf_noise.std_mm[above] < calib.mf_spread.std_mm[above])
     assert np.all(calib.mf_noise.std_mm[above] <= 15.0)
+
+
+def test_quiet_front_end_gets_no_mf_estimate_on_an_untouched_whisker(tmp_path):
+    # At the noise the front end reaches on hand-made builds (phi 0.02 deg, dz 0.005 mm), on
+    # 15 pegs, MF's noise scatter is narrow down to phi 0: the floor must still be the
+    # table's own 1 deg, in memory as in the file, or an untouched whisker's noise (phi
+    # ~0.03 deg) gets a contact at ~57 mm (as it did, with the floor at 0 in memory).
+    runs = simulate_runs("rigid", 31, radii_mm=peg_radii(15),
+                         noise=NoiseModel(phi_deg=0.02, dz_mm=0.005))
+    calib = calibrate([CalibrationRun(r.signals, stage_log_from_arrays(
+        r.stage["t_s"], r.stage["x_mm"], r.stage["r_mm"])) for r in runs], 150.0)[0]
+    assert calib.mf_table.phi_min_deg == PHI_MIN_DEG
+    path = tmp_path / "calib.toml"
+    write_calibration(path, calib)
+    assert read_calibration(path).mf_table.phi_min_deg == PHI_MIN_DEG
+    assert np.isnan(r_mf(calib.mf_table, [0.03, 0.5], [0.001, 0.002]).r_mm).all()
 
 
 def test_missing_key_is_named(tmp_path):
