@@ -263,6 +263,9 @@ def test_bad_pose_is_refused(tmp_path, capsys):
 @pytest.mark.parametrize(("args", "message"), [
     (["--seeds", "5-2"], "the last seed is before the first"),
     (["--seeds", "0-1", "--calib-pegs", "1"], "two or more pegs"),
+    (["--noise", "0.05"], "expected PHI_DEG,DZ_MM"),
+    (["--noise", "0,0.02"], "both must be positive and finite"),
+    (["--noise", "nan,0.02"], "both must be positive and finite"),
 ])
 def test_percept_bench_refuses_bad_arguments(tmp_path, capsys, args, message):
     out = tmp_path / "r.json"
@@ -301,3 +304,13 @@ def test_corner_whose_first_slide_comes_from_scattered_mf():
     rows = run_campaign([1078, 1152])
     assert [r["chosen"] for r in rows] == ["corner", "corner"]
     assert max(r["apex_err_mm"] for r in rows) < 2.0
+
+
+def test_nothing_swept_at_a_quiet_front_ends_noise_is_no_object():
+    from camwhisker.bench.percepts import run_campaign
+    from camwhisker.mechanics.experiment import NoiseModel
+
+    # Tuning seeds 9 and 19 (nothing touched) at the noise the front end reaches on hand-made
+    # builds, calibrated on 15 pegs: while MF's floor fell to 0 deg there, both were walls.
+    rows = run_campaign([9, 19], pegs=15, noise=NoiseModel(phi_deg=0.02, dz_mm=0.005))
+    assert [r["chosen"] for r in rows] == ["none", "none"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import math
 from pathlib import Path
 
 from camwhisker.cli.common import CommandError, command_line
@@ -91,6 +92,9 @@ def add_percept_bench(sub) -> None:
     p.add_argument("--calib-pegs", type=int, default=8, metavar="N",
                    help="rigid pegs the simulated calibration is made on: 8, the paper's radii "
                         "(default), or N spaced evenly in log r over 22.5-90 mm")
+    p.add_argument("--noise", default="0.05,0.02", metavar="PHI_DEG,DZ_MM",
+                   help="the front end's noise per frame, phi (deg) and dz (mm), of the "
+                        "calibration and the sweeps (default: its targets)")
     p.add_argument("--out", metavar="R.json", help="also write every sweep's result here")
     p.set_defaults(func=_run_percept_bench)
 
@@ -99,7 +103,7 @@ def _run_percept_bench(args) -> int:
     from camwhisker.atomic import atomic_write_text
     from camwhisker.bench.percepts import format_summary, run_campaign, summarise
     from camwhisker.jsonfile import dumps
-    from camwhisker.mechanics.experiment import peg_radii
+    from camwhisker.mechanics.experiment import NoiseModel, peg_radii
 
     try:
         a, b = (int(v) for v in args.seeds.split("-"))
@@ -111,7 +115,15 @@ def _run_percept_bench(args) -> int:
         peg_radii(args.calib_pegs)
     except ValueError as exc:
         raise CommandError(f"--calib-pegs {args.calib_pegs}: {exc}") from None
-    rows = run_campaign(range(a, b + 1), pegs=args.calib_pegs)
+    try:
+        phi, dz = (float(v) for v in args.noise.split(","))
+    except ValueError:
+        raise CommandError(f"--noise {args.noise!r}: expected PHI_DEG,DZ_MM (two numbers)"
+                           ) from None
+    if not (0 < phi < math.inf and 0 < dz < math.inf):
+        raise CommandError(f"--noise {args.noise!r}: both must be positive and finite")
+    rows = run_campaign(range(a, b + 1), pegs=args.calib_pegs,
+                        noise=NoiseModel(phi_deg=phi, dz_mm=dz))
     s = summarise(rows)
     print(format_summary(s))
     if args.out:
