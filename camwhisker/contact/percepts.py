@@ -232,6 +232,7 @@ def _corner_of_lines(fits, parts):
 
 
 def _corner_starts_of(p: np.ndarray, n_apex: int):
+    """Up to ``n_apex`` contacts of ``p`` as apexes, each with the faces of its two groups."""
     starts = []
     for i in np.unique(np.linspace(0, len(p) - 1, min(n_apex, len(p))).astype(int)):
         v = np.delete(p, i, axis=0) - p[i]
