@@ -80,6 +80,17 @@ def test_corner_fit_recovers_apex_and_opening():
     assert f.params["opening_deg"] == pytest.approx(105.0, abs=2.0)
 
 
+def test_corner_apex_intervals_are_never_zero_wide():
+    # A contact as far from both faces switched face within the solver's Jacobian step, and
+    # its direction term's jump zeroed the apex's width on 3 of these 20 corners. 25 points
+    # a face at 0.2 mm give widths of 0.38-0.82 mm; under 0.3 is that fault.
+    widths = []
+    for seed in range(20):
+        f = fit_model("corner", _corner(np.random.default_rng(seed)))
+        widths += [f.intervals[k][1] - f.intervals[k][0] for k in ("apex_x_mm", "apex_y_mm")]
+    assert min(widths) > 0.3
+
+
 # A circle of huge radius fits a line as well as the line does: its one extra parameter
 # costs ln(60 residuals) of BIC, an evidence ratio of sqrt(60) ~ 7.7 at the most; a line
 # cannot bend to arcs or a corner, so there the runner-up is far behind.

@@ -20,7 +20,8 @@ Models (common frame, mm; the solid is on the side away from the free space):
   its opening held within :data:`CORNER_OPENING_DEG` (narrower, the two faces
   are one wall with a kink in its contact points).
 
-Intervals are 95 % Wald intervals from the Jacobian at the solution,
+Intervals are 95 % Wald intervals from the Jacobian at the solution (a
+corner's with each contact's face held fixed, :func:`_frozen_jacobian`),
 (J^T J)^-1 times the residuals' robust variance, inflated for the contacts'
 correlation along a sweep (AR(1), :func:`_inflation`; the campaign,
 :mod:`camwhisker.bench.percepts`, measures how often they cover the truth).
@@ -64,6 +65,8 @@ MIN_SURFELS = 4
 MAX_AUTOCORR = 0.95
 # A box corner opens this far (deg): from a sharp wedge to a blunt edge.
 CORNER_OPENING_DEG = (30.0, 150.0)
+# Central-difference step of a corner's Jacobian, relative to each parameter (at least 1).
+_JAC_STEP = 1e-6
 # Two-sided 95 % normal quantile for the intervals.
 Z95 = 1.959963984540054
 
@@ -113,21 +116,22 @@ def _circle_sd(x, p):
     return dist - abs(r), np.c_[-u[:, 1], u[:, 0]]
 
 
-def _corner_sd(x, p):
+def _corner_sd(x, p, face2=None):
+    """Signed distance to the nearer face, and that face's direction; ``face2`` (bool per
+    point) fixes which face gives the direction instead (the distance stays the nearer's)."""
     ax, ay, a1, opening = x
     a2 = a1 - opening
     v = p - np.array([ax, ay])
-    best, tang = None, None
+    dist = []
     for a in (a1, a2):
         u = np.array([math.cos(a), math.sin(a)])
         s = np.clip(v @ u, 0.0, None)
-        d = np.hypot(*(v - s[:, None] * u).T)
-        if best is None:
-            best, tang = d, np.broadcast_to(u, p.shape).copy()
-        else:
-            closer = d < best
-            best = np.where(closer, d, best)
-            tang[closer] = u
+        dist.append(np.hypot(*(v - s[:, None] * u).T))
+    best = np.minimum(*dist)
+    if face2 is None:
+        face2 = dist[1] < dist[0]
+    tang = np.where(np.asarray(face2)[:, None], [math.cos(a2), math.sin(a2)],
+                    [math.cos(a1), math.sin(a1)])
     # Inside the wedge (opening < 180 deg) when on the inner side of both faces.
     u1 = np.array([math.cos(a1), math.sin(a1)])
     u2 = np.array([math.cos(a2), math.sin(a2)])
@@ -141,14 +145,15 @@ def _corner_sd(x, p):
 _SD = {"line": _line_sd, "circle": _circle_sd, "corner": _corner_sd}
 
 
-def _residuals(model, x, s: Surfels):
+def _residuals(model, x, s: Surfels, face2=None):
     """Eqs. 3-7 as residuals in units of their scale: distance, misalignment, intrusion.
 
     A point's distance scale adds its error along the whisker (``s.spread``) as seen across
     the surface: an error along the surface moves a point without moving it off the surface
     (errors in variables; scaled by POINT_SIGMA_MM alone, the points' scatter along the
-    whisker tilts a steep wall toward it)."""
-    sd, tang = _SD[model](x, s.xy_mm)
+    whisker tilts a steep wall toward it). ``face2``: a corner's faces for the contacts'
+    directions, fixed (:func:`_frozen_jacobian`)."""
+    sd, tang = _SD[model](x, s.xy_mm) if face2 is None else _corner_sd(x, s.xy_mm, face2)
     across = tang[:, 0] * s.spread[:, 1] - tang[:, 1] * s.spread[:, 0]  # normal . spread
     res = [s.belief * sd / np.hypot(POINT_SIGMA_MM, across)]
     has = np.isfinite(s.dir[:, 0])
@@ -290,6 +295,28 @@ def _inflation(point_res: np.ndarray) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
+def _frozen_jacobian(x, s: Surfels) -> np.ndarray:
+    """A corner's Jacobian by central differences, each contact's face held as at ``x``.
+
+    A contact as far from both faces switches face, and its direction term jumps, as the
+    apex moves; a difference across that jump is no derivative (it put ~1e6 in J and a zero
+    width in the apex's interval), and the intervals are for the faces as assigned."""
+    ax, ay, a1, opening = x
+    v = s.xy_mm - np.array([ax, ay])
+    dist = []
+    for a in (a1, a1 - opening):
+        u = np.array([math.cos(a), math.sin(a)])
+        dist.append(np.hypot(*(v - np.clip(v @ u, 0.0, None)[:, None] * u).T))
+    face2 = dist[1] < dist[0]
+    cols = []
+    for i in range(x.size):
+        h = np.zeros(x.size)
+        h[i] = _JAC_STEP * max(1.0, abs(x[i]))
+        cols.append((_residuals("corner", x + h, s, face2) - _residuals("corner", x - h, s, face2))
+                    / (2.0 * h[i]))
+    return np.column_stack(cols)
+
+
 def _intervals(model, x, jac, fun, k, n_points, m):
     """95 % Wald intervals of the reported parameters (NaN where J^T J is singular).
 
@@ -333,7 +360,8 @@ def fit_model(model: str, s: Surfels) -> Fit | None:
     k = _K[model]
     m = _n_contact_residuals(s)
     cost = float(np.sum(_rho(best.fun ** 2)))
-    intervals = _intervals(model, best.x, best.jac, best.fun, k, s.n, m)
+    jac = _frozen_jacobian(best.x, s) if model == "corner" else best.jac
+    intervals = _intervals(model, best.x, jac, best.fun, k, s.n, m)
     return Fit(model, _public(model, best.x), intervals, cost, cost + k * math.log(m), m, best.x)
 
 
