@@ -116,17 +116,24 @@ def _circle_sd(x, p):
     return dist - abs(r), np.c_[-u[:, 1], u[:, 0]]
 
 
+def _face_distances(x, p):
+    """Each point's distance from a corner's face 1 and face 2 (half-lines from the apex)."""
+    ax, ay, a1, opening = x
+    v = p - np.array([ax, ay])
+    dist = []
+    for a in (a1, a1 - opening):
+        u = np.array([math.cos(a), math.sin(a)])
+        dist.append(np.hypot(*(v - np.clip(v @ u, 0.0, None)[:, None] * u).T))
+    return dist
+
+
 def _corner_sd(x, p, face2=None):
     """Signed distance to the nearer face, and that face's direction; ``face2`` (bool per
     point) fixes which face gives the direction instead (the distance stays the nearer's)."""
     ax, ay, a1, opening = x
     a2 = a1 - opening
     v = p - np.array([ax, ay])
-    dist = []
-    for a in (a1, a2):
-        u = np.array([math.cos(a), math.sin(a)])
-        s = np.clip(v @ u, 0.0, None)
-        dist.append(np.hypot(*(v - s[:, None] * u).T))
+    dist = _face_distances(x, p)
     best = np.minimum(*dist)
     if face2 is None:
         face2 = dist[1] < dist[0]
@@ -301,12 +308,7 @@ def _frozen_jacobian(x, s: Surfels) -> np.ndarray:
     A contact as far from both faces switches face, and its direction term jumps, as the
     apex moves; a difference across that jump is no derivative (it put ~1e6 in J and a zero
     width in the apex's interval), and the intervals are for the faces as assigned."""
-    ax, ay, a1, opening = x
-    v = s.xy_mm - np.array([ax, ay])
-    dist = []
-    for a in (a1, a1 - opening):
-        u = np.array([math.cos(a), math.sin(a)])
-        dist.append(np.hypot(*(v - np.clip(v @ u, 0.0, None)[:, None] * u).T))
+    dist = _face_distances(x, s.xy_mm)
     face2 = dist[1] < dist[0]
     cols = []
     for i in range(x.size):
