@@ -11,6 +11,7 @@ from camwhisker.contact.slip import (
     OnlineSlip,
     slip_segments,
     slip_state,
+    slipped,
     slipping,
 )
 
@@ -74,6 +75,9 @@ def test_slip_state_keeps_through_gaps_and_restarts_at_each_contact():
     seg = np.array([0, 0, 0, 0, 0, 1, 1, 1])
     assert slip_state(s, seg).tolist() == [0, 0, 1, 1, 1, 0, 0, 1]
     assert slip_segments(slip_state(s, seg), seg).tolist() == [0, 0, 1, 1, 1, 2, 2, 3]
+    # Once slid, slipped for the rest of its contact, stuck again or not.
+    assert slipped([0, 0, 1, 0, 0, 0, 0, 1], seg).tolist() == [0, 0, 1, 1, 1, 0, 0, 1]
+    assert slipped(np.zeros(0)).size == 0
 
 
 def test_no_samples_no_segments():
@@ -132,8 +136,12 @@ def test_live_slip_and_fusion_are_batch_at_the_newest_sample():
     dx, r_gm, sg = _stick_then_slide(rng, rate=4.0)
     want = slip_state(slipping(r_gm, dx, sg))
     live = OnlineSlip()
-    got = np.array([live(r, x, s) for r, x, s in zip(r_gm, dx, sg, strict=True)])
+    got, slid = [], []
+    for r, x, s in zip(r_gm, dx, sg, strict=True):
+        got.append(live(r, x, s))
+        slid.append(live.slipped)
     assert np.array_equal(got, want)
+    assert np.array_equal(slid, slipped(want))
     r_mf = 40.0 + 2.2 * np.maximum(dx - 10.0, 0.0) + 2.0 * rng.standard_normal(dx.size)
     s_mf = np.full(dx.size, 2.0)
     seg = slip_segments(want)

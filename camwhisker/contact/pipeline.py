@@ -17,7 +17,7 @@ from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
 from camwhisker.contact.shape import reconstruct
-from camwhisker.contact.slip import slip_segments, slip_state, slipping
+from camwhisker.contact.slip import slip_segments, slip_state, slipped, slipping
 from camwhisker.contact.smooth import local_line
 from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
 from camwhisker.stage import (
@@ -129,7 +129,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     Returns a dict of arrays shape (N,): r_gm_mm, r_mf_mm, mf_outside, mf_past_top,
     sigma_gm_mm, sigma_mf_mm, z_score (eq. 11), z_combined, slipping (1 or 0 where GM is
     defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere), p_gm_good,
-    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm), x_hat_mm, y_hat_mm (eq. 12 on the
+    gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm; NaN from the contact's first slip on where
+    no MF is in reach to take GM's bias off), x_hat_mm, y_hat_mm (eq. 12 on the
     whisker bent as the GM model has it) and x_mf_mm, y_mf_mm (the same from r_MF). Samples of
     one ``segment`` (contact) must be in time order (see
     :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
@@ -149,10 +150,12 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     noise = calib.mf_noise.sigma_at(phi)
     if fusion is None:
         sliding = slip_state(slipping(rg, dx_mm, sg, segment), segment) > 0
+        slid = slipped(sliding, segment)
     else:
         dx1 = np.atleast_1d(np.asarray(dx_mm, float))
         sliding = np.array([slip(float(rg[0]), float(dx1[0]), float(sg[0])) > 0]
                            if slip is not None else [False])
+        slid = np.array([slip is not None and slip.slipped])
     # A slide's line through GM's bias leaves out MF's lower bounds past its table.
     r_mf_fused = np.where(sliding & mf.past_top, np.nan, mf.r_mm)
     if fusion is None:
@@ -161,6 +164,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
                                    floor_mm=calib.mf_bias_floor_mm)
     else:
         fused, p_good, bias = fusion(rg, r_mf_fused, sg, noise, calib.l_w_mm, bool(sliding[0]))
+    # From a slip on, GM alone (no MF in its segment to take its bias off) is no estimate.
+    fused = np.where(slid & np.isfinite(rg) & ~np.isfinite(p_good), np.nan, fused)
     state = np.where(np.isfinite(rg), sliding, np.nan)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, travel_sign, calib.gm)
     x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, travel_sign, calib.gm)

@@ -26,7 +26,7 @@ from collections import deque
 import numpy as np
 
 __all__ = ["STUCK_RATE", "BASELINE_MM", "TRAVEL_BIN_MM", "NOISE_SIGMAS", "slipping", "slip_state",
-           "slip_segments", "OnlineSlip"]
+           "slip_segments", "slipped", "OnlineSlip"]
 
 # Largest outward drift of a stuck contact's r_GM per mm of travel: the contact rolls
 # along the bending whisker by 0.1-0.5 mm per mm on the calibration's pegs; a contact
@@ -113,6 +113,23 @@ def slip_segments(state, segment=None) -> np.ndarray:
     return np.cumsum(change) - 1
 
 
+def slipped(state, segment=None) -> np.ndarray:
+    """Per sample, has its contact slipped at or before it (:func:`slip_state` ``state`` > 0)?
+
+    Eq. (8) takes the travel since the contact's onset: once the contact has slid, GM's r is
+    off for the rest of the contact, stuck again or not.
+    """
+    on = np.asarray(state, float) > 0
+    seg = np.zeros(on.shape, int) if segment is None else np.asarray(segment)
+    if on.size == 0:
+        return on
+    idx = np.arange(on.size)
+    start = np.maximum.accumulate(np.where(np.r_[True, np.diff(seg) != 0], idx, 0))
+    count = np.cumsum(on)
+    before = np.where(start > 0, count[np.maximum(start - 1, 0)], 0)
+    return count - before > 0
+
+
 class OnlineSlip:
     """:func:`slip_state` of :func:`slipping` one sample at a time, for live use.
 
@@ -124,6 +141,7 @@ class OnlineSlip:
         self._bins: deque = deque(maxlen=ONLINE_BINS)
         self._travel = -math.inf
         self.state = 0.0
+        self.slipped = False  # :func:`slipped` for the newest sample
 
     def __call__(self, r_gm_mm: float, dx_mm: float, sigma_gm_mm: float) -> float:
         """The slip state (1.0 or 0.0) after one sample; an undefined one keeps it."""
@@ -145,6 +163,7 @@ class OnlineSlip:
         drift = STUCK_RATE * (cur[1] - base[1])
         if rise > drift + NOISE_SIGMAS * math.hypot(cur[3], base[3]):
             self.state = 1.0
+            self.slipped = True
         elif rise < drift:
             self.state = 0.0
         return self.state
