@@ -9,7 +9,7 @@ import pytest
 
 from camwhisker.cli import main
 from camwhisker.contact.fusion import KEEP_GM_POSTERIOR
-from camwhisker.contact.percepts import MIN_SURFELS, fit_model, perceive
+from camwhisker.contact.percepts import MIN_SURFELS, fit_model, object_of, perceive
 from camwhisker.contact.shape import reconstruct
 from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
 from camwhisker.tables import write_csv
@@ -114,6 +114,7 @@ def test_scattered_points_are_no_object():
 def test_too_few_contacts_are_no_object():
     s = _wall(np.random.default_rng(6), n=MIN_SURFELS - 1)
     assert perceive(s).best.model == "none" and set(perceive(s).fits) == {"none"}
+    assert object_of(perceive(s)) == f"too few contacts to tell a shape ({MIN_SURFELS - 1})"
 
 
 def test_line_intervals_cover_the_truth_with_independent_noise():
@@ -325,3 +326,32 @@ def test_nothing_swept_at_a_quiet_front_ends_noise_is_no_object():
     # builds, calibrated on 15 pegs: while MF's floor fell to 0 deg there, both were walls.
     rows = run_campaign([9, 19], pegs=15, noise=NoiseModel(phi_deg=0.02, dz_mm=0.005))
     assert [r["chosen"] for r in rows] == ["none", "none"]
+
+
+def test_after_a_slip_under_mfs_floor_gm_alone_is_no_contact_point():
+    from camwhisker.bench.contact import _log, calibrate_simulated
+    from camwhisker.bench.percepts import CALIB_SEED, PROTOCOL, run_campaign
+    from camwhisker.contact.pipeline import contact_rows
+    from camwhisker.mechanics.experiment import FRONT_END_NOISE, peg_radii, simulate_run
+    from camwhisker.mechanics.objects import draw_sweep
+
+    # Tuning sweep 126: the wall's contact sticks at its lower end until phi 2.4 deg, then
+    # slips up the face with phi steady under MF's floor (2.5 deg). GM alone read the slide
+    # as a contact running out from 69 to 147 mm (truth 59-89 mm), and the wall came out
+    # 19 deg off with a +-0.6 deg interval. From the slip on, GM without MF is no estimate.
+    rng = np.random.default_rng(126)
+    run_spec = draw_sweep("wall", rng).runs[0]
+    run = simulate_run("run0", "slide-box", run_spec.scene, rng, protocol=PROTOCOL,
+                       noise=FRONT_END_NOISE, travel_sign=1.0)
+    calib = calibrate_simulated(CALIB_SEED, noise=FRONT_END_NOISE, radii_mm=peg_radii(15))
+    cols, _ = contact_rows(run.signals, _log(run, False), calib, None, mode="pause")
+    slip = np.array(["slip" in d.split(";") for d in cols["doubt"]])
+    first = int(np.argmax(slip))
+    assert slip.any() and np.isnan(cols["p_gm_good"][first:]).all()  # no MF in reach
+    assert not np.isfinite(cols["r_hat_mm"][first:]).any()
+    # The stuck contact before it keeps GM's estimate: 58.27 mm against 58.29 true at its
+    # last pause (1 mm: a few of GM's 0.6 mm spreads).
+    before = cols["r_hat_mm"][:first][np.isfinite(cols["r_hat_mm"][:first])]
+    assert before.size and abs(before[-1] - 58.29) < 1.0
+    [row] = run_campaign([126], pegs=15)
+    assert row["chosen"] == "none" and row["n_surfels"] < MIN_SURFELS

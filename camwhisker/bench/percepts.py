@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from camwhisker.bench.contact import _log, calibrate_simulated
-from camwhisker.contact.percepts import OBJECT_OF, outline, perceive
+from camwhisker.contact.percepts import object_of, outline, perceive
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
 from camwhisker.mechanics.experiment import (
@@ -100,7 +100,7 @@ def fitted_outline(evaluation: dict):
              for r in np.unique(runs)]
     surfels = merge(parts)
     p = perceive(surfels)
-    return (*outline(p.best, surfels.xy_mm), f"percept: {OBJECT_OF[p.best.model]}")
+    return (*outline(p.best, surfels.xy_mm), f"percept: {object_of(p)}")
 
 
 def _errors(kind: str, truth: dict, params: dict) -> dict:

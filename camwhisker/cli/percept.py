@@ -51,7 +51,7 @@ def _sha256(path) -> str:
 def _run_percept(args) -> int:
     from camwhisker import __version__
     from camwhisker.atomic import atomic_write_text
-    from camwhisker.contact.percepts import OBJECT_OF, outline, perceive, percept_record
+    from camwhisker.contact.percepts import object_of, outline, perceive, percept_record
     from camwhisker.contact.surfels import read_surfels
     from camwhisker.jsonfile import dumps
 
@@ -69,14 +69,14 @@ def _run_percept(args) -> int:
     if args.plot:
         from camwhisker.contact.plots import plot_percept
 
-        label = f"percept: {OBJECT_OF[p.best.model]}"
+        label = f"percept: {object_of(p)}"
         plot_percept(surfels.xy_mm, surfels.dir, surfels.free_xy_mm,
                      outline(p.best, surfels.xy_mm), label, args.plot, command_line(args))
     atomic_write_text(args.out, dumps(record, indent=1) + "\n")
     params = ", ".join(f"{k} {v:.2f} [{lo:.2f}, {hi:.2f}]"
                        for (k, v), (lo, hi) in zip(p.best.params.items(),
                                                    p.best.intervals.values(), strict=True))
-    print(f"{OBJECT_OF[p.best.model]} ({p.best.model}) from {surfels.n} contacts"
+    print(f"{object_of(p)} ({p.best.model}) from {surfels.n} contacts"
           + (f": {params}" if params else "")
           + (f"; runner-up {p.runner_up}, evidence ratio {p.evidence_ratio:.3g}"
              if p.runner_up else ""))

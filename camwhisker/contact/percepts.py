@@ -42,7 +42,7 @@ from scipy.optimize import least_squares
 
 from camwhisker.contact.surfels import Surfels
 
-__all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "outline",
+__all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "object_of", "outline",
            "percept_record", "POINT_SIGMA_MM",
            "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS"]
 
@@ -394,6 +394,14 @@ def perceive(s: Surfels, models=MODELS) -> Percept:
     return Percept(best, fits, runner.model if runner else "", ratio, s.n)
 
 
+def object_of(p: Percept) -> str:
+    """What the percept says is there: its model's object, or, where "none" comes from one to
+    :data:`MIN_SURFELS` - 1 contacts, that they are too few to tell a shape."""
+    if p.best.model == "none" and 0 < p.n_surfels < MIN_SURFELS:
+        return f"too few contacts to tell a shape ({p.n_surfels})"
+    return OBJECT_OF[p.best.model]
+
+
 def outline(fit: Fit, near_xy=None, n: int = 181):
     """Points (x_mm, y_mm) of a fitted model's outline, for plots (empty for "none").
 
@@ -426,7 +434,7 @@ def percept_record(p: Percept) -> dict:
     evidence ratio (exp of half the BIC difference) and every candidate's BIC."""
     return {
         "model": p.best.model,
-        "object": OBJECT_OF[p.best.model],
+        "object": object_of(p),
         "params": p.best.params,
         "intervals_95": p.best.intervals,
         "runner_up": p.runner_up,
