@@ -26,16 +26,21 @@ Defined outputs for degenerate cases:
   is: the estimate is a lower bound there.
 
 The table a calibration builds (:meth:`MFTable.from_runs`) is not the pause
-medians themselves but points every :data:`MF_CURVE_STEP_DEG` along a smooth
-curve fitted through each calibration run's pause medians: dz(phi) =
-a2 phi^2 + a3 phi^3 + a4 phi^4 (the axial force is second order in the
-deflection) and r(phi) a cubic (the contact slides out along the bending
-whisker). Pause medians lie ~2.5 deg apart along a run (0.07 in eq. (9)'s
-units), while neighbouring radii are 0.003-0.05 apart in dz: among raw pause
-rows the k = 7 nearest are the rows of many radii at the nearest sampled phi,
-at nearly equal distances, and eq. (10) returns their mean. Along dense curves
-the nearest rows are those of the nearest radii. Noise-free, the curves fit a
-run's pause medians well within the medians' own noise.
+medians themselves but points every :data:`MF_CURVE_STEP_DEG` along each
+calibration run's curve: r(phi) a cubic through the run's pauses (the contact
+slides out along the bending whisker), and dz on it from one smooth surface
+fitted through the pauses of every run, dz = phi^2 sum_ij c_ij (phi / 35)^i
+(r / r_max)^j, i <= 3 and j <= min(3, runs - 1) (the axial force is second
+order in the deflection). Pause medians lie ~2.5 deg apart along a run (0.07
+in eq. (9)'s units), while neighbouring radii are 0.003-0.05 apart in dz: among
+raw pause rows the k = 7 nearest are the rows of many radii at the nearest
+sampled phi, at nearly equal distances, and eq. (10) returns their mean. Along
+dense curves the nearest rows are those of the nearest radii. One surface, not
+a polynomial per run: a run's own dz(phi) in phi^2..phi^4, fitted up to 30 deg,
+misfits the simulated whisker by up to 1 um (2-3 %) at phi 3-5 deg, and at
+0.4 um of dz per mm of r there that put the curves 1-5 mm short; the surface
+(16 coefficients from every pause) reads the noise-free whisker back within
+0.7 mm over phi 2.5-30 deg and r 25-100 mm.
 """
 
 from __future__ import annotations
@@ -66,7 +71,9 @@ SAME_RADIUS_MM = 1.0
 # Fewest pauses for which a run's curves are fitted (twice the 4 coefficients of
 # r(phi)); a shorter run enters the table as its pause rows.
 MIN_CURVE_PAUSES = 8
-_DZ_POWERS = (2, 3, 4)
+# Powers of the dz surface (module docstring): phi^2 (phi / PHI_SCALE_DEG)^i (r / r_max)^j.
+_SURFACE_PHI_POWERS = 3
+_SURFACE_R_POWERS = 3
 _R_POWERS = (0, 1, 2, 3)
 
 
@@ -74,14 +81,24 @@ def _powers(x, powers):
     return np.column_stack([x**k for k in powers])
 
 
-def _run_curve(phi, dz, r, step):
-    """Points every ``step`` deg along one run's least-squares dz(phi) and r(phi) curves."""
-    if phi.size < MIN_CURVE_PAUSES:
-        return phi, dz, r
-    a_dz = np.linalg.lstsq(_powers(phi, _DZ_POWERS), dz, rcond=None)[0]
+def _surface_terms(phi, r, r_max, r_powers):
+    return np.column_stack([phi**2 * (phi / PHI_SCALE_DEG)**i * (r / r_max)**j
+                            for i in range(_SURFACE_PHI_POWERS + 1) for j in range(r_powers + 1)])
+
+
+def _dz_surface(phi, dz, r, n_runs):
+    """dz(phi, r), least squares through every pause (module docstring)."""
+    r_max = float(np.max(r))
+    r_powers = min(_SURFACE_R_POWERS, n_runs - 1)
+    coef = np.linalg.lstsq(_surface_terms(phi, r, r_max, r_powers), dz, rcond=None)[0]
+    return lambda p, q: _surface_terms(p, q, r_max, r_powers) @ coef
+
+
+def _run_curve(phi, r, step):
+    """Points every ``step`` deg along one run's least-squares r(phi): (phi, r)."""
     a_r = np.linalg.lstsq(_powers(phi, _R_POWERS), r, rcond=None)[0]
     g = np.arange(phi.min(), phi.max() + 0.5 * step, step)
-    return g, _powers(g, _DZ_POWERS) @ a_dz, _powers(g, _R_POWERS) @ a_r
+    return g, _powers(g, _R_POWERS) @ a_r
 
 
 @dataclass(frozen=True)
@@ -119,8 +136,18 @@ class MFTable:
         """
         run = np.asarray(run).ravel()
         phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
-        parts = [_run_curve(*_finite_rows(phi[run == i], dz[run == i], r[run == i]), step_deg)
-                 for i in np.unique(run)]
+        runs = [_finite_rows(phi[run == i], dz[run == i], r[run == i]) for i in np.unique(run)]
+        runs = [p for p in runs if p[0].size]
+        curved = [p for p in runs if p[0].size >= MIN_CURVE_PAUSES]
+        parts = [p for p in runs if p[0].size < MIN_CURVE_PAUSES]
+        if curved:
+            surface = _dz_surface(*(np.concatenate([p[j] for p in curved]) for j in range(3)),
+                                  n_runs=len(curved))
+            for p_phi, _, p_r in curved:
+                g, rg = _run_curve(p_phi, p_r, step_deg)
+                parts.append((g, surface(g, rg), rg))
+        if not parts:
+            parts = [(np.empty(0),) * 3]
         return cls.build(*(np.concatenate([p[j] for p in parts]) for j in range(3)),
                          phi_min_deg=phi_min_deg)
 
