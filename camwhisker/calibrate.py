@@ -256,7 +256,7 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         f"phi_scale_deg = {toml_value(PHI_SCALE_DEG)}",
         f"dz_scale_mm = {toml_value(DZ_SCALE_MM)}",
         f"domain_radius = {toml_value(MF_DOMAIN_RADIUS)}",
-        "# Points every curve_step_deg along each run's fitted dz(phi) and r(phi).",
+        "# Points every curve_step_deg along each run's fitted r(phi), dz from one surface.",
         f"curve_step_deg = {toml_value(MF_CURVE_STEP_DEG)}",
         f"rows = {len(calib.mf_table)}",
         f"# No MF estimate below phi_min_deg: MF's noise scatter > {MF_MAX_SPREAD_MM:g} mm.",

@@ -187,7 +187,7 @@ def _mf_error_per_contact(pegs):
 
 def test_more_calibration_pegs_narrow_mf_between_them():
     # MF answers near the calibrated curves: between them its error over a contact grows
-    # with the gap. Seen: worst 3.36 mm on the paper's 8 pegs, 1.89 mm on 15 (evenly in
+    # with the gap. Seen: worst 3.14 mm on the paper's 8 pegs, 1.79 mm on 15 (evenly in
     # log r); the 15 must bring the worst under 2.5 mm and under 0.7 of the 8's.
     paper, dense = (np.abs(_mf_error_per_contact(n)).max() for n in (8, 15))
     print(f"\nworst per-contact MF error: 8 pegs {paper:.2f} mm, 15 pegs {dense:.2f} mm")

@@ -66,8 +66,8 @@ def mf_bias_floor_mm(radii_mm) -> float:
     """The floor for MF calibrated on runs at ``radii_mm``: :data:`MF_BIAS_FLOOR_MM` scaled
     by the widest gap between neighbouring radii (relative to their geometric mean) against
     the paper's pegs'. MF answers near its calibrated curves, so its error over a contact
-    between two of them grows with their spacing (worst 3.4 mm on the paper's 8 pegs,
-    1.9 mm on 15 evenly in log r: tests/test_contact_mf.py). Radii within
+    between two of them grows with their spacing (worst 3.1 mm on the paper's 8 pegs,
+    1.8 mm on 15 evenly in log r: tests/test_contact_mf.py). Radii within
     :data:`~camwhisker.contact.mf.SAME_RADIUS_MM` of the one before are one."""
     r = np.sort(np.asarray(radii_mm, float).ravel())
     r = r[np.isfinite(r) & (r > 0)]
