@@ -41,7 +41,7 @@ from scipy.signal import lfilter
 from camwhisker.contact.mf import SAME_RADIUS_MM
 
 __all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR",
-           "mf_bias_floor_mm", "fuse", "OnlineFusion"]
+           "mf_bias_floor_mm", "segment_start", "fuse", "OnlineFusion"]
 
 # Prior share of good GM estimates: rigid, non-slipping contact is the common case,
 # and a 3 % prior of failure lets a consistent bias of a few sigma overturn it.
@@ -78,7 +78,7 @@ def mf_bias_floor_mm(radii_mm) -> float:
     return MF_BIAS_FLOOR_MM * gap / PAPER_PEG_GAP
 
 
-def _segment_start(segment) -> np.ndarray:
+def segment_start(segment) -> np.ndarray:
     """Per sample, the index of the first sample of its segment (a run of equal ids)."""
     idx = np.arange(np.size(segment))
     return np.maximum.accumulate(np.where(np.r_[True, np.diff(segment) != 0], idx, 0))
@@ -97,7 +97,7 @@ def _two_sided(v, segment, memory):
 
     def forward(x, seg):
         f = lfilter([1.0], [1.0, -lam], x)
-        start = _segment_start(seg)
+        start = segment_start(seg)
         before = np.where(start > 0, f[np.maximum(start - 1, 0)], 0.0)
         return f - lam ** (idx - start + 1.0) * before
 
@@ -114,7 +114,7 @@ def _bias(d, w, segment, memory, trend):
     if trend is None or not np.any(trend):
         return m, var, seen
     # Sample index from the segment's start: small numbers, no cancellation in k^2.
-    k = (np.arange(d.size) - _segment_start(segment)).astype(float)
+    k = (np.arange(d.size) - segment_start(segment)).astype(float)
     wk = _two_sided(w * k, segment, memory)
     s1 = wk - k * sums["w"]
     s2 = _two_sided(w * k * k, segment, memory) - 2 * k * wk + k * k * sums["w"]

@@ -137,7 +137,6 @@ class MFTable:
         run = np.asarray(run).ravel()
         phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
         runs = [_finite_rows(phi[run == i], dz[run == i], r[run == i]) for i in np.unique(run)]
-        runs = [p for p in runs if p[0].size]
         curved = [p for p in runs if p[0].size >= MIN_CURVE_PAUSES]
         parts = [p for p in runs if p[0].size < MIN_CURVE_PAUSES]
         if curved:

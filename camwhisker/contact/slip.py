@@ -25,7 +25,7 @@ from collections import deque
 
 import numpy as np
 
-from camwhisker.contact.fusion import _segment_start
+from camwhisker.contact.fusion import segment_start
 
 __all__ = ["STUCK_RATE", "BASELINE_MM", "TRAVEL_BIN_MM", "NOISE_SIGMAS", "slipping", "slip_state",
            "slip_segments", "slipped", "OnlineSlip"]
@@ -125,7 +125,7 @@ def slipped(state, segment=None) -> np.ndarray:
     seg = np.zeros(on.shape, int) if segment is None else np.asarray(segment)
     if on.size == 0:
         return on
-    start = _segment_start(seg)
+    start = segment_start(seg)
     count = np.cumsum(on)
     before = np.where(start > 0, count[np.maximum(start - 1, 0)], 0)
     return count - before > 0
