@@ -55,11 +55,11 @@ PROTOCOL = StageProtocol(max_travel_mm=90.0)
 #: Issue #23's targets: each error's limit (deg or mm).
 TARGETS = {"angle_err_deg": 1.0, "distance_err_mm": 1.0, "radius_err_mm": 3.0,
            "center_err_mm": 2.0, "apex_err_mm": 2.0}
-# One sweep in ten touches nothing; the rest are walls, cylinders and corners in turn.
 # The parameters whose 95 % intervals bound each error (a point's: the hypot of its two).
 CLAIMED_BY = {"angle_err_deg": ("angle_deg",), "distance_err_mm": ("distance_mm",),
               "radius_err_mm": ("radius_mm",), "center_err_mm": ("center_x_mm", "center_y_mm"),
               "apex_err_mm": ("apex_x_mm", "apex_y_mm")}
+# One sweep in ten touches nothing; the rest are walls, cylinders and corners in turn.
 _CYCLE = ("wall", "cylinder", "corner", "wall", "cylinder", "corner", "wall", "cylinder",
           "corner", "none")
 
