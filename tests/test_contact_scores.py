@@ -225,9 +225,11 @@ def test_eq12_on_the_bent_whisker_places_the_true_contact():
     """With true r and phi, eq. 12 on the whisker bent as the calibrated GM model has it puts
     the simulator's contact (a rigid 76 mm peg, phi 1-20 deg) within 0.15 mm across the
     whisker (seen 0.10); the straight whisker of eq. 12 as printed lags across it by up to
-    1 mm. (Along the whisker the bent point lies 0.9 mm out at 20 deg, the straight one 1.3:
-    the arc is taken as its chord. Past 20 deg the bent point drifts across too: 0.5 mm at
-    26 deg, the beam model's small deflections.)"""
+    1 mm. Along the whisker the bent point lies out by the plate's axial displacement dz
+    (0.9 mm at 20 deg): y_hat is measured from the base as dz moved it toward the camera,
+    and less dz it is within 0.06 mm of the contact (seen 0.04: the beam model's small
+    deflections). Past 20 deg the bent point drifts across too: 0.5 mm at
+    26 deg, the beam model's small deflections."""
     calib = calibration("front-end")
     run = simulate_run("u76", "rigid", PegScene(76.0), np.random.default_rng(4),
                        noise=NOISE_LEVELS["front-end"])
@@ -241,6 +243,11 @@ def test_eq12_on_the_bent_whisker_places_the_true_contact():
         print(f"\n{name}: across {across[name]:.2f}, along "
               f"{np.abs(y_hat - tr['contact_y_mm'][sel]).max():.2f} mm")
     assert across["bent"] < 0.15 and across["straight"] > 0.5
+    _, y_hat = reconstruct(*args, gm=calib.gm)
+    along = y_hat - tr["contact_y_mm"][sel]
+    dz = tr["dz_mm"][sel]
+    print(f"along less dz: {np.abs(along - dz).max():.3f} mm (dz up to {dz.max():.2f})")
+    assert dz.max() > 0.5 and np.abs(along - dz).max() < 0.06
 
 
 @pytest.mark.parametrize("level", LEVELS)

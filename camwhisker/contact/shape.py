@@ -19,7 +19,9 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, travel_sign, gm: GMFit | None = None):
     calibration's GM model ``gm`` it is bent as that model has it: d is the travel
     after which a stuck contact at r_hat tilts the base by phi (the model read
     backwards, :func:`~camwhisker.contact.gm.deflection_mm`), larger than r sin(phi)
-    by the bending, and y_hat = sqrt(r_hat^2 - d^2) (the arc taken as its chord).
+    by the bending, and y_hat = sqrt(r_hat^2 - d^2) (the arc taken as its chord). y_hat is
+    measured from the base where the axial force left it: the plate, pushed dz toward the
+    camera, takes the base with it, so the contact lies dz nearer the base's rest position.
 
     Parameters
     ----------
