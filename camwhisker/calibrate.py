@@ -32,6 +32,12 @@ from camwhisker.contact.mf import (
     r_mf,
 )
 from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
+from camwhisker.contact.shape import (
+    SURFACE_PHI_POWERS,
+    SURFACE_R_POWERS,
+    OffsetSurface,
+    fit_offset_surface,
+)
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
 from camwhisker.tables import write_csv
@@ -109,6 +115,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         # Each run's radius: r at its first contact, before it rolls out along the whisker.
         floor = mf_bias_floor_mm([np.min(data["r_mm"][data["run"] == i])
                                   for i in np.unique(data["run"])])
+        surface = fit_offset_surface(gm, data["dx_mm"], data["phi_deg"], data["r_mm"])
     except ValueError as exc:
         raise CalibrationError(f"calibration from {len(runs)} run(s) failed: {exc}") from exc
 
@@ -127,7 +134,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
     }
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
                         mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance,
-                        mf_bias_floor_mm=floor)
+                        mf_bias_floor_mm=floor, offset_surface=surface)
     return calib, analyses, data
 
 
@@ -147,6 +154,10 @@ def format_calibration(runs: list[CalibrationRun], analyses: list[RunAnalysis],
     lines.append(f"eq. (8): C = {eq8.params['c']:.2f} (95 % CI {lo:.2f}-{hi:.2f}), "
                  f"RMSE {eq8.rmse_mm:.2f} mm; GM model used: {calib.gm.kind} "
                  f"(RMSE {calib.gm.rmse_mm:.2f} mm)")
+    surf = calib.offset_surface
+    if surf is not None:
+        lines.append(f"eq. (12): offset surface takes the GM model's offset error from "
+                     f"{surf.sd_before_mm:.3f} to {surf.sd_after_mm:.3f} mm (sd)")
     floor = calib.mf_table.phi_min_deg
     if math.isinf(floor):
         return lines, (f"MF's scatter from noise exceeds {MF_MAX_SPREAD_MM:g} mm at every phi: "
@@ -215,6 +226,27 @@ def _gm_lines(fit: GMFit) -> list[str]:
     return lines
 
 
+def _shape_lines(surf: OffsetSurface | None) -> list[str]:
+    if surf is None:
+        return ["[shape]", "# No offset surface: too few calibration pauses or radii.", ""]
+    return [
+        "[shape]",
+        "# Eq. (12): what the GM model read backwards misses of a contact's offset d:",
+        "# sum coef[i][j] (phi / phi_max_deg)^phi_powers[i] (r / r_max_mm)^r_powers[j],",
+        "# phi and r clipped to the calibrated box.",
+        f"phi_powers = {toml_value(list(SURFACE_PHI_POWERS))}",
+        f"r_powers = {toml_value(list(SURFACE_R_POWERS[:surf.coef.shape[1]]))}",
+        f"coef = {toml_value([list(row) for row in surf.coef])}",
+        f"phi_max_deg = {toml_value(surf.phi_max_deg)}",
+        f"r_min_mm = {toml_value(surf.r_min_mm)}",
+        f"r_max_mm = {toml_value(surf.r_max_mm)}",
+        "# Residual sd of the calibration's offsets without and with the surface.",
+        f"sd_before_mm = {toml_value(surf.sd_before_mm)}",
+        f"sd_after_mm = {toml_value(surf.sd_after_mm)}",
+        "",
+    ]
+
+
 def write_calibration(path: str | Path, calib: Calibration) -> None:
     """Write the TOML file and the MF table CSV beside it (both atomically)."""
     path = Path(path)
@@ -250,6 +282,7 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         "",
         *_gm_lines(calib.gm),
         *_spread_lines("gm_spread", calib.gm_spread, "sigma_GM"),
+        *_shape_lines(calib.offset_surface),
         "[mf]",
         f"table = {toml_value(mf_path.name)}",
         f"k = {MF_K}",
@@ -292,6 +325,34 @@ def _spread_from(doc: dict, name: str, path: Path) -> SpreadTable:
                        np.asarray(_get(t, "n", where), int),
                        np.asarray(_get(t, "mean_mm", where), float),
                        np.asarray(_get(t, "std_mm", where), float))
+
+
+def _surface_from(doc: dict, path: Path) -> OffsetSurface | None:
+    """The [shape] section's surface; None without one (files from before it: eq. 12 then
+    takes the GM model's offset alone)."""
+    t = doc.get("shape", {})
+    if "coef" not in t:
+        return None
+    where = f"{path}: [shape]"
+    phi_powers, r_powers = _get(t, "phi_powers", where), _get(t, "r_powers", where)
+    box = [_get(t, k, where) for k in ("phi_max_deg", "r_min_mm", "r_max_mm")]
+    try:
+        coef = np.asarray(t["coef"], float)
+        box = [float(v) for v in box]
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{where}: offset surface is not numbers ({exc})") from exc
+    n_r = coef.shape[1] if coef.ndim == 2 else 0
+    shape_ok = (coef.ndim == 2 and coef.shape[0] == len(SURFACE_PHI_POWERS) and n_r >= 1
+                and phi_powers == list(SURFACE_PHI_POWERS)
+                and r_powers == list(SURFACE_R_POWERS[:n_r]))
+    if not (shape_ok and np.all(np.isfinite(coef)) and np.all(np.isfinite(box))
+            and box[0] > 0 and 0 < box[1] <= box[2]):
+        raise CalibrationError(
+            f"{where}: coef must be a {len(SURFACE_PHI_POWERS)} x n table of numbers for "
+            f"phi_powers = {list(SURFACE_PHI_POWERS)} and the first n of r_powers = "
+            f"{list(SURFACE_R_POWERS)}, with phi_max_deg > 0 and 0 < r_min_mm <= r_max_mm")
+    return OffsetSurface(coef, *box, sd_before_mm=float(t.get("sd_before_mm", math.nan)),
+                         sd_after_mm=float(t.get("sd_after_mm", math.nan)))
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -341,4 +402,5 @@ def read_calibration(path: str | Path) -> Calibration:
     return Calibration(gm=gm, gm_spread=_spread_from(doc, "gm_spread", path), mf_table=table,
                        mf_spread=_spread_from(doc, "mf_spread", path),
                        mf_noise=_spread_from(doc, "mf_noise", path), l_w_mm=l_w,
-                       provenance=doc.get("provenance", {}), mf_bias_floor_mm=floor)
+                       provenance=doc.get("provenance", {}), mf_bias_floor_mm=floor,
+                       offset_surface=_surface_from(doc, path))

@@ -216,38 +216,40 @@ def test_rigid_contact_between_calibrated_radii(level):
 
 
 def test_eq12_hand_value():
-    x_hat, y_hat = reconstruct([10.0, 10.0], [60.0, 60.0], [30.0, 30.0], [1.0, -1.0])
+    x_hat, y_hat = reconstruct([10.0, 10.0], [60.0, 60.0], [30.0, 30.0], [0.5, 0.5],
+                               [1.0, -1.0])
     assert x_hat.tolist() == pytest.approx([-20.0, 40.0])  # 10 -/+ 60 sin 30 deg
-    assert y_hat[0] == pytest.approx(60.0 * np.cos(np.radians(30.0)))
+    assert y_hat[0] == pytest.approx(60.0 * np.cos(np.radians(30.0)) - 0.5)
 
 
 def test_eq12_on_the_bent_whisker_places_the_true_contact():
-    """With true r and phi, eq. 12 on the whisker bent as the calibrated GM model has it puts
-    the simulator's contact (a rigid 76 mm peg, phi 1-20 deg) within 0.15 mm across the
-    whisker (seen 0.10); the straight whisker of eq. 12 as printed lags across it by up to
-    1 mm. Along the whisker the bent point lies out by the plate's axial displacement dz
-    (0.9 mm at 20 deg): y_hat is measured from the base as dz moved it toward the camera,
-    and less dz it is within 0.06 mm of the contact (seen 0.04: the beam model's small
-    deflections). Past 20 deg the bent point drifts across too: 0.5 mm at
-    26 deg, the beam model's small deflections."""
+    """With true r and phi, eq. 12 on the whisker bent as the calibration has it (the GM
+    model read backwards plus the offset surface) and less the plate's dz puts the
+    simulator's contact (rigid 76 and 30 mm pegs, phi 1-30 deg) within 0.05 mm across the
+    whisker (seen 0.04); the GM model alone lags across by 0.5 mm past 20 deg, and eq. 12 as
+    printed (straight) by up to 1 mm at 20. Along the whisker it is within 0.1 mm to 20 deg
+    (seen 0.07) and 0.3 mm past it (seen 0.2: the chord of the bent arc is shorter than r)."""
     calib = calibration("front-end")
-    run = simulate_run("u76", "rigid", PegScene(76.0), np.random.default_rng(4),
-                       noise=NOISE_LEVELS["front-end"])
-    tr = run.truth
-    sel = (tr["in_contact"] > 0) & (tr["phi_deg"] > 1.0) & (tr["phi_deg"] <= 20.0)
-    args = (tr["x_mm"][sel], tr["r_mm"][sel], tr["phi_deg"][sel], 1.0)
-    across = {}
-    for name, gm in (("bent", calib.gm), ("straight", None)):
-        x_hat, y_hat = reconstruct(*args, gm=gm)
-        across[name] = np.abs(x_hat - tr["contact_x_mm"][sel]).max()
-        print(f"\n{name}: across {across[name]:.2f}, along "
-              f"{np.abs(y_hat - tr['contact_y_mm'][sel]).max():.2f} mm")
-    assert across["bent"] < 0.15 and across["straight"] > 0.5
-    _, y_hat = reconstruct(*args, gm=calib.gm)
-    along = y_hat - tr["contact_y_mm"][sel]
-    dz = tr["dz_mm"][sel]
-    print(f"along less dz: {np.abs(along - dz).max():.3f} mm (dz up to {dz.max():.2f})")
-    assert dz.max() > 0.5 and np.abs(along - dz).max() < 0.06
+    across, along = {"surface": [], "gm": [], "straight": []}, []
+    for peg, seed in ((76.0, 4), (30.0, 6)):
+        tr = simulate_run(f"u{peg:g}", "rigid", PegScene(peg), np.random.default_rng(seed),
+                          noise=NOISE_LEVELS["front-end"]).truth
+        sel = (tr["in_contact"] > 0) & (tr["phi_deg"] > 1.0)
+        args = (tr["x_mm"][sel], tr["r_mm"][sel], tr["phi_deg"][sel], tr["dz_mm"][sel], 1.0)
+        for name, gm, surface in (("surface", calib.gm, calib.offset_surface),
+                                  ("gm", calib.gm, None), ("straight", None, None)):
+            x_hat, y_hat = reconstruct(*args, gm=gm, surface=surface)
+            across[name].append(np.abs(x_hat - tr["contact_x_mm"][sel]))
+            if name == "surface":
+                along.append(np.c_[tr["phi_deg"][sel], np.abs(y_hat - tr["contact_y_mm"][sel])])
+    across = {k: np.concatenate(v) for k, v in across.items()}
+    phi, err = np.concatenate(along).T
+    print(f"\nacross: surface {across['surface'].max():.3f}, GM alone {across['gm'].max():.2f}, "
+          f"straight {across['straight'].max():.2f} mm; along {err[phi <= 20].max():.3f} "
+          f"(<= 20 deg), {err[phi > 20].max():.3f} mm (up to {phi.max():.1f} deg)")
+    assert phi.max() > 29.0 and across["surface"].max() < 0.05
+    assert across["gm"].max() > 0.4 and across["straight"].max() > 0.5
+    assert err[phi <= 20].max() < 0.1 and err[phi > 20].max() < 0.3
 
 
 @pytest.mark.parametrize("level", LEVELS)

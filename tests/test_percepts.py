@@ -130,8 +130,9 @@ def test_line_intervals_cover_the_truth_with_independent_noise():
 def _estimates_table(r_hat, r_mf, p_good, mf_outside, phi_deg, base_x, sigma_mf=0.3):
     """Contact-table columns with both estimates, the fusion's P(GM good) and MF's sigma, one
     row a pause."""
-    x_hat, y_hat = reconstruct(base_x, r_hat, phi_deg, 1.0)
+    x_hat, y_hat = reconstruct(base_x, r_hat, phi_deg, 0.1 * phi_deg, 1.0)
     return {"t_s": np.arange(base_x.size) * 0.5, "x_mm": base_x, "phi_deg": phi_deg,
+            "dz_pause_mm": 0.1 * phi_deg,
             "x_hat_mm": x_hat, "r_hat_mm": r_hat, "y_hat_mm": y_hat, "r_mf_mm": r_mf,
             "p_gm_good": p_good, "mf_outside": mf_outside,
             "sigma_mf_mm": np.broadcast_to(sigma_mf, base_x.shape).astype(float)}
@@ -147,8 +148,9 @@ def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
     s = surfels_from_columns(_estimates_table(r_hat, r_mf, p_good, np.array([0, 0, 1, 0, 0]),
                                               phi, base_x))
     r_used = np.array([40.0, 47.0, 50.0, 55.0, 60.0])
-    # Same arithmetic (eq. 12) on both sides: equal to rounding.
-    assert np.allclose(s.xy_mm, np.c_[reconstruct(base_x, r_used, phi, 1.0)], atol=1e-9, rtol=0)
+    # Same arithmetic (eq. 12, the pause's dz off y) on both sides: equal to rounding.
+    assert np.allclose(s.xy_mm, np.c_[reconstruct(base_x, r_used, phi, 0.1 * phi, 1.0)],
+                       atol=1e-9, rtol=0)
     # The point from MF's r carries sigma_MF along the whisker (from the base to the point);
     # a fused point none.
     ray = s.xy_mm[1] - [base_x[1], 0.0]
@@ -158,7 +160,7 @@ def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
     # Without MF's sigma a row keeps r_hat: a point must say how far it may be off.
     cols = _estimates_table(r_hat, r_mf, p_good, np.zeros(5), phi, base_x, np.nan)
     assert np.allclose(surfels_from_columns(cols).xy_mm,
-                       np.c_[reconstruct(base_x, r_hat, phi, 1.0)], atol=1e-9, rtol=0)
+                       np.c_[reconstruct(base_x, r_hat, phi, 0.1 * phi, 1.0)], atol=1e-9, rtol=0)
 
 
 def _slide(angle_deg, y_end, n, length, lag_mm):

@@ -49,7 +49,7 @@ MIN_CHORD_MM = 0.8
 REQUIRED_COLUMNS = ("t_s", "x_mm", "phi_deg", "x_hat_mm", "r_hat_mm")
 #: Columns used where the table has them (camwhisker contact writes them).
 OPTIONAL_COLUMNS = ("y_hat_mm", "r_mf_mm", "p_gm_good", "sigma_mf_mm", "phi_pause_deg",
-                    "mf_outside", "x_mf_mm", "y_mf_mm")
+                    "dz_pause_mm", "dz_mm", "mf_outside", "x_mf_mm", "y_mf_mm")
 
 
 @dataclass(frozen=True)
@@ -105,10 +105,12 @@ def _points(cols: dict):
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
+    # A table without dz (not the contract's) is taken as one whose plate did not move.
+    dz = np.asarray(cols.get("dz_pause_mm", cols.get("dz_mm", np.zeros(phi.shape))), float)
     if "y_hat_mm" in cols:
         y_hat = np.asarray(cols["y_hat_mm"], float)
     else:
-        y_hat = r_hat * np.cos(np.radians(phi))  # Eq. (12)
+        y_hat = r_hat * np.cos(np.radians(phi)) - dz  # Eq. (12)
     if any(k not in cols for k in ("r_mf_mm", "p_gm_good", "sigma_mf_mm")):
         return x_hat, y_hat, np.full(x_hat.shape, np.nan)
     r_mf = np.asarray(cols["r_mf_mm"], float)
@@ -122,7 +124,7 @@ def _points(cols: dict):
     if "x_mf_mm" in cols and "y_mf_mm" in cols:
         x_mf, y_mf = (np.asarray(cols[k], float) for k in ("x_mf_mm", "y_mf_mm"))
     else:
-        x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, _travel_sign(cols["x_mm"]))
+        x_mf, y_mf = reconstruct(cols["x_mm"], r_mf, phi, dz, _travel_sign(cols["x_mm"]))
     return (np.where(use_mf, x_mf, x_hat), np.where(use_mf, y_mf, y_hat),
             np.where(use_mf, sigma, np.nan))
 
