@@ -35,8 +35,8 @@ from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
 from camwhisker.contact.shape import (
     SURFACE_PHI_POWERS,
     SURFACE_R_POWERS,
-    OffsetSurface,
-    fit_offset_surface,
+    BendCorrection,
+    fit_bend_correction,
 )
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.stage import StageLog
@@ -115,7 +115,8 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         # Each run's radius: r at its first contact, before it rolls out along the whisker.
         floor = mf_bias_floor_mm([np.min(data["r_mm"][data["run"] == i])
                                   for i in np.unique(data["run"])])
-        surface = fit_offset_surface(gm, data["dx_mm"], data["phi_deg"], data["r_mm"])
+        bend = fit_bend_correction(gm, data["dx_mm"], data["phi_deg"], data["r_mm"],
+                                   data["dz_mm"], data["run"])
     except ValueError as exc:
         raise CalibrationError(f"calibration from {len(runs)} run(s) failed: {exc}") from exc
 
@@ -134,7 +135,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
     }
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
                         mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance,
-                        mf_bias_floor_mm=floor, offset_surface=surface)
+                        mf_bias_floor_mm=floor, bend=bend)
     return calib, analyses, data
 
 
@@ -154,10 +155,11 @@ def format_calibration(runs: list[CalibrationRun], analyses: list[RunAnalysis],
     lines.append(f"eq. (8): C = {eq8.params['c']:.2f} (95 % CI {lo:.2f}-{hi:.2f}), "
                  f"RMSE {eq8.rmse_mm:.2f} mm; GM model used: {calib.gm.kind} "
                  f"(RMSE {calib.gm.rmse_mm:.2f} mm)")
-    surf = calib.offset_surface
-    if surf is not None:
-        lines.append(f"eq. (12): offset surface takes the GM model's offset error from "
-                     f"{surf.sd_before_mm:.3f} to {surf.sd_after_mm:.3f} mm (sd)")
+    bend = calib.bend
+    if bend is not None:
+        lines.append("eq. (12) on the bent whisker: the calibrated offset takes the GM model's "
+                     "error across from {:.3f} to {:.3f} mm (sd), the shortening along from "
+                     "{:.3f} to {:.3f} mm".format(*bend.offset_sd_mm, *bend.shortening_sd_mm))
     floor = calib.mf_table.phi_min_deg
     if math.isinf(floor):
         return lines, (f"MF's scatter from noise exceeds {MF_MAX_SPREAD_MM:g} mm at every phi: "
@@ -226,23 +228,26 @@ def _gm_lines(fit: GMFit) -> list[str]:
     return lines
 
 
-def _shape_lines(surf: OffsetSurface | None) -> list[str]:
-    if surf is None:
-        return ["[shape]", "# No offset surface: too few calibration pauses or radii.", ""]
+def _shape_lines(bend: BendCorrection | None) -> list[str]:
+    if bend is None:
+        return ["[shape]", "# No bend correction: too few calibration pauses or radii.", ""]
+    n_r = bend.offset_coef.shape[1]
     return [
         "[shape]",
-        "# Eq. (12): what the GM model read backwards misses of a contact's offset d:",
+        "# Eq. (12) on the bent whisker: what the GM model read backwards misses, as",
         "# sum coef[i][j] (phi / phi_max_deg)^phi_powers[i] (r / r_max_mm)^r_powers[j],",
-        "# phi and r clipped to the calibrated box.",
+        "# phi and r clipped to the calibrated box: offset_coef adds to the contact's offset",
+        "# d across the base's line, shortening_coef comes off sqrt(r^2 - d^2) along it.",
         f"phi_powers = {toml_value(list(SURFACE_PHI_POWERS))}",
-        f"r_powers = {toml_value(list(SURFACE_R_POWERS[:surf.coef.shape[1]]))}",
-        f"coef = {toml_value([list(row) for row in surf.coef])}",
-        f"phi_max_deg = {toml_value(surf.phi_max_deg)}",
-        f"r_min_mm = {toml_value(surf.r_min_mm)}",
-        f"r_max_mm = {toml_value(surf.r_max_mm)}",
-        "# Residual sd of the calibration's offsets without and with the surface.",
-        f"sd_before_mm = {toml_value(surf.sd_before_mm)}",
-        f"sd_after_mm = {toml_value(surf.sd_after_mm)}",
+        f"r_powers = {toml_value(list(SURFACE_R_POWERS[:n_r]))}",
+        f"offset_coef = {toml_value([list(row) for row in bend.offset_coef])}",
+        f"shortening_coef = {toml_value([list(row) for row in bend.shortening_coef])}",
+        f"phi_max_deg = {toml_value(bend.phi_max_deg)}",
+        f"r_min_mm = {toml_value(bend.r_min_mm)}",
+        f"r_max_mm = {toml_value(bend.r_max_mm)}",
+        "# Residual sd (mm) of the calibration's pauses without and with each surface.",
+        f"offset_sd_mm = {toml_value(list(bend.offset_sd_mm))}",
+        f"shortening_sd_mm = {toml_value(list(bend.shortening_sd_mm))}",
         "",
     ]
 
@@ -282,7 +287,7 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         "",
         *_gm_lines(calib.gm),
         *_spread_lines("gm_spread", calib.gm_spread, "sigma_GM"),
-        *_shape_lines(calib.offset_surface),
+        *_shape_lines(calib.bend),
         "[mf]",
         f"table = {toml_value(mf_path.name)}",
         f"k = {MF_K}",
@@ -327,32 +332,35 @@ def _spread_from(doc: dict, name: str, path: Path) -> SpreadTable:
                        np.asarray(_get(t, "std_mm", where), float))
 
 
-def _surface_from(doc: dict, path: Path) -> OffsetSurface | None:
-    """The [shape] section's surface; None without one (files from before it: eq. 12 then
-    takes the GM model's offset alone)."""
+def _bend_from(doc: dict, path: Path) -> BendCorrection | None:
+    """The [shape] section's correction; None without one (files from before it: eq. 12 then
+    takes the GM model's bend alone)."""
     t = doc.get("shape", {})
-    if "coef" not in t:
+    if "offset_coef" not in t:
         return None
     where = f"{path}: [shape]"
-    phi_powers, r_powers = _get(t, "phi_powers", where), _get(t, "r_powers", where)
-    box = [_get(t, k, where) for k in ("phi_max_deg", "r_min_mm", "r_max_mm")]
+    keys = ("phi_powers", "r_powers", "offset_coef", "shortening_coef", "phi_max_deg",
+            "r_min_mm", "r_max_mm")
+    phi_powers, r_powers, *values = (_get(t, k, where) for k in keys)
     try:
-        coef = np.asarray(t["coef"], float)
-        box = [float(v) for v in box]
+        offset, shortening = (np.asarray(v, float) for v in values[:2])
+        box = [float(v) for v in values[2:]]
     except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"{where}: offset surface is not numbers ({exc})") from exc
-    n_r = coef.shape[1] if coef.ndim == 2 else 0
-    shape_ok = (coef.ndim == 2 and coef.shape[0] == len(SURFACE_PHI_POWERS) and n_r >= 1
+        raise CalibrationError(f"{where}: bend correction is not numbers ({exc})") from exc
+    n_r = offset.shape[1] if offset.ndim == 2 else 0
+    shape_ok = (offset.ndim == 2 and offset.shape == shortening.shape
+                and offset.shape[0] == len(SURFACE_PHI_POWERS) and n_r >= 1
                 and phi_powers == list(SURFACE_PHI_POWERS)
                 and r_powers == list(SURFACE_R_POWERS[:n_r]))
-    if not (shape_ok and np.all(np.isfinite(coef)) and np.all(np.isfinite(box))
-            and box[0] > 0 and 0 < box[1] <= box[2]):
+    if not (shape_ok and np.all(np.isfinite(offset)) and np.all(np.isfinite(shortening))
+            and np.all(np.isfinite(box)) and box[0] > 0 and 0 < box[1] <= box[2]):
         raise CalibrationError(
-            f"{where}: coef must be a {len(SURFACE_PHI_POWERS)} x n table of numbers for "
-            f"phi_powers = {list(SURFACE_PHI_POWERS)} and the first n of r_powers = "
-            f"{list(SURFACE_R_POWERS)}, with phi_max_deg > 0 and 0 < r_min_mm <= r_max_mm")
-    return OffsetSurface(coef, *box, sd_before_mm=float(t.get("sd_before_mm", math.nan)),
-                         sd_after_mm=float(t.get("sd_after_mm", math.nan)))
+            f"{where}: offset_coef and shortening_coef must be {len(SURFACE_PHI_POWERS)} x n "
+            f"tables of numbers for phi_powers = {list(SURFACE_PHI_POWERS)} and the first n "
+            f"of r_powers = {list(SURFACE_R_POWERS)}, with phi_max_deg > 0 and "
+            "0 < r_min_mm <= r_max_mm")
+    sds = [tuple(t.get(k, (math.nan, math.nan))) for k in ("offset_sd_mm", "shortening_sd_mm")]
+    return BendCorrection(offset, shortening, *box, *sds)
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -403,4 +411,4 @@ def read_calibration(path: str | Path) -> Calibration:
                        mf_spread=_spread_from(doc, "mf_spread", path),
                        mf_noise=_spread_from(doc, "mf_noise", path), l_w_mm=l_w,
                        provenance=doc.get("provenance", {}), mf_bias_floor_mm=floor,
-                       offset_surface=_surface_from(doc, path))
+                       bend=_bend_from(doc, path))

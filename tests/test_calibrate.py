@@ -53,7 +53,9 @@ def test_round_trip(tmp_path):
     assert np.allclose(back.mf_noise.std_mm, calib.mf_noise.std_mm, rtol=1e-12)
     assert back.mf_bias_floor_mm == pytest.approx(calib.mf_bias_floor_mm, rel=1e-12)
     r, phi = np.array([30.0, 60.0, 200.0]), np.array([5.0, 25.0, 90.0])  # the last off the box
-    assert np.allclose(back.offset_surface(r, phi), calib.offset_surface(r, phi), rtol=1e-12)
+    for part in ("offset", "shortening"):
+        assert np.allclose(getattr(back.bend, part)(r, phi), getattr(calib.bend, part)(r, phi),
+                           rtol=1e-12)
     assert not list(tmp_path.glob(".*tmp"))  # atomic writes left no temporaries
 
 
@@ -130,25 +132,28 @@ def test_missing_key_is_named(tmp_path):
         read_calibration(path)
 
 
-def test_offset_surface_fits_the_pegs_and_reads_back_absent_or_named(tmp_path):
-    """On the paper's eight pegs at the paper's noise the surface takes the GM model's error in
-    a contact's offset (a two-parameter beam over 1-35 deg) to under 0.35 of it (seen 0.24 ->
-    0.06 mm; what is left is the onset's error in dx), without moving the 1-deg offsets, which
-    the beam has right, by more than 0.05 mm. A file from before [shape] reads without one; a
-    bad table is named."""
-    surf = calibration().offset_surface
-    print(f"\nsd {surf.sd_before_mm:.3f} -> {surf.sd_after_mm:.3f} mm")
-    assert surf.sd_after_mm < 0.35 * surf.sd_before_mm and surf.sd_before_mm > 0.1
-    assert np.abs(surf(np.array(PAPER_RIGID_RADII_MM), 1.0)).max() < 0.05
+def test_bend_correction_fits_the_pegs_and_reads_back_absent_or_named(tmp_path):
+    """On the paper's eight pegs at the paper's noise the offset surface takes the GM model's
+    error across (a two-parameter beam over 1-35 deg) to under 0.35 of it (seen 0.24 -> 0.06
+    mm; what is left is the onset's error in dx), and the shortening takes the spread of a
+    peg's height along the whisker to under 0.35 of it (seen 0.06 -> 0.02 mm), neither
+    moving a 1-deg point by more than 0.05 mm. A file from before [shape] reads without
+    one; a bad table is named."""
+    bend = calibration().bend
+    print("\nacross {:.3f} -> {:.3f}, along {:.3f} -> {:.3f} mm".format(
+        *bend.offset_sd_mm, *bend.shortening_sd_mm))
+    for before, after in (bend.offset_sd_mm, bend.shortening_sd_mm):
+        assert after < 0.35 * before and before > 0.04
+    radii = np.array(PAPER_RIGID_RADII_MM)
+    assert np.abs(np.r_[bend.offset(radii, 1.0), bend.shortening(radii, 1.0)]).max() < 0.05
     path = tmp_path / "calib.toml"
     write_calibration(path, calibration())
     text = path.read_text()
-    start = text.index("[shape]")
-    path.write_text(text[:start] + text[text.index("[mf]"):])
-    assert read_calibration(path).offset_surface is None
+    path.write_text(text[:text.index("[shape]")] + text[text.index("[mf]"):])
+    assert read_calibration(path).bend is None
     line = next(x for x in text.splitlines() if x.startswith("phi_powers = "))
     path.write_text(text.replace(line, "phi_powers = [1, 2, 3]"))
-    with pytest.raises(CalibrationError, match=r"\[shape\]: coef must be a 3 x n table"):
+    with pytest.raises(CalibrationError, match=r"\[shape\]: offset_coef and shortening_coef"):
         read_calibration(path)
 
 

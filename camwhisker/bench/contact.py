@@ -69,7 +69,7 @@ def evaluate_run(calib: Calibration, signals: dict, log, truth: dict, scene,
     e["slipping"] = np.interp(tmid, truth["t_s"], slipping) > 0.5
     e["profile_dist_mm"] = scene.profile_distance(e["x_hat_mm"], e["y_hat_mm"])
     gx, gy = reconstruct(e["x_mm"], e["r_gm_mm"], e["phi_deg"], e["dz_mm"], a.travel_sign,
-                         calib.gm, calib.offset_surface)
+                         calib.gm, calib.bend)
     mx, my = e["x_mf_mm"], e["y_mf_mm"]
     e["gm_x_hat_mm"], e["gm_y_hat_mm"], e["mf_x_hat_mm"], e["mf_y_hat_mm"] = gx, gy, mx, my
     e["gm_profile_dist_mm"] = scene.profile_distance(gx, gy)

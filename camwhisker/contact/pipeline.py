@@ -16,7 +16,7 @@ from camwhisker.clock import estimate_offset_motion
 from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
-from camwhisker.contact.shape import OffsetSurface, reconstruct
+from camwhisker.contact.shape import BendCorrection, reconstruct
 from camwhisker.contact.slip import slip_segments, slip_state, slipped, slipping
 from camwhisker.contact.smooth import local_line
 from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
@@ -48,8 +48,8 @@ class Calibration:
     provenance: dict
     # MF's error over a contact between its radii, which the fusion allows a good GM.
     mf_bias_floor_mm: float = MF_BIAS_FLOOR_MM
-    # What the GM model misses of a contact's offset, for eq. 12; None: nothing calibrated.
-    offset_surface: OffsetSurface | None = None
+    # What the GM model misses of the bent whisker, for eq. 12; None: nothing calibrated.
+    bend: BendCorrection | None = None
 
 
 # A run with fewer pauses than this is aligned and its onset found from the motion:
@@ -133,8 +133,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     defined, :mod:`~camwhisker.contact.slip`; NaN elsewhere), p_gm_good,
     gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm; NaN from the contact's first slip on where
     no MF is in reach to take GM's bias off), x_hat_mm, y_hat_mm (eq. 12 on the whisker
-    bent as the GM model and the offset surface have it) and x_mf_mm, y_mf_mm (the same from
-    r_MF). Samples of one ``segment`` (contact) must be in time order (see
+    bent as the GM model and the calibration's bend correction have it) and x_mf_mm,
+    y_mf_mm (the same from r_MF). Samples of one ``segment`` (contact) must be in time order (see
     :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
     starts or stops. ``fusion``, an
     :class:`~camwhisker.contact.fusion.OnlineFusion`, fuses one new sample with the
@@ -169,8 +169,8 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     # From a slip on, GM alone (no MF in its segment to take its bias off) is no estimate.
     fused = np.where(slid & np.isfinite(rg) & ~np.isfinite(p_good), np.nan, fused)
     state = np.where(np.isfinite(rg), sliding, np.nan)
-    x_hat, y_hat = reconstruct(x_mm, fused, phi, dz, travel_sign, calib.gm, calib.offset_surface)
-    x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, dz, travel_sign, calib.gm, calib.offset_surface)
+    x_hat, y_hat = reconstruct(x_mm, fused, phi, dz, travel_sign, calib.gm, calib.bend)
+    x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, dz, travel_sign, calib.gm, calib.bend)
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,

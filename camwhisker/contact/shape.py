@@ -1,4 +1,4 @@
-"""Shape reconstruction from the contact distance, eq. (12), and the calibrated offset surface."""
+"""Shape reconstruction from the contact distance, eq. (12), on the whisker bent as calibrated."""
 
 from __future__ import annotations
 
@@ -8,39 +8,51 @@ import numpy as np
 
 from camwhisker.contact.gm import GMFit, deflection_mm
 
-__all__ = ["OffsetSurface", "fit_offset_surface", "reconstruct", "SURFACE_PHI_POWERS",
+__all__ = ["BendCorrection", "fit_bend_correction", "reconstruct", "SURFACE_PHI_POWERS",
            "SURFACE_R_POWERS"]
 
-# Powers of phi and r in the offset surface. The GM model's error in the offset grows with
-# the bend, which is second order and up in phi and vanishes at phi 0; along r it is smooth.
+# Powers of phi and r in the correction surfaces. The GM model's error grows with the bend,
+# which is second order and up in phi and vanishes at phi 0; along r it is smooth.
 SURFACE_PHI_POWERS = (2, 3, 4)
 SURFACE_R_POWERS = (0, 1, 2, 3)
-# Samples per coefficient below which the surface is not fitted: the calibration keeps the
-# GM model's offset alone rather than a surface its own noise shaped.
+# Samples per coefficient below which no correction is fitted: eq. 12 keeps the GM model's
+# bend alone rather than surfaces the calibration's noise shaped.
 MIN_SAMPLES_PER_TERM = 5
 
 
 @dataclass(frozen=True)
-class OffsetSurface:
-    """What the GM model, read backwards, misses of a contact's offset from the base's line.
+class BendCorrection:
+    """What the GM model, read backwards, misses of the bent whisker behind eq. 12.
 
-    d_true - deflection_mm(gm, r, phi) = sum c[i, j] (phi / phi_max)^p_i (r / r_max)^q_j,
-    with p = :data:`SURFACE_PHI_POWERS`, q = :data:`SURFACE_R_POWERS` (or its first
-    ``coef.shape[1]``). Evaluated with phi and r clipped to the calibrated box, where a
-    polynomial holds.
+    Two surfaces, each sum c[i, j] (phi / phi_max)^p_i (r / r_max)^q_j with
+    p = :data:`SURFACE_PHI_POWERS`, q = the first ``coef.shape[1]`` of
+    :data:`SURFACE_R_POWERS`, evaluated with phi and r clipped to the calibrated box, where a
+    polynomial holds:
+
+    - ``offset``: added to the model's offset of the contact from the base's line;
+    - ``shortening``: taken off sqrt(r^2 - d^2), the arc of length r taken as its chord;
+      the bent arc's chord is shorter.
     """
 
-    coef: np.ndarray  # shape (len(SURFACE_PHI_POWERS), n_r_powers)
+    offset_coef: np.ndarray  # shape (len(SURFACE_PHI_POWERS), n_r_powers)
+    shortening_coef: np.ndarray  # the same shape
     phi_max_deg: float
     r_min_mm: float
     r_max_mm: float
-    sd_before_mm: float = np.nan  # residual sd on the calibration, without and with it
-    sd_after_mm: float = np.nan
+    # Residual sd (mm) on the calibration without and with each surface, for the record.
+    offset_sd_mm: tuple = (np.nan, np.nan)
+    shortening_sd_mm: tuple = (np.nan, np.nan)
 
-    def __call__(self, r_mm, phi_deg) -> np.ndarray:
+    def _design(self, r_mm, phi_deg):
         return _design(np.clip(np.abs(phi_deg), 0.0, self.phi_max_deg),
                        np.clip(r_mm, self.r_min_mm, self.r_max_mm), self.phi_max_deg,
-                       self.r_max_mm, self.coef.shape[1]) @ self.coef.ravel()
+                       self.r_max_mm, self.offset_coef.shape[1])
+
+    def offset(self, r_mm, phi_deg) -> np.ndarray:
+        return self._design(r_mm, phi_deg) @ self.offset_coef.ravel()
+
+    def shortening(self, r_mm, phi_deg) -> np.ndarray:
+        return self._design(r_mm, phi_deg) @ self.shortening_coef.ravel()
 
 
 def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
@@ -50,30 +62,44 @@ def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
     return np.concatenate(cols, axis=-1)
 
 
-def fit_offset_surface(gm: GMFit, dx_mm, phi_deg, r_mm) -> OffsetSurface | None:
-    """Least-squares :class:`OffsetSurface` from calibration pauses at known r.
+def fit_bend_correction(gm: GMFit, dx_mm, phi_deg, r_mm, dz_mm, run) -> BendCorrection | None:
+    """Least-squares :class:`BendCorrection` from calibration pauses at known r.
 
-    A calibration contact does not slide, so its offset from the base's line is the base's
-    travel dx since the onset. r's powers stop one short of the number of distinct radii
-    (a cubic needs four). None where the data cannot carry even the lowest surface.
+    A calibration peg is thin and does not slide: a contact's offset from the base's line
+    is the base's travel dx since the onset, and its height is one per run (``run``: run id
+    per pause), which the shortening's fit takes as a free constant per run. r's powers stop
+    one short of the number of distinct radii (a cubic needs four). None where the data
+    cannot carry even the lowest surfaces.
     """
-    dx, phi, r = (np.asarray(v, float).ravel() for v in (dx_mm, phi_deg, r_mm))
-    resid = dx - deflection_mm(gm, r, phi)
-    ok = np.isfinite(resid) & np.isfinite(phi) & np.isfinite(r)
-    resid, phi, r = resid[ok], np.abs(phi[ok]), r[ok]
+    dx, phi, r, dz, run = (np.asarray(v).ravel() for v in (dx_mm, phi_deg, r_mm, dz_mm, run))
+    phi, r = np.abs(phi.astype(float)), r.astype(float)
+    miss = dx - deflection_mm(gm, r, phi)
+    ok = np.isfinite(miss) & np.isfinite(phi) & np.isfinite(r) & np.isfinite(dz)
+    miss, phi, r, dz, run = miss[ok], phi[ok], r[ok], dz[ok], run[ok]
+    runs = np.unique(run)
     n_r = min(len(SURFACE_R_POWERS), np.unique(np.round(r)).size - 1)
-    if n_r < 1 or resid.size < MIN_SAMPLES_PER_TERM * len(SURFACE_PHI_POWERS) * n_r:
+    terms = len(SURFACE_PHI_POWERS) * n_r
+    if n_r < 1 or miss.size < MIN_SAMPLES_PER_TERM * (2 * terms + runs.size):
         return None
-    phi_max, r_min, r_max = float(phi.max()), float(r.min()), float(r.max())
-    a = _design(phi, r, phi_max, r_max, n_r)
-    coef = np.linalg.lstsq(a, resid, rcond=None)[0]
-    return OffsetSurface(coef.reshape(len(SURFACE_PHI_POWERS), n_r), phi_max, r_min, r_max,
-                         sd_before_mm=float(np.std(resid)),
-                         sd_after_mm=float(np.std(resid - a @ coef)))
+    box = (float(phi.max()), float(r.min()), float(r.max()))
+    a = _design(phi, r, box[0], box[2], n_r)
+    offset = np.linalg.lstsq(a, miss, rcond=None)[0]
+    d = dx[ok] - miss + a @ offset  # eq. 12's offset, as reconstruct has it
+    height = np.sqrt(r * r - d * d) - dz
+    per_run = (run[:, None] == runs[None, :]).astype(float)
+    sol = np.linalg.lstsq(np.c_[a, per_run], height, rcond=None)[0]
+    shortening = sol[:terms]
+    run_sd = np.std(height - per_run @ np.linalg.lstsq(per_run, height, rcond=None)[0])
+    shape = (len(SURFACE_PHI_POWERS), n_r)
+    return BendCorrection(
+        offset.reshape(shape), shortening.reshape(shape), *box,
+        offset_sd_mm=(float(np.std(miss)), float(np.std(miss - a @ offset))),
+        shortening_sd_mm=(float(run_sd),
+                          float(np.std(height - np.c_[a, per_run] @ sol))))
 
 
 def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = None,
-                surface: OffsetSurface | None = None):
+                bend: BendCorrection | None = None):
     """Contact point (x_hat, y_hat) from the base position, r_hat, phi and dz.
 
     The whisker lags behind the base, so the contact lies behind it along the
@@ -83,8 +109,8 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = 
     calibration's GM model ``gm`` it is bent as that model has it: d is the travel
     after which a stuck contact at r_hat tilts the base by phi (the model read
     backwards, :func:`~camwhisker.contact.gm.deflection_mm`), larger than r sin(phi)
-    by the bending, plus the calibrated ``surface`` where there is one, and
-    y_hat = sqrt(r_hat^2 - d^2) (the arc taken as its chord). y_hat is measured from the
+    by the bending, and y_hat = sqrt(r_hat^2 - d^2) (the arc taken as its chord), both
+    corrected by the calibration's ``bend`` where there is one. y_hat is measured from the
     base's rest position: the plate, pushed dz toward the camera, takes the base with it, so
     the contact lies dz nearer: y_hat = ... - dz.
 
@@ -94,7 +120,7 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = 
     travel_sign : float or array_like
         +1 for travel toward +x, -1 toward -x.
     gm : GMFit, optional
-    surface : OffsetSurface, optional
+    bend : BendCorrection, optional
         Used only with ``gm``.
 
     Returns
@@ -110,9 +136,11 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = 
         d, y = r * np.sin(rad), r * np.cos(rad)
     else:
         d = deflection_mm(gm, r, phi)
-        if surface is not None:
-            d = d + surface(r, phi)
+        if bend is not None:
+            d = d + bend.offset(r, phi)
         d = np.where(d <= r, d, np.nan)  # an offset past the whisker's length: no point
         y = np.sqrt(r * r - d * d)
+        if bend is not None:
+            y = y - bend.shortening(r, phi)
     # Eq. (12)
     return np.asarray(x_mm, float) - np.sign(travel_sign) * d, y - np.asarray(dz_mm, float)
