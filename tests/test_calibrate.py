@@ -53,9 +53,7 @@ def test_round_trip(tmp_path):
     assert np.allclose(back.mf_noise.std_mm, calib.mf_noise.std_mm, rtol=1e-12)
     assert back.mf_bias_floor_mm == pytest.approx(calib.mf_bias_floor_mm, rel=1e-12)
     r, phi = np.array([30.0, 60.0, 200.0]), np.array([5.0, 25.0, 90.0])  # the last off the box
-    for part in ("offset", "shortening"):
-        assert np.allclose(getattr(back.bend, part)(r, phi), getattr(calib.bend, part)(r, phi),
-                           rtol=1e-12)
+    assert np.allclose(back.bend(r, phi), calib.bend(r, phi), rtol=1e-12)
     assert not list(tmp_path.glob(".*tmp"))  # atomic writes left no temporaries
 
 
@@ -145,7 +143,7 @@ def test_bend_correction_fits_the_pegs_and_reads_back_absent_or_named(tmp_path):
     for before, after in (bend.offset_sd_mm, bend.shortening_sd_mm):
         assert after < 0.35 * before and before > 0.04
     radii = np.array(PAPER_RIGID_RADII_MM)
-    assert np.abs(np.r_[bend.offset(radii, 1.0), bend.shortening(radii, 1.0)]).max() < 0.05
+    assert np.abs(bend(radii, 1.0)).max() < 0.05
     path = tmp_path / "calib.toml"
     write_calibration(path, calibration())
     text = path.read_text()

@@ -27,11 +27,12 @@ class BendCorrection:
     Two surfaces, each sum c[i, j] (phi / phi_max)^p_i (r / r_max)^q_j with
     p = :data:`SURFACE_PHI_POWERS`, q = the first ``coef.shape[1]`` of
     :data:`SURFACE_R_POWERS`, evaluated with phi and r clipped to the calibrated box, where a
-    polynomial holds:
+    polynomial holds; calling it gives both:
 
-    - ``offset``: added to the model's offset of the contact from the base's line;
-    - ``shortening``: taken off sqrt(r^2 - d^2), the arc of length r taken as its chord;
-      the bent arc's chord is shorter.
+    - the offset (``offset_coef``): added to the model's offset of the contact from the
+      base's line;
+    - the shortening (``shortening_coef``): taken off sqrt(r^2 - d^2), the arc of length r
+      taken as its chord; the bent arc's chord is shorter.
     """
 
     offset_coef: np.ndarray  # shape (len(SURFACE_PHI_POWERS), n_r_powers)
@@ -43,16 +44,12 @@ class BendCorrection:
     offset_sd_mm: tuple = (np.nan, np.nan)
     shortening_sd_mm: tuple = (np.nan, np.nan)
 
-    def _design(self, r_mm, phi_deg):
-        return _design(np.clip(np.abs(phi_deg), 0.0, self.phi_max_deg),
-                       np.clip(r_mm, self.r_min_mm, self.r_max_mm), self.phi_max_deg,
-                       self.r_max_mm, self.offset_coef.shape[1])
-
-    def offset(self, r_mm, phi_deg) -> np.ndarray:
-        return self._design(r_mm, phi_deg) @ self.offset_coef.ravel()
-
-    def shortening(self, r_mm, phi_deg) -> np.ndarray:
-        return self._design(r_mm, phi_deg) @ self.shortening_coef.ravel()
+    def __call__(self, r_mm, phi_deg) -> tuple[np.ndarray, np.ndarray]:
+        """(offset, shortening) at r and phi, from one set of terms."""
+        terms = _design(np.clip(np.abs(phi_deg), 0.0, self.phi_max_deg),
+                        np.clip(r_mm, self.r_min_mm, self.r_max_mm), self.phi_max_deg,
+                        self.r_max_mm, self.offset_coef.shape[1])
+        return terms @ self.offset_coef.ravel(), terms @ self.shortening_coef.ravel()
 
 
 def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
@@ -86,16 +83,17 @@ def fit_bend_correction(gm: GMFit, dx_mm, phi_deg, r_mm, dz_mm, run) -> BendCorr
     offset = np.linalg.lstsq(a, miss, rcond=None)[0]
     d = dx[ok] - miss + a @ offset  # eq. 12's offset, as reconstruct has it
     height = np.sqrt(r * r - d * d) - dz
-    per_run = (run[:, None] == runs[None, :]).astype(float)
-    sol = np.linalg.lstsq(np.c_[a, per_run], height, rcond=None)[0]
-    shortening = sol[:terms]
-    run_sd = np.std(height - per_run @ np.linalg.lstsq(per_run, height, rcond=None)[0])
+    run_of = np.searchsorted(runs, run)
+    per_run = np.eye(runs.size)[run_of]
+    design = np.c_[a, per_run]
+    sol = np.linalg.lstsq(design, height, rcond=None)[0]
+    run_mean = np.bincount(run_of, height) / np.bincount(run_of)
     shape = (len(SURFACE_PHI_POWERS), n_r)
     return BendCorrection(
-        offset.reshape(shape), shortening.reshape(shape), *box,
+        offset.reshape(shape), sol[:terms].reshape(shape), *box,
         offset_sd_mm=(float(np.std(miss)), float(np.std(miss - a @ offset))),
-        shortening_sd_mm=(float(run_sd),
-                          float(np.std(height - np.c_[a, per_run] @ sol))))
+        shortening_sd_mm=(float(np.std(height - run_mean[run_of])),
+                          float(np.std(height - design @ sol))))
 
 
 def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = None,
@@ -135,12 +133,9 @@ def reconstruct(x_mm, r_hat_mm, phi_deg, dz_mm, travel_sign, gm: GMFit | None = 
         rad = np.radians(phi)
         d, y = r * np.sin(rad), r * np.cos(rad)
     else:
-        d = deflection_mm(gm, r, phi)
-        if bend is not None:
-            d = d + bend.offset(r, phi)
+        offset, shortening = (0.0, 0.0) if bend is None else bend(r, phi)
+        d = deflection_mm(gm, r, phi) + offset
         d = np.where(d <= r, d, np.nan)  # an offset past the whisker's length: no point
-        y = np.sqrt(r * r - d * d)
-        if bend is not None:
-            y = y - bend.shortening(r, phi)
+        y = np.sqrt(r * r - d * d) - shortening
     # Eq. (12)
     return np.asarray(x_mm, float) - np.sign(travel_sign) * d, y - np.asarray(dz_mm, float)
