@@ -29,6 +29,7 @@ from camwhisker.contact.mf import (
     MF_K,
     PHI_SCALE_DEG,
     MFTable,
+    pause_dz_noise_mm,
     r_mf,
 )
 from camwhisker.contact.pipeline import Calibration, RunAnalysis, analyse_run
@@ -111,6 +112,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
         # medians' noise gives MF, without the error between calibrated radii.
         own = r_mf(table, data["phi_deg"], data["dz_mm"], domain_radius=np.inf)
         mf_noise = spread_table(data["phi_deg"], data["r_mm"] - own.r_mm)
+        dz_noise = pause_dz_noise_mm(data["phi_deg"], data["dz_mm"], data["r_mm"], data["run"])
         table = replace(table, phi_min_deg=mf_phi_floor(mf_noise))
         # Each run's radius: r at its first contact, before it rolls out along the whisker.
         floor = mf_bias_floor_mm([np.min(data["r_mm"][data["run"] == i])
@@ -135,6 +137,7 @@ def calibrate(runs: list[CalibrationRun], l_w_mm: float, sensor_source: str = "<
     }
     calib = Calibration(gm=gm, gm_spread=gm_spread, mf_table=table, mf_spread=mf_spread,
                         mf_noise=mf_noise, l_w_mm=float(l_w_mm), provenance=provenance,
+                        dz_noise_mm=dz_noise,
                         mf_bias_floor_mm=floor, bend=bend)
     return calib, analyses, data
 
@@ -168,6 +171,9 @@ def format_calibration(runs: list[CalibrationRun], analyses: list[RunAnalysis],
     lines.append(f"MF: {len(calib.mf_table)} table points from {len(runs)} run(s), estimates "
                  f"from phi >= {floor:g} deg; the fusion allows MF {calib.mf_bias_floor_mm:.2f} mm "
                  "of error over a contact (2 mm for the paper's pegs, less on denser pegs)")
+    if calib.dz_noise_mm is not None:
+        lines.append(f"MF's noise: a pause median of dz scatters {1000 * calib.dz_noise_mm:.1f} um;"
+                     " sigma_MF at a pause is MF's dr/d(dz) there times that")
     return lines, None
 
 
@@ -302,6 +308,10 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
         "# MF's error over a contact between calibrated radii that the fusion allows a good",
         "# GM: 2 mm for the paper's pegs, scaled by the widest relative gap between radii.",
         f"bias_floor_mm = {toml_value(calib.mf_bias_floor_mm)}",
+        *([] if calib.dz_noise_mm is None else [
+            "# Noise of a pause median of dz: sigma_MF at a pause is MF's dr/d(dz) there times",
+            "# this, with MF's error between radii (mf_spread beyond mf_noise).",
+            f"dz_noise_mm = {toml_value(calib.dz_noise_mm)}"]),
         "",
         *_spread_lines("mf_spread", calib.mf_spread, "sigma_MF (leave one run out)"),
         *_spread_lines("mf_noise", calib.mf_noise,
@@ -407,8 +417,15 @@ def read_calibration(path: str | Path) -> Calibration:
     if not (math.isfinite(floor) and floor > 0):
         raise CalibrationError(f"{path}: [mf] bias_floor_mm must be a positive number, "
                                f"got {floor}")
+    # Files from before the key: sigma_MF per phi bin, as then.
+    dz_noise = mf_doc.get("dz_noise_mm")
+    number = isinstance(dz_noise, (int, float)) and not isinstance(dz_noise, bool)
+    if dz_noise is not None and not (number and math.isfinite(dz_noise) and dz_noise > 0):
+        raise CalibrationError(f"{path}: [mf] dz_noise_mm must be a positive number, "
+                               f"got {dz_noise!r}")
     return Calibration(gm=gm, gm_spread=_spread_from(doc, "gm_spread", path), mf_table=table,
                        mf_spread=_spread_from(doc, "mf_spread", path),
                        mf_noise=_spread_from(doc, "mf_noise", path), l_w_mm=l_w,
                        provenance=doc.get("provenance", {}), mf_bias_floor_mm=floor,
-                       bend=_bend_from(doc, path))
+                       bend=_bend_from(doc, path),
+                       dz_noise_mm=None if dz_noise is None else float(dz_noise))

@@ -1,6 +1,7 @@
 """Calibration files and the contact table: round trip, provenance, degenerate inputs."""
 
 import functools
+import math
 import tomllib
 
 import numpy as np
@@ -152,6 +153,25 @@ def test_bend_correction_fits_the_pegs_and_reads_back_absent_or_named(tmp_path):
     line = next(x for x in text.splitlines() if x.startswith("phi_powers = "))
     path.write_text(text.replace(line, "phi_powers = [1, 2, 3]"))
     with pytest.raises(CalibrationError, match=r"\[shape\]: offset_coef and shortening_coef"):
+        read_calibration(path)
+
+
+def test_dz_noise_is_the_pause_medians_and_reads_back_absent_or_named(tmp_path):
+    """At the paper's 0.04 mm per frame, a median of 36-54 frames scatters 1.25 x 0.04 /
+    sqrt(45) = 7.5 um (seen 7.4): within 20 % (the MAD of ~150 pauses, ~9 % relative spread,
+    plus the surface's misfit). It reads back; a file from before the key reads without one
+    (sigma_MF per phi bin, as then); a bad value is named."""
+    calib = calibration()
+    assert abs(calib.dz_noise_mm / (1.2533 * 0.04 / math.sqrt(45.0)) - 1.0) < 0.2
+    path = tmp_path / "calib.toml"
+    write_calibration(path, calib)
+    assert read_calibration(path).dz_noise_mm == pytest.approx(calib.dz_noise_mm, rel=1e-9)
+    text = path.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("dz_noise_mm = "))
+    path.write_text(text.replace(line, ""))
+    assert read_calibration(path).dz_noise_mm is None
+    path.write_text(text.replace(line, "dz_noise_mm = -1.0"))
+    with pytest.raises(CalibrationError, match=r"\[mf\] dz_noise_mm must be a positive number"):
         read_calibration(path)
 
 

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from camwhisker.contact.gm import PHI_MIN_DEG
-from camwhisker.contact.mf import MF_DOMAIN_RADIUS, MFTable, r_mf
+from camwhisker.contact.mf import MF_DOMAIN_RADIUS, MFTable, pause_dz_noise_mm, r_mf
 
 
 def table():
@@ -203,3 +203,30 @@ def test_peg_radii():
     assert np.allclose(np.diff(np.log(r)), np.log(4.0) / 14, atol=0.003)  # even in log r
     with pytest.raises(ValueError, match="two or more"):
         peg_radii(1)
+
+
+def test_dr_ddz_is_the_slope_across_the_curves():
+    """On curves linear in r, dz = 1e-3 (1 + r / 200) phi^2 (1 + phi / 60), dr/d(dz) is
+    2e5 / (phi^2 (1 + phi / 60)) everywhere; the neighbours of eq. (10) come from bins 0.1 deg
+    apart, whose slopes differ by ~1.5 %: within 3 %."""
+    phi = np.arange(2.0, 30.1, 2.5)
+    d = _runs([22.5, 27.5, 33.5, 42.5, 50.0, 60.0, 72.5, 90.0], phi)
+    t = MFTable.from_runs(d["phi"], d["dz"], d["r"], d["run"])
+    for q_phi, r in ((4.05, 30.0), (13.25, 50.0), (25.0, 80.0)):
+        q_dz = 1e-3 * (1.0 + r / 200.0) * q_phi**2 * (1.0 + q_phi / 60.0)
+        want = 2e5 / (q_phi**2 * (1.0 + q_phi / 60.0))
+        got = r_mf(t, q_phi, q_dz).dr_ddz[0]
+        assert abs(got / want - 1.0) < 0.03, (q_phi, got, want)
+    assert np.isnan(r_mf(t, np.nan, 0.01).dr_ddz[0])  # no estimate, no slope
+
+
+def test_pause_dz_noise_is_the_scatter_about_the_surface():
+    """Pauses 0.5 deg apart on 8 radii with 4 um of noise: the MAD of 456 residuals has ~5 %
+    relative spread, so within 15 %; runs too short for curves give None."""
+    phi = np.arange(2.0, 30.1, 0.5)
+    d = _runs([22.5, 27.5, 33.5, 42.5, 50.0, 60.0, 72.5, 90.0], phi)
+    noisy = d["dz"] + 0.004 * np.random.default_rng(7).standard_normal(d["dz"].size)
+    got = pause_dz_noise_mm(d["phi"], noisy, d["r"], d["run"])
+    assert abs(got / 0.004 - 1.0) < 0.15, got
+    short = _runs([40.0, 60.0], np.array([5.0, 10.0, 15.0]))
+    assert pause_dz_noise_mm(short["phi"], short["dz"], short["r"], short["run"]) is None

@@ -41,6 +41,12 @@ misfits the simulated whisker by up to 1 um (2-3 %) at phi 3-5 deg, and at
 0.4 um of dz per mm of r there that put the curves 1-5 mm short; the surface
 (16 coefficients from every pause) reads the noise-free whisker back within
 0.7 mm over phi 2.5-30 deg and r 25-100 mm.
+
+Each estimate comes with MF's slope dr/d(dz) there: the neighbours' own (differences
+between neighbouring radii at their phi), weighted as eq. (10) weighs their r. Times the
+noise of a pause median of dz (:func:`pause_dz_noise_mm`: the calibration pauses' scatter
+about the surface) it is MF's error from noise at that pause, which at one phi falls
+about fivefold from r = 22 to 74 mm.
 """
 
 from __future__ import annotations
@@ -53,7 +59,7 @@ from scipy.spatial import cKDTree
 from camwhisker.contact.gm import PHI_MIN_DEG
 
 __all__ = ["MF_K", "PHI_SCALE_DEG", "DZ_SCALE_MM", "MF_DOMAIN_RADIUS", "MF_CURVE_STEP_DEG",
-           "MIN_CURVE_PAUSES", "MFTable", "MFResult", "r_mf"]
+           "MIN_CURVE_PAUSES", "MFTable", "MFResult", "r_mf", "pause_dz_noise_mm"]
 
 MF_K = 7  # the paper's k
 PHI_SCALE_DEG = 35.0  # Eq. (9): the largest expected phi
@@ -94,6 +100,30 @@ def _dz_surface(phi, dz, r, n_runs):
     return lambda p, q: _surface_terms(p, q, r_max, r_powers) @ coef
 
 
+def _runs_and_surface(phi_deg, dz_mm, r_mm, run):
+    """Each run's finite rows, those long enough for curves, and the dz surface through the
+    latter (None without any)."""
+    run = np.asarray(run).ravel()
+    phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
+    runs = [_finite_rows(phi[run == i], dz[run == i], r[run == i]) for i in np.unique(run)]
+    curved = [p for p in runs if p[0].size >= MIN_CURVE_PAUSES]
+    if not curved:
+        return runs, curved, None
+    rows = [np.concatenate([p[j] for p in curved]) for j in range(3)]
+    return runs, curved, _dz_surface(*rows, n_runs=len(curved))
+
+
+def pause_dz_noise_mm(phi_deg, dz_mm, r_mm, run) -> float | None:
+    """The noise of a pause median of dz: the calibration pauses' robust spread (1.4826 MAD)
+    about the dz surface (module docstring). None without runs long enough for it."""
+    _, curved, surface = _runs_and_surface(phi_deg, dz_mm, r_mm, run)
+    if surface is None:
+        return None
+    e = np.concatenate([p_dz - surface(p_phi, p_r) for p_phi, p_dz, p_r in curved])
+    sigma = 1.4826 * float(np.median(np.abs(e - np.median(e))))
+    return sigma if sigma > 0 else None
+
+
 def _run_curve(phi, r, step):
     """Points every ``step`` deg along one run's least-squares r(phi): (phi, r)."""
     a_r = np.linalg.lstsq(_powers(phi, _R_POWERS), r, rcond=None)[0]
@@ -116,6 +146,8 @@ class MFTable:
     # past the outermost curve (inf where a bin has one radius only; module docstring).
     dz_past_top: np.ndarray = field(repr=False, compare=False, default=None)
     phi_bin0: int = 0
+    # dr/d(dz) at each point, across the curves of its phi bin (:func:`_dr_ddz`).
+    dr_ddz: np.ndarray = field(repr=False, compare=False, default=None)
 
     @classmethod
     def build(cls, phi_deg, dz_mm, r_mm, phi_min_deg: float = PHI_MIN_DEG) -> MFTable:
@@ -125,7 +157,7 @@ class MFTable:
             raise ValueError("MF table needs at least one row with finite phi >= "
                              f"{PHI_MIN_DEG} deg, dz and r")
         return cls(phi, dz, r, cKDTree(_coords(phi, dz)), max(PHI_MIN_DEG, float(phi_min_deg)),
-                   *_past_top(phi, dz, r))
+                   *_past_top(phi, dz, r), _dr_ddz(phi, dz, r))
 
     @classmethod
     def from_runs(cls, phi_deg, dz_mm, r_mm, run, step_deg: float = MF_CURVE_STEP_DEG,
@@ -134,17 +166,11 @@ class MFTable:
 
         ``run``: a run id per row; rows of a run need not be in order.
         """
-        run = np.asarray(run).ravel()
-        phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
-        runs = [_finite_rows(phi[run == i], dz[run == i], r[run == i]) for i in np.unique(run)]
-        curved = [p for p in runs if p[0].size >= MIN_CURVE_PAUSES]
+        runs, curved, surface = _runs_and_surface(phi_deg, dz_mm, r_mm, run)
         parts = [p for p in runs if p[0].size < MIN_CURVE_PAUSES]
-        if curved:
-            surface = _dz_surface(*(np.concatenate([p[j] for p in curved]) for j in range(3)),
-                                  n_runs=len(curved))
-            for p_phi, _, p_r in curved:
-                g, rg = _run_curve(p_phi, p_r, step_deg)
-                parts.append((g, surface(g, rg), rg))
+        for p_phi, _, p_r in curved:
+            g, rg = _run_curve(p_phi, p_r, step_deg)
+            parts.append((g, surface(g, rg), rg))
         if not parts:
             parts = [(np.empty(0),) * 3]
         return cls.build(*(np.concatenate([p[j] for p in parts]) for j in range(3)),
@@ -170,6 +196,23 @@ def _past_top(phi, dz, r):
     return out, b0
 
 
+def _dr_ddz(phi, dz, r):
+    """dr/d(dz) at each point: differences to the neighbouring radii of its phi bin (of
+    :data:`MF_CURVE_STEP_DEG`: a calibration's curves share the bins); NaN where a bin holds
+    one radius or dz does not grow with r there."""
+    b = np.round(phi / MF_CURVE_STEP_DEG).astype(int)
+    out = np.full(r.size, np.nan)
+    for k in np.unique(b):
+        idx = np.flatnonzero(b == k)
+        if idx.size < 2:
+            continue
+        idx = idx[np.argsort(r[idx])]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = np.gradient(r[idx], dz[idx])
+        out[idx] = np.where(np.isfinite(g) & (g > 0), g, np.nan)
+    return out
+
+
 def _finite_rows(phi_deg, dz_mm, r_mm):
     phi, dz, r = (np.asarray(a, float).ravel() for a in (phi_deg, dz_mm, r_mm))
     keep = np.isfinite(phi) & np.isfinite(dz) & np.isfinite(r) & (phi >= PHI_MIN_DEG)
@@ -184,12 +227,14 @@ def _coords(phi_deg, dz_mm):
 @dataclass(frozen=True)
 class MFResult:
     """r_MF (NaN where undefined), the out-of-domain flag, the nearest distance and the
-    past-the-largest-radius flag (r_MF a lower bound)."""
+    past-the-largest-radius flag (r_MF a lower bound), and dr/d(dz) there (mm of r per mm of
+    dz: what a pause's dz noise makes of r_MF; NaN where the table gives none)."""
 
     r_mm: np.ndarray
     outside: np.ndarray
     nearest: np.ndarray
     past_top: np.ndarray
+    dr_ddz: np.ndarray
 
 
 def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
@@ -213,10 +258,11 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     outside = np.zeros(n, bool)
     nearest = np.full(n, np.nan)
     past_top = np.zeros(n, bool)
+    dr_ddz = np.full(n, np.nan)
     valid = np.isfinite(phi) & np.isfinite(dz) & (phi >= table.phi_min_deg)
     kk = min(k, len(table))
     if not valid.any() or kk < 1:
-        return MFResult(r_out, outside, nearest, past_top)
+        return MFResult(r_out, outside, nearest, past_top, dr_ddz)
     d, j = table.tree.query(_coords(phi[valid], dz[valid]), k=kk)  # Eq. (9), Euclidean
     d = d.reshape(-1, kk)
     j = j.reshape(-1, kk)
@@ -226,6 +272,11 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     w = np.divide(1.0, d, out=np.zeros_like(d), where=~exact)
     w = np.where(any_exact[:, None], exact.astype(float), w)
     est = np.sum(w * labels, axis=1) / np.sum(w, axis=1)  # Eq. (10)
+    # The neighbours' dr/d(dz), weighted as eq. (10) weighs their r.
+    g = table.dr_ddz[j]
+    wg = np.where(np.isfinite(g), w, 0.0)
+    slope = np.divide(np.sum(wg * np.nan_to_num(g), axis=1), np.sum(wg, axis=1),
+                      out=np.full(est.shape, np.nan), where=np.sum(wg, axis=1) > 0)
     near = d[:, 0]
     phi_bin = np.clip(np.round(phi[valid] / MF_CURVE_STEP_DEG).astype(int) - table.phi_bin0, 0,
                       table.dz_past_top.size - 1)
@@ -234,4 +285,5 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     outside[valid] = out
     nearest[valid] = near
     past_top[valid] = ~out & (dz[valid] > table.dz_past_top[phi_bin])
-    return MFResult(r_out, outside, nearest, past_top)
+    dr_ddz[valid] = np.where(out, np.nan, slope)
+    return MFResult(r_out, outside, nearest, past_top, dr_ddz)

@@ -50,6 +50,9 @@ class Calibration:
     mf_bias_floor_mm: float = MF_BIAS_FLOOR_MM
     # What the GM model misses of the bent whisker, for eq. 12; None: nothing calibrated.
     bend: BendCorrection | None = None
+    # Noise of a pause median of dz (mm), which sigma_MF at a pause scales; None: not
+    # calibrated (sigma_MF is the calibration's per phi bin).
+    dz_noise_mm: float | None = None
 
 
 # A run with fewer pauses than this is aligned and its onset found from the motion:
@@ -146,10 +149,10 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     rg = r_gm(calib.gm, dx_mm, phi)
     mf = r_mf(calib.mf_table, phi, dz)
     sg = calib.gm_spread.sigma_at(phi)
-    sm = calib.mf_spread.sigma_at(phi)
+    noise = calib.mf_noise.sigma_at(phi)
+    sm = _sigma_mf(calib, phi, mf.dr_ddz, noise)
     z = z_dissimilarity(rg, mf.r_mm, sg)
     zc = z_combined(rg, mf.r_mm, sg, sm)
-    noise = calib.mf_noise.sigma_at(phi)
     if fusion is None:
         sliding = slip_state(slipping(rg, dx_mm, sg, segment), segment) > 0
         slid = slipped(sliding, segment)
@@ -178,6 +181,19 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
         "r_hat_mm": fused, "x_hat_mm": x_hat, "y_hat_mm": y_hat, "x_mf_mm": x_mf,
         "y_mf_mm": y_mf,
     }
+
+
+def _sigma_mf(calib: Calibration, phi, dr_ddz, noise):
+    """sigma_MF at each sample: MF's slope dr/d(dz) there times the pause dz noise, with MF's
+    error between calibrated radii (the part of the calibration's sigma_MF(phi) that its
+    ``noise``, MF's scatter from noise in that phi bin, leaves); sigma_MF(phi) where
+    either is missing. One bin's noise spans a fivefold range of dr/d(dz) over r."""
+    spread = calib.mf_spread.sigma_at(phi)
+    if calib.dz_noise_mm is None:
+        return spread
+    between = np.sqrt(np.maximum(spread**2 - noise**2, 0.0))
+    here = dr_ddz * calib.dz_noise_mm
+    return np.where(np.isfinite(here), np.hypot(here, between), spread)
 
 
 def pause_estimates(calib: Calibration, run: RunAnalysis) -> dict:
