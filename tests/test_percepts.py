@@ -289,6 +289,25 @@ def test_percept_bench_refuses_bad_arguments(tmp_path, capsys, args, message):
     assert not out.exists()
 
 
+def test_share_interval_is_wilsons():
+    from camwhisker.bench.percepts import share_interval
+
+    # Wilson's score interval in closed form (no continuity correction), z of 95 %; the
+    # campaign's 171/180 walls and the ends, where a Wald interval would collapse to a point.
+    z = 1.959963984540054
+    for k, n in ((171, 180), (163, 179), (0, 60), (180, 180)):
+        p, c = k / n, 1 + z * z / n
+        mid = (p + z * z / (2 * n)) / c
+        half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / c
+        lo, hi = share_interval(k, n)
+        assert lo == pytest.approx(mid - half, abs=1e-9)
+        assert hi == pytest.approx(mid + half, abs=1e-9)
+    # 95 % lies within 171/180's interval and above 163/179's.
+    assert share_interval(171, 180)[0] < 0.95 < share_interval(171, 180)[1]
+    assert share_interval(163, 179)[1] < 0.95
+    assert all(math.isnan(v) for v in share_interval(0, 0))
+
+
 def test_simulated_sweeps_of_each_object():
     from camwhisker.bench.percepts import run_campaign, summarise
 

@@ -88,7 +88,8 @@ def add_percept_bench(sub) -> None:
     p = sub.add_parser("percept-bench", help="shape percepts on simulated sweeps: identification, "
                                              "localisation error, interval coverage")
     p.add_argument("--seeds", default="1000-1199", metavar="A-B",
-                   help="sweep seeds, inclusive (0-399 were used to choose the constants)")
+                   help="sweep seeds, inclusive (0-399 and 2000-2999 were used to choose the "
+                        "constants; 1000-1599 and 3000-3599 are held out)")
     p.add_argument("--calib-pegs", type=int, default=8, metavar="N",
                    help="rigid pegs the simulated calibration is made on: 8, the paper's radii "
                         "(default), or N spaced evenly in log r over 22.5-90 mm")
