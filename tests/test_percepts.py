@@ -163,6 +163,24 @@ def test_surfel_point_is_mf_where_the_fusion_dropped_gm():
                        np.c_[reconstruct(base_x, r_hat, phi, 0.1 * phi, 1.0)], atol=1e-9, rtol=0)
 
 
+def test_a_slips_r_hat_is_not_taken_for_gms():
+    # Three pauses, GM good by the posterior: GM's own r_hat; a slip's, GM less the slide's
+    # bias line (r_hat 45 where GM says 52; the slip's line through a noisy MF can be 3-8 mm
+    # off, seed 113 of the tuning sweeps); GM undefined (r_hat is then MF's own).
+    p_good = np.full(3, 0.99)
+    r_hat, r_mf = np.array([40.0, 45.0, 50.0]), np.array([41.0, 43.0, 50.0])
+    phi, base_x = np.array([5.0, 8.0, 11.0]), np.arange(3.0)
+    cols = _estimates_table(r_hat, r_mf, p_good, np.zeros(3), phi, base_x)
+    cols["r_gm_mm"] = np.array([40.0, 52.0, np.nan])
+    s = surfels_from_columns(cols)
+    r_used = np.array([40.0, 43.0, 50.0])
+    assert np.allclose(s.xy_mm, np.c_[reconstruct(base_x, r_used, phi, 0.1 * phi, 1.0)],
+                       atol=1e-9, rtol=0)
+    # The slip's point is MF's, with sigma_MF along the whisker; the others carry none.
+    assert np.hypot(*s.spread[1]) == pytest.approx(0.3, abs=1e-12)
+    assert not np.any(s.spread[[0, 2]])
+
+
 def _slide(angle_deg, y_end, n, length, lag_mm):
     """A contact sliding ``length`` mm up a wall from (0, y_end), the base ``lag_mm`` (from,
     to) ahead of it: distance along the wall, base x, true r and phi per pause."""

@@ -7,9 +7,10 @@ there and the belief that the contact happened. Here
 - the point is eq. 12's, one per stage pause (the table repeats a pause's
   estimate on each of its frames), from the table's r_hat (the fused
   estimate) where the fusion kept GM (p_gm_good at or above
-  :data:`~camwhisker.contact.fusion.KEEP_GM_POSTERIOR`) and from r_mf where
-  it did not (when the table has those columns and MF lies inside its
-  table): there GM is broken by slip, and the fused correction, a mean of
+  :data:`~camwhisker.contact.fusion.KEEP_GM_POSTERIOR` and r_hat equal to
+  r_gm: in a slip the fusion takes a line through the bias off GM whatever
+  p_gm_good says) and from r_mf where it did not (when the table has those
+  columns and MF lies inside its table): there GM is broken by slip, and the fused correction, a mean of
   the GM-MF difference over several pauses, lags a bias that grows with
   every pause of the slide, while MF follows it. Such a point carries its
   error, which lies along the whisker (MF errs in r): the calibration's
@@ -99,8 +100,8 @@ def _travel_sign(x_mm) -> float:
 
 def _points(cols: dict):
     """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
-    GM (p_gm_good below KEEP_GM_POSTERIOR; a row without p_gm_good or sigma_mf_mm keeps
-    r_hat). The table's own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has
+    GM (p_gm_good below KEEP_GM_POSTERIOR, or r_hat not r_gm: a slip; a row without
+    p_gm_good or sigma_mf_mm keeps r_hat). The table's own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has
     one, else eq. 12's. Returns x, y and sigma_MF where MF's was taken (NaN elsewhere)."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
@@ -116,8 +117,11 @@ def _points(cols: dict):
     r_mf = np.asarray(cols["r_mf_mm"], float)
     sigma = np.asarray(cols["sigma_mf_mm"], float)
     with np.errstate(invalid="ignore"):
-        use_mf = ((np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR) & np.isfinite(r_mf)
-                  & np.isfinite(sigma))
+        r_gm = np.asarray(cols.get("r_gm_mm", r_hat), float)
+        # A slip's r_hat is GM less the slide's bias line whatever p_gm_good says: not GM's.
+        not_gm = ((np.asarray(cols["p_gm_good"], float) < KEEP_GM_POSTERIOR)
+                  | (np.isfinite(r_gm) & (r_hat != r_gm)))
+        use_mf = not_gm & np.isfinite(r_mf) & np.isfinite(sigma)
     if "mf_outside" in cols:  # MF clamped at its table's edge says nothing about r
         use_mf &= np.asarray(cols["mf_outside"], float) == 0
     use_mf &= np.isfinite(x_hat)
