@@ -10,11 +10,12 @@ there and the belief that the contact happened. Here
   :data:`~camwhisker.contact.fusion.KEEP_GM_POSTERIOR` and r_hat equal to
   r_gm: in a slip the fusion takes a line through the bias off GM whatever
   p_gm_good says) and from r_mf where it did not (when the table has those
-  columns and MF lies inside its table): there GM is broken by slip, and the fused correction, a mean of
-  the GM-MF difference over several pauses, lags a bias that grows with
-  every pause of the slide, while MF follows it. Such a point carries its
-  error, which lies along the whisker (MF errs in r): the calibration's
-  sigma_MF at its phi times the unit vector from the base to the point;
+  columns and MF lies inside its table): there GM is broken by slip, and the
+  fused correction, a mean of the GM-MF difference over several pauses, lags a
+  bias that grows with every pause of the slide, while MF follows it. Such a
+  point carries its error, which lies along the whisker (MF errs in r): the
+  calibration's sigma_MF at its phi times the unit vector from the base to the
+  point;
 - the direction is that of the chord between the neighbouring contacts of the
   same table (central difference), left undefined (NaN) where they lie closer
   than :data:`MIN_CHORD_MM` (a stuck contact says nothing about the surface);
@@ -101,8 +102,9 @@ def _travel_sign(x_mm) -> float:
 def _points(cols: dict):
     """Each row's contact point: eq. 12 with r_hat, or with r_mf where the fusion did not keep
     GM (p_gm_good below KEEP_GM_POSTERIOR, or r_hat not r_gm: a slip; a row without
-    p_gm_good or sigma_mf_mm keeps r_hat). The table's own MF point (x_mf_mm, y_mf_mm: on the bent whisker) where it has
-    one, else eq. 12's. Returns x, y and sigma_MF where MF's was taken (NaN elsewhere)."""
+    p_gm_good or sigma_mf_mm keeps r_hat). The table's own MF point (x_mf_mm, y_mf_mm: on
+    the bent whisker) where it has one, else eq. 12's. Returns x, y and sigma_MF where MF's
+    was taken (NaN elsewhere)."""
     x_hat = np.asarray(cols["x_hat_mm"], float)
     phi = np.asarray(cols.get("phi_pause_deg", cols["phi_deg"]), float)
     r_hat = np.asarray(cols["r_hat_mm"], float)
