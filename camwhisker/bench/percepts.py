@@ -15,7 +15,9 @@ the campaign reported in BENCHMARKS.md runs seeds 1000-1599 and 3000-3599, kept
 apart from those (but for three corners of 1000-1199, 1078, 1092 and 1152, whose
 failures showed a missing starting point of the corner's fit). Each rate within a
 target comes with Wilson's 95 % interval (:func:`share_interval`): 180 walls
-tell 95 % from 90 % only just.
+tell 95 % from 90 % only just. Each wall also gets the Cramer-Rao bound on its angle
+from its pauses' noise (:mod:`camwhisker.bench.percept_bound`): how many walls any
+unbiased fit could place within the target.
 """
 
 from __future__ import annotations
@@ -24,12 +26,14 @@ import math
 import time
 
 import numpy as np
+from scipy.special import erf
 from scipy.stats import binomtest
 
 from camwhisker.bench.contact import _log, calibrate_simulated
+from camwhisker.bench.percept_bound import wall_angle_bound_deg
 from camwhisker.contact.percepts import object_of, outline, perceive
 from camwhisker.contact.pipeline import contact_rows
-from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
+from camwhisker.contact.surfels import Pose, Surfels, merge, surfels_from_columns
 from camwhisker.mechanics.experiment import (
     FRONT_END_NOISE,
     PAPER_RIGID_RADII_MM,
@@ -41,7 +45,8 @@ from camwhisker.mechanics.experiment import (
 from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
-           "run_sweep", "run_campaign", "share_interval", "summarise", "format_summary"]
+           "simulate_sweep", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
+           "summarise", "format_summary"]
 
 CALIB_SEED = 500
 TUNING_SEEDS = (range(0, 400), range(2000, 3000))
@@ -81,9 +86,10 @@ def _quiet(signals: dict, rng, noise: NoiseModel) -> dict:
     return out
 
 
-def sweep_surfels(sweep, calib, rng, noise: NoiseModel = FRONT_END_NOISE):
-    """Contact tables of a sweep's runs, as one surfel set in the common frame."""
-    parts = []
+def simulate_sweep(sweep, calib, rng, noise: NoiseModel = FRONT_END_NOISE) -> list[tuple]:
+    """Each run of a sweep simulated and turned into a contact table: (run spec, simulated
+    run, contact table) per run."""
+    out = []
     for i, run_spec in enumerate(sweep.runs):
         run = simulate_run(f"run{i}", "slide-box", run_spec.scene, rng, protocol=PROTOCOL,
                            noise=noise, travel_sign=run_spec.travel_sign)
@@ -92,8 +98,14 @@ def sweep_surfels(sweep, calib, rng, noise: NoiseModel = FRONT_END_NOISE):
             run.signals = _quiet(run.signals, rng, noise)
             offset = run.offset_s  # nothing to align the clocks on: the user gives it
         cols, _ = contact_rows(run.signals, _log(run, False), calib, offset, mode="pause")
-        parts.append(surfels_from_columns(cols, Pose(*run_spec.pose), i, f"<sweep run{i}>"))
-    return merge(parts)
+        out.append((run_spec, run, cols))
+    return out
+
+
+def sweep_surfels(runs: list[tuple]) -> Surfels:
+    """The contact tables of :func:`simulate_sweep` as one surfel set in the common frame."""
+    return merge([surfels_from_columns(cols, Pose(*spec.pose), i, f"<sweep run{i}>")
+                  for i, (spec, _, cols) in enumerate(runs)])
 
 
 def fitted_outline(evaluation: dict):
@@ -131,11 +143,14 @@ def run_sweep(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> dict:
     kind = _kind_of(seed)
     sweep = draw_sweep(kind, rng)
     t0 = time.perf_counter()
-    surfels = sweep_surfels(sweep, calib, rng, noise)
+    runs = simulate_sweep(sweep, calib, rng, noise)
+    surfels = sweep_surfels(runs)
     p = perceive(surfels)
     out = {"seed": seed, "kind": kind, "chosen": p.best.model, "runner_up": p.runner_up,
            "evidence_ratio": p.evidence_ratio, "n_surfels": surfels.n,
            "correct": p.best.model == MODEL_OF[kind], "s": time.perf_counter() - t0}
+    if kind == "wall":
+        out["angle_bound_deg"] = wall_angle_bound_deg(sweep, runs, calib)
     right = p.fits.get(MODEL_OF[kind])
     if right is not None and kind != "none":
         errors = _errors(kind, sweep.truth, right.params)
@@ -212,6 +227,10 @@ def summarise(rows: list[dict]) -> dict:
                     "within_interval": share_interval(within, len(vals)),
                     "claimed": len(claimed),
                     "claimed_within": sum(v <= TARGETS[key] for v in claimed)}
+    # What the pauses allow: the walls expected within the angle's target at the bound.
+    bound = np.asarray([r["angle_bound_deg"] for r in rows if "angle_bound_deg" in r], float)
+    out["angle_bound"] = {"n": int(bound.size), "expected_within": float(np.sum(
+        erf(TARGETS["angle_err_deg"] / (bound * math.sqrt(2.0)))))}
     checked = sum(r.get("checked", 0) for r in rows)
     out["coverage"] = sum(r.get("covered", 0) for r in rows) / checked if checked else math.nan
     for kind in CHECKED:
@@ -242,6 +261,11 @@ def format_summary(s: dict) -> str:
                      f"| {e['within']}/{e['n']} (<= {TARGETS[key]:g}) "
                      f"| {_pct_interval(e['within_interval'])} "
                      f"| {e['claimed_within']}/{e['claimed']} |")
+    b = s["angle_bound"]
+    if b["n"]:
+        lines += ["", f"walls within {TARGETS['angle_err_deg']:g} deg at the pauses' Cramer-Rao "
+                      f"bound (camwhisker.bench.percept_bound): {b['expected_within']:.1f} of "
+                      f"{b['n']} expected ({100 * b['expected_within'] / b['n']:.1f} %)"]
     lines += ["", f"95 % intervals covering the truth: {100 * s['coverage']:.1f} % ("
               + ", ".join(f"{k} {100 * s[f'coverage_{k}']:.0f} %" for k in CHECKED) + ")",
               f"confusions (object, chosen): {s['confusions'] or 'none'}",

@@ -86,7 +86,8 @@ def _run_percept(args) -> int:
 
 def add_percept_bench(sub) -> None:
     p = sub.add_parser("percept-bench", help="shape percepts on simulated sweeps: identification, "
-                                             "localisation error, interval coverage")
+                                             "localisation error, interval coverage, the walls' "
+                                             "bound from the pauses' noise")
     p.add_argument("--seeds", default="1000-1199", metavar="A-B",
                    help="sweep seeds, inclusive (0-399 and 2000-2999 were used to choose the "
                         "constants; 1000-1599 and 3000-3599 are held out)")

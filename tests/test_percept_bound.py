@@ -1,0 +1,52 @@
+"""The Cramer-Rao bound on a wall's angle: against Monte Carlo, and on simulated sweeps."""
+
+import math
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from camwhisker.bench.percept_bound import line_angle_bound_deg
+
+
+def test_line_angle_bound_is_the_spread_of_a_weighted_fit():
+    # 25 points on a line whose normal is at 160 deg, each off along its own direction with
+    # its own sigma (0.2-3 mm, as GM's stuck points and MF's sliding ones): the weighted
+    # least-squares fit is efficient here, so its angle's sd over 2000 draws is the bound
+    # within the draws' own error (~1.6 % for an sd) and the small-noise nonlinearity.
+    rng = np.random.default_rng(4)
+    t = math.radians(160.0)
+    n, along_line = np.array([math.cos(t), math.sin(t)]), np.array([-math.sin(t), math.cos(t)])
+    s = np.linspace(0.0, 40.0, 25)
+    points = 5.0 * n + s[:, None] * along_line
+    tilt = np.radians(rng.uniform(-60.0, 60.0, s.size))
+    along = np.c_[np.cos(tilt), np.sin(tilt)] @ np.array([[n[0], n[1]], [-n[1], n[0]]])
+    sigma = rng.uniform(0.2, 3.0, s.size)
+    bound = line_angle_bound_deg(points, along, sigma, 160.0)
+    sd = np.abs(along @ n) * sigma
+    angles = []
+    for _ in range(2000):
+        p = points + (sigma * rng.standard_normal(s.size))[:, None] * along
+
+        def res(x, p=p):
+            return (p @ np.array([math.cos(x[0]), math.sin(x[0])]) - x[1]) / sd
+
+        angles.append(least_squares(res, [t, 5.0]).x[0])
+    assert abs(math.degrees(np.std(angles)) / bound - 1.0) < 0.07
+
+
+def test_points_that_fix_no_line_have_no_bound():
+    # One point (repeated) fixes no angle.
+    assert math.isinf(line_angle_bound_deg([[0.0, 1.0]] * 3, [[0.0, 1.0]] * 3, [1.0] * 3, 90.0))
+
+
+def test_a_low_slide_is_beyond_the_target_at_the_front_ends_noise():
+    from camwhisker.bench.percepts import run_campaign
+
+    # Tuning walls: 2563 slides at phi 2.7 deg, where MF scatters 20-50 mm along the whisker
+    # per pause at the front end's target noise; 2000 slides at phi ~10 deg. The bounds
+    # (5.77 and 0.35 deg) are the sd no fit of those pauses beats: 2563's 1 deg target is
+    # beyond them, 2000's well within.
+    rows = run_campaign([2563, 2000], pegs=15)
+    bound = {r["seed"]: r["angle_bound_deg"] for r in rows}
+    assert 4.0 < bound[2563] < 8.0
+    assert 0.2 < bound[2000] < 0.5
