@@ -1,5 +1,6 @@
 """The Cramer-Rao bound on a wall's angle: against Monte Carlo, and on simulated sweeps."""
 
+import json
 import math
 
 import numpy as np
@@ -51,3 +52,20 @@ def test_a_low_slide_is_beyond_the_target_at_the_front_ends_noise():
     bound = {r["seed"]: r["angle_bound_deg"] for r in rows}
     assert 4.0 < bound[2563] < 8.0
     assert 0.2 < bound[2000] < 0.5
+
+
+def test_percept_bench_plots_each_wall_against_its_bound(tmp_path, capsys):
+    from PIL import Image
+
+    from camwhisker.bench.percepts import plot_wall_bounds
+    from camwhisker.cli import main
+
+    # Tuning seeds 0 (a wall) and 1 (a cylinder): one wall on the plot.
+    png = tmp_path / "w.png"
+    assert main(["percept-bench", "--seeds", "0-1", "--calib-pegs", "15", "--plot", str(png),
+                 "--out", str(tmp_path / "r.json")]) == 0
+    assert "walls within 1 deg at the pauses' Cramer-Rao bound" in capsys.readouterr().out
+    with Image.open(png) as im:
+        assert "percept-bench --seeds 0-1" in im.info["Description"]
+    rows = json.loads((tmp_path / "r.json").read_text())["sweeps"]
+    assert plot_wall_bounds(rows, tmp_path / "again.png", "test") == 1

@@ -46,7 +46,7 @@ from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
            "simulate_sweep", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
-           "summarise", "format_summary"]
+           "summarise", "format_summary", "plot_wall_bounds"]
 
 CALIB_SEED = 500
 TUNING_SEEDS = (range(0, 400), range(2000, 3000))
@@ -271,3 +271,32 @@ def format_summary(s: dict) -> str:
               f"confusions (object, chosen): {s['confusions'] or 'none'}",
               f"{s['s_per_sweep']:.2f} s per sweep (simulation, contact, percept)"]
     return "\n".join(lines)
+
+
+def plot_wall_bounds(rows: list[dict], path, how: str) -> int:
+    """Each wall's angle error against its bound's sd (:mod:`camwhisker.bench.percept_bound`),
+    the 1 deg target across: a miss left of 0.5 deg is the fit's, one right of 1 deg the
+    pauses' noise. Returns the number of walls drawn."""
+    from camwhisker.contact.plots import plt, save_figure
+
+    walls = [r for r in rows if r["kind"] == "wall"
+             and math.isfinite(r.get("angle_err_deg", math.nan))
+             and math.isfinite(r.get("angle_bound_deg", math.nan))]
+    bound = np.array([r["angle_bound_deg"] for r in walls])
+    err = np.maximum([r["angle_err_deg"] for r in walls], 1e-3)  # log axes
+    miss = err > TARGETS["angle_err_deg"]
+    fig, ax = plt.subplots(figsize=(6, 4.8), layout="constrained")
+    ax.loglog(bound[~miss], err[~miss], "o", ms=4, mfc="none", mec="k", mew=0.7,
+              label=f"within {TARGETS['angle_err_deg']:g} deg: {int((~miss).sum())}")
+    ax.loglog(bound[miss], err[miss], "o", ms=5, color="tab:red",
+              label=f"missed: {int(miss.sum())}")
+    ax.axhline(TARGETS["angle_err_deg"], color="0.5", lw=0.8, ls="--", label="target")
+    lim = np.array([1e-2, 1e2])
+    ax.plot(lim, 2.0 * lim, color="tab:blue", lw=0.8, label="2 sd of the bound")
+    ax.set_xlim(min(bound.min(initial=1.0), 0.5) / 1.5, max(bound.max(initial=1.0), 2.0) * 1.5)
+    ax.set_ylim(min(err.min(initial=1.0), 0.1) / 1.5, max(err.max(initial=1.0), 2.0) * 1.5)
+    ax.set_xlabel("Cramer-Rao sd of the angle from the pauses' noise (deg)")
+    ax.set_ylabel("angle error of the fitted wall (deg)")
+    ax.legend(loc="upper left", fontsize=8)
+    save_figure(fig, path, how)
+    return len(walls)

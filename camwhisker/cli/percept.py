@@ -98,6 +98,8 @@ def add_percept_bench(sub) -> None:
                    help="the front end's noise per frame, phi (deg) and dz (mm), of the "
                         "calibration and the sweeps (default: its targets)")
     p.add_argument("--out", metavar="R.json", help="also write every sweep's result here")
+    p.add_argument("--plot", metavar="W.png",
+                   help="also draw each wall's angle error against its bound's sd")
     p.set_defaults(func=_run_percept_bench)
 
 
@@ -132,4 +134,9 @@ def _run_percept_bench(args) -> int:
         atomic_write_text(args.out, dumps({"command": command_line(args), "summary": s,
                                            "sweeps": rows}, indent=1) + "\n")
         print(f"wrote {args.out}")
+    if args.plot:
+        from camwhisker.bench.percepts import plot_wall_bounds
+
+        plot_wall_bounds(rows, args.plot, command_line(args))
+        print(f"wrote {args.plot}")
     return 0
