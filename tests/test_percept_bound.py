@@ -67,5 +67,7 @@ def test_percept_bench_plots_each_wall_against_its_bound(tmp_path, capsys):
     assert "walls within 1 deg at the pauses' Cramer-Rao bound" in capsys.readouterr().out
     with Image.open(png) as im:
         assert "percept-bench --seeds 0-1" in im.info["Description"]
+    # Read back from the JSON, with a wall whose bound is null (inf) left out.
     rows = json.loads((tmp_path / "r.json").read_text())["sweeps"]
+    rows.append({**rows[0], "angle_bound_deg": None})
     assert plot_wall_bounds(rows, tmp_path / "again.png", "test") == 1

@@ -279,9 +279,10 @@ def plot_wall_bounds(rows: list[dict], path, how: str) -> int:
     pauses' noise. Returns the number of walls drawn."""
     from camwhisker.contact.plots import plt, save_figure
 
+    # Rows read back from --out's JSON hold null for NaN and inf.
     walls = [r for r in rows if r["kind"] == "wall"
-             and math.isfinite(r.get("angle_err_deg", math.nan))
-             and math.isfinite(r.get("angle_bound_deg", math.nan))]
+             and all(math.isfinite(r.get(k) if r.get(k) is not None else math.nan)
+                     for k in ("angle_err_deg", "angle_bound_deg"))]
     bound = np.array([r["angle_bound_deg"] for r in walls])
     err = np.maximum([r["angle_err_deg"] for r in walls], 1e-3)  # log axes
     miss = err > TARGETS["angle_err_deg"]
