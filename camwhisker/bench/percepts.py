@@ -189,8 +189,13 @@ def run_campaign(seeds, calib_seed: int = CALIB_SEED, progress=None,
     return rows
 
 
+def _finite(x) -> bool:
+    """A finite number: not None (null in --out's JSON), NaN or inf."""
+    return x is not None and math.isfinite(x)
+
+
 def _pct(values, q):
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], float)
+    v = np.asarray([x for x in values if _finite(x)], float)
     return float(np.percentile(v, q)) if v.size else math.nan
 
 
@@ -279,10 +284,8 @@ def plot_wall_bounds(rows: list[dict], path, how: str) -> int:
     pauses' noise. Returns the number of walls drawn."""
     from camwhisker.contact.plots import plt, save_figure
 
-    # Rows read back from --out's JSON hold null for NaN and inf.
     walls = [r for r in rows if r["kind"] == "wall"
-             and all(math.isfinite(r.get(k) if r.get(k) is not None else math.nan)
-                     for k in ("angle_err_deg", "angle_bound_deg"))]
+             and _finite(r.get("angle_err_deg")) and _finite(r.get("angle_bound_deg"))]
     bound = np.array([r["angle_bound_deg"] for r in walls])
     err = np.maximum([r["angle_err_deg"] for r in walls], 1e-3)  # log axes
     miss = err > TARGETS["angle_err_deg"]
