@@ -40,18 +40,31 @@ def test_points_that_fix_no_line_have_no_bound():
     assert math.isinf(line_angle_bound_deg([[0.0, 1.0]] * 3, [[0.0, 1.0]] * 3, [1.0] * 3, 90.0))
 
 
-def test_a_low_slide_is_beyond_the_target_at_the_front_ends_noise():
-    from camwhisker.bench.percepts import run_campaign
+def test_a_turned_second_run_narrows_the_bound():
+    from camwhisker.bench.contact import calibrate_simulated
+    from camwhisker.bench.percept_bound import wall_angle_bound_deg
+    from camwhisker.bench.percepts import CALIB_SEED, simulate_sweep
+    from camwhisker.mechanics.experiment import FRONT_END_NOISE, peg_radii
+    from camwhisker.mechanics.objects import draw_sweep
 
-    # Tuning walls: 2563 slides at phi 2.7 deg, where MF scatters 20-50 mm along the whisker
-    # per pause at the front end's target noise; 2000 slides at phi ~10 deg. The bounds
-    # (5.77 and 0.35 deg) are the sd no unbiased fit of those pauses beats: 2563's 1 deg
-    # target is beyond its pauses, 2000's well within; the ranges allow the simulator's
-    # numerics to move.
-    rows = run_campaign([2563, 2000], pegs=15)
-    bound = {r["seed"]: r["angle_bound_deg"] for r in rows}
-    assert 4.0 < bound[2563] < 8.0
-    assert 0.2 < bound[2000] < 0.5
+    # Tuning walls at the front end's target noise. The first run of 2563 slides at phi
+    # 1.4-2.8 deg, where MF scatters 20-50 mm along the whisker per pause; 2000's at 6-11 deg;
+    # 126's at 1.2-2.4 deg leaves no contact point after the slip. Their first runs' bounds
+    # (5.77, 0.35 deg and none) are the sd no unbiased fit of those pauses beats. The second
+    # run, turned steep by the first run's line (2000: the face at 83.9 deg, 8-15 deg of phi;
+    # 2563: 74.5 deg, its line 7 deg off) or blind (126: 82.1 deg), brings them to 1.15,
+    # 0.155 and 0.28 deg. The ranges allow the simulator's numerics to move.
+    calib = calibrate_simulated(CALIB_SEED, noise=FRONT_END_NOISE, radii_mm=peg_radii(15))
+    bounds = {}
+    for seed in (2563, 2000, 126):
+        rng = np.random.default_rng(seed)
+        sweep = draw_sweep("wall", rng)
+        runs = simulate_sweep(sweep, calib, rng)
+        assert len(runs) == 2
+        bounds[seed] = [wall_angle_bound_deg(sweep, part, calib) for part in (runs[:1], runs)]
+    assert 4.0 < bounds[2563][0] < 8.0 and 0.8 < bounds[2563][1] < 1.5
+    assert 0.2 < bounds[2000][0] < 0.5 and 0.1 < bounds[2000][1] < 0.2
+    assert math.isinf(bounds[126][0]) and 0.15 < bounds[126][1] < 0.4
 
 
 def test_percept_bench_plots_each_wall_against_its_bound(tmp_path, capsys):

@@ -352,6 +352,33 @@ def test_simulated_sweeps_of_each_object():
     assert min(r["claimed"]["angle_err_deg"] for r in rows if r["kind"] == "wall") > 1.5
 
 
+def test_a_turned_run_sees_the_same_wall():
+    from camwhisker.mechanics.objects import draw_sweep, turned_wall_run
+
+    # The turned run's face, put back in the common frame by its pose, is the wall: its lower
+    # end on the wall's, its top on the wall's line (to rounding).
+    sweep = draw_sweep("wall", np.random.default_rng(7))
+    run = turned_wall_run(sweep.runs[0], -10.0)
+    box = run.scene
+    assert box.face_angle_deg == pytest.approx(sweep.truth["angle_deg"] + 10.0, abs=1e-9)
+    ends = Pose(*run.pose).apply(np.array([box.point_at(0.0), box.point_at(box.face_length_mm)]))
+    assert ends[0] == pytest.approx([0.0, sweep.truth["end_y_mm"]], abs=1e-9)
+    a = math.radians(sweep.truth["angle_deg"])
+    across = (ends[1, 0] * math.sin(a) - (ends[1, 1] - sweep.truth["end_y_mm"]) * math.cos(a))
+    assert abs(across) < 1e-9
+
+
+def test_the_second_run_turns_the_fitted_line_steep():
+    from camwhisker.bench.percepts import BLIND_TURN_DEG, RISE_DEG, steep_turn_deg
+
+    # A wall at 75 deg fitted to 0.07 deg (test_line_fit_recovers_the_wall): turned by
+    # 75 - RISE_DEG within 0.5 deg. Two contacts fit no line: the blind turn.
+    turn = steep_turn_deg(perceive(_wall(np.random.default_rng(1))))
+    assert turn == pytest.approx(75.0 - RISE_DEG, abs=0.5)
+    two = surfels_from_columns(_table([0.0, 1.0], [40.0, 44.0]))
+    assert steep_turn_deg(perceive(two)) == BLIND_TURN_DEG
+
+
 def test_corner_whose_first_slide_comes_from_scattered_mf():
     from camwhisker.bench.percepts import run_campaign
 
@@ -399,5 +426,8 @@ def test_after_a_slip_under_mfs_floor_gm_alone_is_no_contact_point():
     # last pause (1 mm: a few of GM's 0.6 mm spreads).
     before = cols["r_hat_mm"][:first][np.isfinite(cols["r_hat_mm"][:first])]
     assert before.size and abs(before[-1] - 58.29) < 1.0
+    # That run alone leaves too few contacts for a shape. The campaign's second run, turned
+    # blind for want of a line (the face at 82 deg), finds the wall 0.33 deg off.
+    assert surfels_from_columns(cols).n < MIN_SURFELS
     [row] = run_campaign([126], pegs=15)
-    assert row["chosen"] == "none" and row["n_surfels"] < MIN_SURFELS
+    assert row["chosen"] == "line" and row["angle_err_deg"] < 1.0

@@ -4,7 +4,10 @@ Each sweep draws an object (:mod:`camwhisker.mechanics.objects`), simulates
 its stage runs (mechanics -> signals with the front end's noise), turns them
 into contact tables (:func:`~camwhisker.contact.pipeline.contact_rows`, clock
 offset estimated, calibration on simulated rigid pegs), then into surfels and a
-percept, and holds the percept to the truth. Rendering every sweep to video
+percept, and holds the percept to the truth. A wall is swept twice: its face
+slides at a phi set by its angle and friction, as low as 1-3 deg, where MF's r
+scatters by tens of mm; the second run's stage is turned so that the first run's
+fitted line rises steeply (:func:`steep_turn_deg`). Rendering every sweep to video
 and tracking it would take minutes per sweep on two cores; the front end's
 noise is added to the signals instead (by default :data:`FRONT_END_NOISE`:
 0.05 deg and 0.02 mm per frame, its targets, above what it measures on the
@@ -42,10 +45,10 @@ from camwhisker.mechanics.experiment import (
     peg_radii,
     simulate_run,
 )
-from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep
+from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep, turned_wall_run
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
-           "simulate_sweep", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
+           "simulate_sweep", "steep_turn_deg", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
            "summarise", "format_summary", "plot_wall_bounds"]
 
 CALIB_SEED = 500
@@ -57,6 +60,14 @@ MODEL_OF = {"none": "none", "wall": "line", "cylinder": "circle", "corner": "cor
 CHECKED = {"wall": ("angle_deg", "distance_mm"), "cylinder": ("center_x_mm", "center_y_mm",
                                                                "radius_mm"),
            "corner": ("apex_x_mm", "apex_y_mm")}
+# A wall's second run is turned so that the face rises this steeply: faces at 82-86 deg
+# slide at phi 12-26 deg (friction 0.4-0.6), not the 2-17 deg of faces at 70-80, and MF's
+# r is sharper there. Steeper, the approach's first base positions lie behind the line's
+# extension below the face, and their free-space cost tilts the line.
+RISE_DEG = 83.0
+# Without a line from the first run the face slid at phi under ~3 deg, so it rises at
+# 70-72 deg and friction is low: turned this way it rises at 82-84.
+BLIND_TURN_DEG = -12.0
 # Runs go on until phi reaches 30 deg (the default protocol stops at 40 mm of travel,
 # before a large cylinder's contact has slid far enough to show its curvature).
 PROTOCOL = StageProtocol(max_travel_mm=90.0)
@@ -86,19 +97,36 @@ def _quiet(signals: dict, rng, noise: NoiseModel) -> dict:
     return out
 
 
+def _simulate(spec, i: int, kind: str, calib, rng, noise: NoiseModel) -> tuple:
+    run = simulate_run(f"run{i}", "slide-box", spec.scene, rng, protocol=PROTOCOL,
+                       noise=noise, travel_sign=spec.travel_sign)
+    offset = None
+    if kind == "none":
+        run.signals = _quiet(run.signals, rng, noise)
+        offset = run.offset_s  # nothing to align the clocks on: the user gives it
+    cols, _ = contact_rows(run.signals, _log(run, False), calib, offset, mode="pause")
+    return spec, run, cols
+
+
+def steep_turn_deg(percept, rise_deg: float = RISE_DEG) -> float:
+    """The stage turn (deg) under which the line of ``percept`` rises at ``rise_deg`` from the
+    travel direction (:data:`BLIND_TURN_DEG` where no line was fitted)."""
+    line = percept.fits.get("line")
+    if line is None:
+        return BLIND_TURN_DEG
+    return (line.params["angle_deg"] - rise_deg + 90.0) % 180.0 - 90.0
+
+
 def simulate_sweep(sweep, calib, rng, noise: NoiseModel = FRONT_END_NOISE) -> list[tuple]:
     """Each run of a sweep simulated and turned into a contact table: (run spec, simulated
-    run, contact table) per run."""
-    out = []
-    for i, run_spec in enumerate(sweep.runs):
-        run = simulate_run(f"run{i}", "slide-box", run_spec.scene, rng, protocol=PROTOCOL,
-                           noise=noise, travel_sign=run_spec.travel_sign)
-        offset = None
-        if sweep.kind == "none":
-            run.signals = _quiet(run.signals, rng, noise)
-            offset = run.offset_s  # nothing to align the clocks on: the user gives it
-        cols, _ = contact_rows(run.signals, _log(run, False), calib, offset, mode="pause")
-        out.append((run_spec, run, cols))
+    run, contact table) per run. A wall (and the nothing that stands in its place) gets a
+    second run, the stage turned so that the first run's line rises steeply
+    (:func:`steep_turn_deg`)."""
+    out = [_simulate(spec, i, sweep.kind, calib, rng, noise) for i, spec in enumerate(sweep.runs)]
+    if sweep.kind in ("wall", "none"):
+        turn = steep_turn_deg(perceive(sweep_surfels(out)))
+        out.append(_simulate(turned_wall_run(sweep.runs[0], turn), len(out), sweep.kind, calib,
+                             rng, noise))
     return out
 
 

@@ -5,8 +5,9 @@ own stage frame placed in the object's (common) frame by a pose (common =
 origin + R(angle) stage). The whisker touches an object where the
 scenes of :mod:`camwhisker.mechanics.scenes` can model it:
 
-- a *wall* (a plank seen edge-on, rising at 70-86 deg): one run in +x meets
+- a *wall* (a plank seen edge-on, rising at 70-86 deg): a run in +x meets
   its lower end, sticks there (Coulomb friction), then slips up its face;
+  :func:`turned_wall_run` sweeps it again from a turned stage frame;
 - a *cylinder* (radius 15-80 mm, its axis 30-90 mm from the base line): a run
   from each side, the whisker's side sliding down the near flank (as the
   bottle of the stage experiments);
@@ -29,7 +30,7 @@ import numpy as np
 
 from camwhisker.mechanics.scenes import BoxScene, CircleScene
 
-__all__ = ["OBJECT_KINDS", "MirroredBox", "SweepRun", "PerceptSweep", "draw_sweep"]
+__all__ = ["OBJECT_KINDS", "MirroredBox", "SweepRun", "PerceptSweep", "draw_sweep", "turned_wall_run"]
 
 OBJECT_KINDS = ("none", "wall", "cylinder", "corner")
 
@@ -81,10 +82,10 @@ MU = (0.4, 0.6)
 TOP_MM = 90.0
 
 
-def _face(y_end: float, angle_deg: float, mu: float) -> BoxScene:
-    """A face from its lower end at (0, y_end), rising at angle_deg, ending at TOP_MM."""
+def _face(y_end: float, angle_deg: float, mu: float, x_end: float = 0.0) -> BoxScene:
+    """A face from its lower end at (x_end, y_end), rising at angle_deg, ending at TOP_MM."""
     length = (TOP_MM - y_end) / math.sin(math.radians(angle_deg))
-    return BoxScene(0.0, y_end, face_angle_deg=angle_deg, mu=mu, face_length_mm=length)
+    return BoxScene(x_end, y_end, face_angle_deg=angle_deg, mu=mu, face_length_mm=length)
 
 
 def _wall(rng):
@@ -95,6 +96,17 @@ def _wall(rng):
     truth = {"angle_deg": angle, "distance_mm": abs(y_end * math.cos(a)),
              "end_x_mm": 0.0, "end_y_mm": y_end}
     return PerceptSweep("wall", truth, (SweepRun(box, 1.0, (0.0, 0.0, 0.0)),))
+
+
+def turned_wall_run(first: SweepRun, turn_deg: float) -> SweepRun:
+    """A wall's run (``first``, travelling in +x at pose 0) again, from a stage frame turned
+    by ``turn_deg`` about the first run's origin: the face rises at its angle less
+    ``turn_deg`` there (and, as every face here, ends at TOP_MM)."""
+    box, t = first.scene, math.radians(turn_deg)
+    x, y = box.corner_x_mm, box.corner_y_mm
+    end = (x * math.cos(t) + y * math.sin(t), -x * math.sin(t) + y * math.cos(t))
+    scene = _face(end[1], box.face_angle_deg - turn_deg, box.mu, x_end=end[0])
+    return SweepRun(scene, 1.0, (0.0, 0.0, float(turn_deg)))
 
 
 def _cylinder(rng):
