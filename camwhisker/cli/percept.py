@@ -90,7 +90,7 @@ def add_percept_bench(sub) -> None:
                                              "bound from the pauses' noise")
     p.add_argument("--seeds", default="1000-1199", metavar="A-B",
                    help="sweep seeds, inclusive (0-399 and 2000-2999 were used to choose the "
-                        "constants; 1000-1599 and 3000-3599 are held out)")
+                        "constants; 1000-1599, 3000-3599 and 4000-4599 are held out)")
     p.add_argument("--calib-pegs", type=int, default=8, metavar="N",
                    help="rigid pegs the simulated calibration is made on: 8, the paper's radii "
                         "(default), or N spaced evenly in log r over 22.5-90 mm")
