@@ -30,7 +30,8 @@ import numpy as np
 
 from camwhisker.mechanics.scenes import BoxScene, CircleScene
 
-__all__ = ["OBJECT_KINDS", "MirroredBox", "SweepRun", "PerceptSweep", "draw_sweep", "turned_wall_run"]
+__all__ = ["OBJECT_KINDS", "MirroredBox", "SweepRun", "PerceptSweep", "draw_sweep",
+           "turned_wall_run"]
 
 OBJECT_KINDS = ("none", "wall", "cylinder", "corner")
 
