@@ -265,7 +265,11 @@ def test_percept_command_writes_strict_json(tmp_path, capsys):
     assert doc["inputs"][0]["contacts"] == str(c) and len(doc["inputs"][0]["sha256"]) == 64
     assert doc["camwhisker"] and doc["command"].startswith("camwhisker percept")
     assert png.read_bytes()[:4] == b"\x89PNG"
-    assert "wall (line) from 30 contacts" in capsys.readouterr().out
+    # A steeper run over the wall: the stage turned so that it rises at 83 deg.
+    assert doc["next_run_angle_deg"] == pytest.approx(80.0 - 83.0, abs=0.5)
+    printed = capsys.readouterr().out
+    assert "wall (line) from 30 contacts" in printed
+    assert f"--pose X0,Y0,{doc['next_run_angle_deg']:.1f}" in printed
 
 
 @pytest.mark.parametrize("content, message", [
@@ -369,7 +373,7 @@ def test_a_turned_run_sees_the_same_wall():
 
 
 def test_the_second_run_turns_the_fitted_line_steep():
-    from camwhisker.bench.percepts import BLIND_TURN_DEG, RISE_DEG, steep_turn_deg
+    from camwhisker.contact.percepts import BLIND_TURN_DEG, RISE_DEG, steep_turn_deg
 
     # A wall at 75 deg fitted to 0.07 deg (test_line_fit_recovers_the_wall): turned by
     # 75 - RISE_DEG within 0.5 deg. Two contacts fit no line: the blind turn.

@@ -35,7 +35,7 @@ from scipy.stats import binomtest
 
 from camwhisker.bench.contact import _log, calibrate_simulated
 from camwhisker.bench.percept_bound import wall_angle_bound_deg
-from camwhisker.contact.percepts import object_of, outline, perceive
+from camwhisker.contact.percepts import object_of, outline, perceive, steep_turn_deg
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.surfels import Pose, Surfels, merge, surfels_from_columns
 from camwhisker.mechanics.experiment import (
@@ -49,7 +49,7 @@ from camwhisker.mechanics.experiment import (
 from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep, turned_wall_run
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
-           "simulate_sweep", "steep_turn_deg", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
+           "simulate_sweep", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
            "summarise", "format_summary", "plot_wall_bounds"]
 
 CALIB_SEED = 500
@@ -61,14 +61,6 @@ MODEL_OF = {"none": "none", "wall": "line", "cylinder": "circle", "corner": "cor
 CHECKED = {"wall": ("angle_deg", "distance_mm"), "cylinder": ("center_x_mm", "center_y_mm",
                                                                "radius_mm"),
            "corner": ("apex_x_mm", "apex_y_mm")}
-# A wall's second run is turned so that the face rises this steeply: faces at 82-86 deg
-# slide at phi 12-26 deg (friction 0.4-0.6), not the 2-17 deg of faces at 70-80, and MF's
-# r is sharper there. Steeper, the approach's first base positions lie behind the line's
-# extension below the face, and their free-space cost tilts the line.
-RISE_DEG = 83.0
-# Without a line from the first run the face slid at phi under ~3 deg, so it rises at
-# 70-72 deg and friction is low: turned this way it rises at 82-84.
-BLIND_TURN_DEG = -12.0
 # Runs go on until phi reaches 30 deg (the default protocol stops at 40 mm of travel,
 # before a large cylinder's contact has slid far enough to show its curvature).
 PROTOCOL = StageProtocol(max_travel_mm=90.0)
@@ -107,15 +99,6 @@ def _simulate(spec, i: int, kind: str, calib, rng, noise: NoiseModel) -> tuple:
         offset = run.offset_s  # nothing to align the clocks on: the user gives it
     cols, _ = contact_rows(run.signals, _log(run, False), calib, offset, mode="pause")
     return spec, run, cols
-
-
-def steep_turn_deg(percept, rise_deg: float = RISE_DEG) -> float:
-    """The stage turn (deg) under which the line of ``percept`` rises at ``rise_deg`` from the
-    travel direction (:data:`BLIND_TURN_DEG` where no line was fitted)."""
-    line = percept.fits.get("line")
-    if line is None:
-        return BLIND_TURN_DEG
-    return (line.params["angle_deg"] - rise_deg + 90.0) % 180.0 - 90.0
 
 
 def simulate_sweep(sweep, calib, rng, noise: NoiseModel = FRONT_END_NOISE) -> list[tuple]:

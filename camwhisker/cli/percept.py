@@ -51,7 +51,7 @@ def _sha256(path) -> str:
 def _run_percept(args) -> int:
     from camwhisker import __version__
     from camwhisker.atomic import atomic_write_text
-    from camwhisker.contact.percepts import object_of, outline, perceive, percept_record
+    from camwhisker.contact.percepts import RISE_DEG, object_of, outline, perceive, percept_record
     from camwhisker.contact.surfels import read_surfels
     from camwhisker.jsonfile import dumps
 
@@ -80,6 +80,9 @@ def _run_percept(args) -> int:
           + (f": {params}" if params else "")
           + (f"; runner-up {p.runner_up}, evidence ratio {p.evidence_ratio:.3g}"
              if p.runner_up else ""))
+    if p.best.model == "line":
+        print(f"for a run over which it rises at {RISE_DEG:g} deg (MF places a contact best "
+              f"when it slides at a steep phi): --pose X0,Y0,{record['next_run_angle_deg']:.1f}")
     print(f"wrote {args.out}" + (f" and {args.plot}" if args.plot else ""))
     return 0
 

@@ -20,6 +20,10 @@ Models (common frame, mm; the solid is on the side away from the free space):
   its opening held within :data:`CORNER_OPENING_DEG` (narrower, the two faces
   are one wall with a kink in its contact points).
 
+A wall's contact slides at a phi its face's angle and friction set, as low as 1-3 deg,
+where MF's r scatters by tens of mm; :func:`steep_turn_deg` gives the stage angle of a
+next run over which the fitted line rises steeply.
+
 Intervals are 95 % Wald intervals from the Jacobian at the solution (a
 corner's with each contact's face held fixed, :func:`_frozen_jacobian`),
 (J^T J)^-1 times the residuals' robust variance, inflated for the contacts'
@@ -43,7 +47,7 @@ from scipy.optimize import least_squares
 from camwhisker.contact.surfels import Surfels
 
 __all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "object_of", "outline",
-           "percept_record", "POINT_SIGMA_MM",
+           "percept_record", "steep_turn_deg", "RISE_DEG", "BLIND_TURN_DEG", "POINT_SIGMA_MM",
            "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS"]
 
 MODELS = ("line", "circle", "corner")
@@ -65,6 +69,14 @@ MIN_SURFELS = 4
 MAX_AUTOCORR = 0.95
 # A box corner opens this far (deg): from a sharp wedge to a blunt edge.
 CORNER_OPENING_DEG = (30.0, 150.0)
+# A wall's next run is turned so that the face rises this steeply: faces at 82-86 deg
+# slide at phi 12-26 deg (friction 0.4-0.6), not the 2-17 deg of faces at 70-80, and MF's
+# r is sharper there. Steeper, the approach's first base positions lie behind the line's
+# extension below the face, and their free-space cost tilts the line.
+RISE_DEG = 83.0
+# Without a line the face slid at phi under ~3 deg, so it rises at 70-72 deg and friction
+# is low: turned this way it rises at 82-84.
+BLIND_TURN_DEG = -12.0
 # Central-difference step of a corner's Jacobian, relative to each parameter (at least 1).
 _JAC_STEP = 1e-6
 # Two-sided 95 % normal quantile for the intervals.
@@ -429,9 +441,20 @@ def outline(fit: Fit, near_xy=None, n: int = 181):
     return np.array([]), np.array([])
 
 
+def steep_turn_deg(percept: Percept, rise_deg: float = RISE_DEG) -> float:
+    """The stage angle (deg, a pose's in the common frame) of a run over which the line of
+    ``percept`` rises at ``rise_deg`` from the travel direction; :data:`BLIND_TURN_DEG`
+    where no line was fitted."""
+    line = percept.fits.get("line")
+    if line is None:
+        return BLIND_TURN_DEG
+    return (line.params["angle_deg"] - rise_deg + 90.0) % 180.0 - 90.0
+
+
 def percept_record(p: Percept) -> dict:
     """The percept as plain data: chosen model, parameters with 95 % intervals, runner-up,
-    evidence ratio (exp of half the BIC difference) and every candidate's BIC."""
+    evidence ratio (exp of half the BIC difference), every candidate's BIC and, for a wall or
+    nothing, the stage angle of a steep next run (:func:`steep_turn_deg`)."""
     return {
         "model": p.best.model,
         "object": object_of(p),
@@ -440,6 +463,7 @@ def percept_record(p: Percept) -> dict:
         "runner_up": p.runner_up,
         "evidence_ratio": p.evidence_ratio,
         "n_surfels": p.n_surfels,
+        "next_run_angle_deg": steep_turn_deg(p) if p.best.model in ("line", "none") else None,
         "candidates": {m: {"bic": f.bic, "cost": f.cost, "n_residuals": f.n_residuals,
                            "params": f.params} for m, f in p.fits.items()},
     }
