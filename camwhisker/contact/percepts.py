@@ -70,7 +70,7 @@ MAX_AUTOCORR = 0.95
 # A box corner opens this far (deg): from a sharp wedge to a blunt edge.
 CORNER_OPENING_DEG = (30.0, 150.0)
 # A wall's next run is turned so that the face rises this steeply: faces at 82-86 deg
-# slide at phi 12-26 deg (friction 0.4-0.6), not the 2-17 deg of faces at 70-80, and MF's
+# slide at phi 12-26 deg (friction 0.4-0.6), not the 2-18 deg of faces at 70-78, and MF's
 # r is sharper there. Steeper, the approach's first base positions lie behind the line's
 # extension below the face, and their free-space cost tilts the line.
 RISE_DEG = 83.0
@@ -453,8 +453,8 @@ def steep_turn_deg(percept: Percept, rise_deg: float = RISE_DEG) -> float:
 
 def percept_record(p: Percept) -> dict:
     """The percept as plain data: chosen model, parameters with 95 % intervals, runner-up,
-    evidence ratio (exp of half the BIC difference), every candidate's BIC and, for a wall or
-    nothing, the stage angle of a steep next run (:func:`steep_turn_deg`)."""
+    evidence ratio (exp of half the BIC difference), every candidate's BIC and, for a wall,
+    the stage angle of a steep next run (:func:`steep_turn_deg`)."""
     return {
         "model": p.best.model,
         "object": object_of(p),
@@ -463,7 +463,7 @@ def percept_record(p: Percept) -> dict:
         "runner_up": p.runner_up,
         "evidence_ratio": p.evidence_ratio,
         "n_surfels": p.n_surfels,
-        "next_run_angle_deg": steep_turn_deg(p) if p.best.model in ("line", "none") else None,
+        "next_run_angle_deg": steep_turn_deg(p) if p.best.model == "line" else None,
         "candidates": {m: {"bic": f.bic, "cost": f.cost, "n_residuals": f.n_residuals,
                            "params": f.params} for m, f in p.fits.items()},
     }
