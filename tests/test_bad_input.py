@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.stream import DAMAGED_REASON, GAP_REASON
+from camwhisker.vision.stream import DAMAGED_REASON, GAP_REASON
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_frames"

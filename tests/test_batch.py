@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.model import PlateModel
-from camwhisker.overlay import rest_check_image
-from camwhisker.sensor import load_sensor
-from camwhisker.sources import open_source
-from camwhisker.stream import stream
-from camwhisker.synth.scenarios import PoseTrack, make_scenario
-from camwhisker.synth.video import render_scenario
+from camwhisker.io.sources import open_source
+from camwhisker.run.overlay import rest_check_image
+from camwhisker.sensor.file import load_sensor
+from camwhisker.sensor.model import PlateModel
+from camwhisker.sim.render.scenarios import PoseTrack, make_scenario
+from camwhisker.sim.render.video import render_scenario
+from camwhisker.vision.stream import stream
 
 REQUIRED = ["frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok"]
 
@@ -30,7 +30,7 @@ REQUIRED = ["frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok"]
 def video(tmp_path_factory):
     d = tmp_path_factory.mktemp("batch")
     sc = make_scenario("nominal", 6, 911, fps=25.0)
-    from camwhisker.sensor import Sensor
+    from camwhisker.sensor.file import Sensor
 
     paths = render_scenario(sc, Sensor(), d / "nom.avi", 911)
     return paths

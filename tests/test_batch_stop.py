@@ -18,11 +18,11 @@ from pathlib import Path
 import cv2
 import pytest
 
-from camwhisker.atomic import atomic_path, remove_stale_temps
-from camwhisker.campaign import is_complete, output_path
 from camwhisker.cli import main
-from camwhisker.sensor import Sensor
-from camwhisker.signals import read_signal_table
+from camwhisker.files.atomic import atomic_path, remove_stale_temps
+from camwhisker.io.signals import read_signal_table
+from camwhisker.run.campaign import is_complete, output_path
+from camwhisker.sensor.file import Sensor
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_frames" / "nominal_mjpg.avi"
@@ -156,7 +156,7 @@ def test_kill_9_of_the_parent_leaves_no_worker(videos, dest):
 
 _HOLD_TEMP = """
 import sys, time
-from camwhisker.atomic import atomic_path
+from camwhisker.files.atomic import atomic_path
 with atomic_path(sys.argv[1]) as tmp:
     tmp.write_text("t_s,half a row")
     print(tmp.name, flush=True)
@@ -235,7 +235,7 @@ def test_dest_resume_from_another_directory_redoes_nothing(videos, tmp_path, mon
     "suffix, step", [(".csv", "write_sidecar"), (".parquet", "_csv_to_parquet")]
 )
 def test_task_interrupted_leaves_nothing_half_done(videos, tmp_path, monkeypatch, suffix, step):
-    import camwhisker.campaign as campaign
+    import camwhisker.run.campaign as campaign
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt  # Ctrl-C at this step, the table written, not yet complete
@@ -281,7 +281,7 @@ def test_a_stop_that_lands_in_a_finaliser_is_not_lost():
     # Python ignores an exception raised in __del__ ("Exception ignored in ..."): numba's
     # compiler frees LLVM objects there, and a SIGTERM caught in one was lost, so a batch
     # stopped in its first seconds ran on. The signal is sent again and stops the run.
-    from camwhisker.workers import REDELIVER_S, stop_signals_interrupt
+    from camwhisker.run.workers import REDELIVER_S, stop_signals_interrupt
 
     def free():  # as llvmlite's ObjectRef.__del__ calls into its ffi
         os.kill(os.getpid(), signal.SIGTERM)

@@ -15,8 +15,8 @@ from camwhisker.contact.belief import (
     find_onsets,
 )
 from camwhisker.contact.belief_table import table_belief, write_belief_table
-from camwhisker.mechanics import FRONT_END_NOISE, simulate_runs
-from camwhisker.tables import TableError
+from camwhisker.files.tables import TableError
+from camwhisker.sim.mechanics import FRONT_END_NOISE, simulate_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 # The done-when: the onset within 2 frames of the true one.

@@ -123,7 +123,7 @@ def test_library_imports_no_benchmark_command_line_or_renderer():
     import camwhisker
 
     root = Path(camwhisker.__file__).parent
-    above = ("camwhisker.bench", "camwhisker.cli", "camwhisker.synth")
+    above = ("camwhisker.bench", "camwhisker.cli", "camwhisker.sim.render")
     found = []
     for path in sorted(root.rglob("*.py")):
         rel = path.relative_to(root)
@@ -146,7 +146,7 @@ def test_calibration_table_and_summary_on_made_up_rows():
         within_3se,
     )
     from camwhisker.bench.reality import RealityRow
-    from camwhisker.model import GEOMETRY_NAMES
+    from camwhisker.sensor.model import GEOMETRY_NAMES
 
     def row(label, ok, phi, dz):
         return RealityRow(100, label, True, ok, phi, dz)
@@ -183,7 +183,7 @@ def test_calibration_table_and_summary_on_made_up_rows():
 def test_reality_summary_counts_each_limit_on_made_up_rows():
     """The reality bench's summary: each limit counted over the rows it concerns."""
     from camwhisker.bench.reality import RealityRow, closing_rest, summary, table
-    from camwhisker.synth.scenarios import make_scenario
+    from camwhisker.sim.render.scenarios import make_scenario
 
     def row(seed, label, bias15=0.0, bias30=0.0, zero=0.0, warned=False):
         return RealityRow(seed, label, True, 1.0, 0.02, 0.005, "", bias15, bias30, zero, 0.002,

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
-from camwhisker.polygon import polygon_centroid
+from camwhisker.sensor.polygon import polygon_centroid
 from camwhisker.vision.blur import REBLUR_PAD_PX, reblur_templates, square_blur_px
 from camwhisker.vision.tip import blurred_rim, rim_centre, tip_edge_points
 

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from camwhisker.sensor import Sensor
-from camwhisker.synth.bound import (
+from camwhisker.sensor.file import Sensor
+from camwhisker.sim.render.bound import (
     cramer_rao_bound,
     fisher_information,
     nominal_bound_pose,
     pose_bound,
 )
-from camwhisker.synth.render import SceneRenderer
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS
+from camwhisker.sim.render.render import SceneRenderer
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS
 
 
 def test_translating_edge_matches_the_closed_form():

@@ -28,9 +28,9 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.sensor import dump_sensor, load_sensor
-from camwhisker.synth.builds import REALITY_SUITE, draw_build
-from camwhisker.synth.samples import (
+from camwhisker.sensor.file import dump_sensor, load_sensor
+from camwhisker.sim.render.builds import REALITY_SUITE, draw_build
+from camwhisker.sim.render.samples import (
     BUILD_SAMPLES,
     BUILD_SEED,
     CALIPER_FILE,
@@ -38,8 +38,8 @@ from camwhisker.synth.samples import (
     caliper_side_mm,
     truth_errors,
 )
-from camwhisker.synth.scenarios import PoseTrack, make_scenario
-from camwhisker.synth.video import render_frames
+from camwhisker.sim.render.scenarios import PoseTrack, make_scenario
+from camwhisker.sim.render.video import render_frames
 from camwhisker.vision.mismatch import PHI_ERROR_WARN_DEG
 
 ROOT = Path(__file__).resolve().parents[1]

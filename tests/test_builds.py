@@ -8,8 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.plate import Pose, cross_outline, rod_ends, square_corners
-from camwhisker.sensor import (
+from camwhisker.sensor.file import (
     OPTIONAL_PLATE_KEYS,
     Sensor,
     SensorFileError,
@@ -17,8 +16,9 @@ from camwhisker.sensor import (
     load_sensor,
     sensor_to_dict,
 )
-from camwhisker.synth.builds import REALITY_SUITE, TOLERANCES, draw_build
-from camwhisker.synth.render import Appearance, SceneRenderer
+from camwhisker.sensor.plate import Pose, cross_outline, rod_ends, square_corners
+from camwhisker.sim.render.builds import REALITY_SUITE, TOLERANCES, draw_build
+from camwhisker.sim.render.render import Appearance, SceneRenderer
 
 NOMINAL = Sensor()
 POSE = Pose.from_degrees(0.3, 14.0, 35.0)
@@ -128,7 +128,7 @@ def test_optional_keys_place_the_features():
 
 def test_a_build_renders_its_own_geometry():
     """The rendered end face's centroid lies where the build's model puts the tip."""
-    from camwhisker.model import TIP, PlateModel
+    from camwhisker.sensor.model import TIP, PlateModel
 
     b = draw_build(REALITY_SUITE.tuning_seeds[1])
     r = SceneRenderer(b.sensor, Appearance())  # plain colours: the tip is the darkest blob
@@ -153,9 +153,9 @@ TIP_TOL_PX = 0.6
 
 
 def _first_frame(build):
-    from camwhisker.synth.artefacts import jpeg_roundtrip
-    from camwhisker.synth.scenarios import make_scenario
-    from camwhisker.synth.video import render_frames
+    from camwhisker.sim.render.artefacts import jpeg_roundtrip
+    from camwhisker.sim.render.scenarios import make_scenario
+    from camwhisker.sim.render.video import render_frames
 
     scenario = build.scenario(make_scenario("nominal", 10, build.seed))
     frame = next(render_frames(scenario, build.sensor, build.seed, appearance=build.appearance))
@@ -164,7 +164,7 @@ def _first_frame(build):
 
 @pytest.mark.parametrize("seed", REALITY_SUITE.held_out_seeds[:3])
 def test_detection_finds_a_held_out_builds_features(seed):
-    from camwhisker.model import TIP, PlateModel
+    from camwhisker.sensor.model import TIP, PlateModel
     from camwhisker.vision.detect import detect_features
     from camwhisker.vision.tracker import FrontEnd
 
@@ -228,7 +228,12 @@ def test_a_failed_detection_says_what_was_found_and_where():
 
 def test_the_models_geometry_jacobian_holds_on_a_build():
     """The optional keys join the model's geometry with exact derivatives."""
-    from camwhisker.model import GEOMETRY_NAMES, PlateModel, geometry_vector, with_geometry
+    from camwhisker.sensor.model import (
+        GEOMETRY_NAMES,
+        PlateModel,
+        geometry_vector,
+        with_geometry,
+    )
 
     sensor = draw_build(REALITY_SUITE.tuning_seeds[2]).sensor
     p, t = math.radians(21.0), math.radians(-50.0)

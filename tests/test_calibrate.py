@@ -7,7 +7,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from camwhisker.calibrate import (
+from camwhisker.contact.calibrate import (
     CalibrationError,
     CalibrationRun,
     calibrate,
@@ -20,10 +20,10 @@ from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, mf_bias_floor_mm
 from camwhisker.contact.gm import PHI_MIN_DEG
 from camwhisker.contact.mf import r_mf
 from camwhisker.contact.pipeline import CONTACT_COLUMNS, contact_rows
+from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.contact.zscore import SpreadTable
-from camwhisker.mechanics import simulate_runs
-from camwhisker.mechanics.experiment import PAPER_RIGID_RADII_MM, NoiseModel, peg_radii
-from camwhisker.stage import stage_log_from_arrays
+from camwhisker.sim.mechanics import simulate_runs
+from camwhisker.sim.mechanics.experiment import PAPER_RIGID_RADII_MM, NoiseModel, peg_radii
 
 
 @functools.cache

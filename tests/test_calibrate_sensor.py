@@ -14,16 +14,16 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.geometry import adjust
-from camwhisker.geometry.adjust import (
+from camwhisker.calibration import adjust
+from camwhisker.calibration.adjust import (
     SE_LIMIT,
     SYSTEMATIC_PHI0_RAD,
     SYSTEMATIC_PX,
     adjust_geometry,
     tolerances,
 )
-from camwhisker.model import GEOMETRY_NAMES, TIP, PlateModel, geometry_vector
-from camwhisker.sensor import OPTIONAL_PLATE_KEYS, Sensor
+from camwhisker.sensor.file import OPTIONAL_PLATE_KEYS, Sensor
+from camwhisker.sensor.model import GEOMETRY_NAMES, TIP, PlateModel, geometry_vector
 from camwhisker.vision.mismatch import phi_response
 
 NOISE_PX = 0.05
@@ -343,7 +343,7 @@ def test_a_point_measured_worse_weighs_less(build):
 
 
 def test_rest_ends_when_the_tip_starts_to_move():
-    from camwhisker.geometry.sweep import REST_PX, rest_frames
+    from camwhisker.calibration.sweep import REST_PX, rest_frames
 
     # The corners hardly move as the sweep starts (dz and phi ~0.06 deg) while the
     # tip already has: frame 6 is off rest though the points' median is not.
@@ -364,8 +364,8 @@ CLIP_FRAMES = 24
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory, build):
     from camwhisker.cli import main
-    from camwhisker.synth.scenarios import make_scenario
-    from camwhisker.synth.video import render_scenario
+    from camwhisker.sim.render.scenarios import make_scenario
+    from camwhisker.sim.render.video import render_scenario
 
     d = tmp_path_factory.mktemp("calsensor")
     sweep = render_scenario(make_scenario("calibration_sweep", SWEEP_FRAMES, 1), build,
@@ -380,9 +380,9 @@ def calibrated(tmp_path_factory, build):
 
 
 def _clip_errors(clip, sensor):
-    from camwhisker.sources import open_source
-    from camwhisker.stream import track
-    from camwhisker.synth.scenarios import PoseTrack
+    from camwhisker.io.sources import open_source
+    from camwhisker.sim.render.scenarios import PoseTrack
+    from camwhisker.vision.stream import track
 
     truth = PoseTrack.read_csv(clip["truth"])
     rows = list(track((f.image for f in open_source(clip["video"])), sensor))
@@ -395,7 +395,7 @@ def _clip_errors(clip, sensor):
 def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
     import json
 
-    from camwhisker.sensor import load_sensor
+    from camwhisker.sensor.file import load_sensor
 
     out, _, _ = calibrated
     report = json.loads(out.with_name("build.report.json").read_text())
@@ -435,7 +435,7 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
 
 
 def test_the_fitted_file_tracks_a_separate_clip_like_the_true_one(calibrated, build):
-    from camwhisker.sensor import load_sensor
+    from camwhisker.sensor.file import load_sensor
 
     out, clip, _ = calibrated
     phi_fit, dz_fit, ok_fit = _clip_errors(clip, load_sensor(out))
@@ -452,9 +452,9 @@ def test_the_fitted_file_tracks_a_separate_clip_like_the_true_one(calibrated, bu
 
 
 def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, build):
-    from camwhisker.geometry.sweep import corner_offsets, track_sweep
-    from camwhisker.sources import open_source
-    from camwhisker.synth.scenarios import PoseTrack
+    from camwhisker.calibration.sweep import corner_offsets, track_sweep
+    from camwhisker.io.sources import open_source
+    from camwhisker.sim.render.scenarios import PoseTrack
     from camwhisker.vision.mismatch import edge_corners
     from camwhisker.vision.rest import mean_image
     from camwhisker.vision.tracker import FrontEnd
@@ -493,8 +493,8 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
 
 def test_true_tracked_points_follow_the_tracked_corners(calibrated, build):
     from camwhisker.bench.systematics import true_poses, true_tracked_points
-    from camwhisker.geometry.sweep import track_sweep
-    from camwhisker.synth.scenarios import PoseTrack
+    from camwhisker.calibration.sweep import track_sweep
+    from camwhisker.sim.render.scenarios import PoseTrack
 
     _, _, sweep = calibrated
     tracked = track_sweep([sweep["video"]], build)
@@ -543,7 +543,7 @@ def _board_views(tmp_path, camera, n_views=6):
 
 
 def test_intrinsics_from_chessboard_images(tmp_path):
-    from camwhisker.geometry.sweep import intrinsics_from_chessboard
+    from camwhisker.calibration.sweep import intrinsics_from_chessboard
 
     camera = Sensor().camera
     paths = _board_views(tmp_path, camera)
@@ -586,10 +586,10 @@ def test_known_dz_steps_fix_the_scale_without_a_length(build):
 
 
 def test_a_stage_log_of_dz_steps_gives_each_pause_its_dz():
-    from camwhisker.geometry.sweep import TrackedSweep, known_dz_from_stage
-    from camwhisker.mechanics import simulate_runs
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE
-    from camwhisker.stage import StageLogError, stage_log_from_arrays
+    from camwhisker.calibration.sweep import TrackedSweep, known_dz_from_stage
+    from camwhisker.contact.stage import StageLogError, stage_log_from_arrays
+    from camwhisker.sim.mechanics import simulate_runs
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE
 
     run = simulate_runs("test2", 3, noise=FRONT_END_NOISE)[0]
     n = run.signals["t_s"].size

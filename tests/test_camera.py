@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.camera import (
+from camwhisker.sensor.camera import (
     INTRINSIC_NAMES,
     JAC_INTRINSICS,
     JAC_TVEC,
@@ -13,7 +13,7 @@ from camwhisker.camera import (
     project_rigid,
     unproject,
 )
-from camwhisker.sensor import Sensor
+from camwhisker.sensor.file import Sensor
 
 PLAIN = Sensor().camera
 DISTORTED = (

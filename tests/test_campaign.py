@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from camwhisker.campaign import (
+from camwhisker.run.campaign import (
     BatchTask,
     CampaignError,
     expand_inputs,
@@ -20,7 +20,7 @@ from camwhisker.campaign import (
     run_many,
     sidecar_path,
 )
-from camwhisker.sensor import Sensor
+from camwhisker.sensor.file import Sensor
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_frames" / "nominal_mjpg.avi"
 
@@ -97,8 +97,8 @@ def test_tampered_output_is_not_complete(videos):
 _KILL_SCRIPT = """
 import sys
 from pathlib import Path
-from camwhisker.campaign import BatchTask, run_many
-from camwhisker.sensor import Sensor
+from camwhisker.run.campaign import BatchTask, run_many
+from camwhisker.sensor.file import Sensor
 videos = [Path(p) for p in sys.argv[2:]]
 run_many([(v, Path(sys.argv[1]) / (v.stem + ".csv")) for v in videos], BatchTask(Sensor()),
          progress=False)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from camwhisker.bench.chain import LOW_Z, SHAPE_TOL_MM, format_summary, run_chain
-from camwhisker.tables import read_columns
+from camwhisker.files.tables import read_columns
 
 EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
 

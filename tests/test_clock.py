@@ -1,14 +1,14 @@
-"""Clock offset from continuous motion (camwhisker.clock) and its use by analyse_run."""
+"""Clock offset from continuous motion (camwhisker.contact.clock) and its use by analyse_run."""
 
 import math
 
 import numpy as np
 import pytest
 
-from camwhisker.clock import estimate_offset_motion, motion_events, noise_sd
+from camwhisker.contact.clock import estimate_offset_motion, motion_events, noise_sd
 from camwhisker.contact.pipeline import analyse_run
-from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
-from camwhisker.stage import stage_log_from_arrays
+from camwhisker.contact.stage import stage_log_from_arrays
+from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
 
 FRAME_S = 1.0 / 30.0
 
@@ -79,8 +79,8 @@ def test_a_box_left_at_the_stop_is_not_read_as_the_offset():
     """The box's whisker slides off its edge as the base stops: contact ends at the stop,
     a kink in phi(x) that a line around the stop reads as an offset (7 frames late before
     the in-contact rule). No event then counts: the spline's offset, se NaN (not pinned)."""
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE
-    from camwhisker.stage import CONTACT_PHI_DEG
+    from camwhisker.contact.stage import CONTACT_PHI_DEG
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE
 
     run = simulate_runs("slide-box", 1, noise=FRONT_END_NOISE,
                         protocol=continuous_protocol(1.0))[0]  # fmt: skip

@@ -83,7 +83,7 @@ def test_mismatched_pairs(root, tmp_path, capsys):
 def test_estimate_degenerate_inputs_defined(root):
     """phi = 0, dx = 0, negative dx/phi, NaN: NaN cells, no warnings (RuntimeWarning is an
     error under pytest's configuration), and finite estimates where inputs are good."""
-    from camwhisker.calibrate import read_calibration
+    from camwhisker.contact.calibrate import read_calibration
 
     calib_path = f"{root}/calib_degenerate.toml"
     assert _calibrate(root, calib_path) == 0
@@ -172,10 +172,10 @@ def test_no_row_ok_is_an_error_naming_the_file(root, tmp_path, capsys):
 def test_fig7a_draws_the_measured_pauses_with_a_legend_entry(root, monkeypatch):
     """Issue #21 item 10: Fig. 7A's measured data are one point per calibration pause,
     named in the legend (they were dozens of boxes a few px wide, with no entry)."""
-    from camwhisker.calibrate import CalibrationRun, calibrate
     from camwhisker.contact import plots
-    from camwhisker.signals import read_signal_table
-    from camwhisker.stage import read_stage_log
+    from camwhisker.contact.calibrate import CalibrationRun, calibrate
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.io.signals import read_signal_table
 
     runs = [CalibrationRun(read_signal_table(f"{root}/cal/{r}_signals.csv"),
                            read_stage_log(f"{root}/cal/{r}_stage.csv"))

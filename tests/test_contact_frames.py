@@ -11,10 +11,10 @@ from camwhisker.contact.pipeline import (
     doubt,
 )
 from camwhisker.contact.smooth import local_line
-from camwhisker.contact.surfels import read_surfels
-from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
-from camwhisker.stage import stage_log_from_arrays
-from camwhisker.tables import write_csv
+from camwhisker.contact.stage import stage_log_from_arrays
+from camwhisker.files.tables import write_csv
+from camwhisker.percept.surfels import read_surfels
+from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
 from tests.test_calibrate import calibration
 
 
@@ -94,10 +94,10 @@ def test_frame_table_round_trip_with_doubt(tmp_path):
 
 
 def test_simulate_continuous_then_contact_cli(tmp_path, capsys):
-    from camwhisker.calibrate import write_calibration
     from camwhisker.cli import main
-    from camwhisker.stage import detect_pauses, read_stage_log
-    from camwhisker.tables import read_columns
+    from camwhisker.contact.calibrate import write_calibration
+    from camwhisker.contact.stage import detect_pauses, read_stage_log
+    from camwhisker.files.tables import read_columns
 
     out = tmp_path / "sim"
     assert main(["simulate-stage", "--kind", "compliant", "--seed", "35", "--out", str(out),

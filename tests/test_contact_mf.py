@@ -145,9 +145,9 @@ def test_noise_free_calibration_reads_the_whisker_back_at_small_phi():
     smaller r); with a dz polynomial per run, -1.8 / -2.3 / -1.9 (its misfit, 2-3 % of dz
     there). The bound, 1.6 mm, lies between the two."""
     from camwhisker.bench.contact import calibrate_simulated
-    from camwhisker.mechanics.experiment import NoiseModel, peg_radii
-    from camwhisker.mechanics.scenes import PegScene, sweep
-    from camwhisker.mechanics.whisker import WhiskerMechanics
+    from camwhisker.sim.mechanics.experiment import NoiseModel, peg_radii
+    from camwhisker.sim.mechanics.scenes import PegScene, sweep
+    from camwhisker.sim.mechanics.whisker import WhiskerMechanics
 
     calib = calibrate_simulated(500, noise=NoiseModel(phi_deg=1e-4, dz_mm=1e-6),
                                 radii_mm=peg_radii(15))
@@ -163,14 +163,14 @@ def _mf_error_per_contact(pegs):
     paper's neighbouring radii and at five other radii none of whose runs calibrated MF
     (front-end noise; calibration on ``pegs`` pegs, seed 500)."""
     from camwhisker.bench.contact import calibrate_simulated, evaluate_run
-    from camwhisker.mechanics.experiment import (
+    from camwhisker.contact.stage import stage_log_from_arrays
+    from camwhisker.sim.mechanics.experiment import (
         FRONT_END_NOISE,
         PAPER_RIGID_RADII_MM,
         peg_radii,
         simulate_run,
     )
-    from camwhisker.mechanics.scenes import PegScene
-    from camwhisker.stage import stage_log_from_arrays
+    from camwhisker.sim.mechanics.scenes import PegScene
 
     calib = calibrate_simulated(500, noise=FRONT_END_NOISE, radii_mm=peg_radii(pegs))
     paper = np.array(PAPER_RIGID_RADII_MM)
@@ -195,7 +195,7 @@ def test_more_calibration_pegs_narrow_mf_between_them():
 
 
 def test_peg_radii():
-    from camwhisker.mechanics.experiment import PAPER_RIGID_RADII_MM, peg_radii
+    from camwhisker.sim.mechanics.experiment import PAPER_RIGID_RADII_MM, peg_radii
 
     assert peg_radii() == PAPER_RIGID_RADII_MM
     r = np.array(peg_radii(15))

@@ -14,6 +14,7 @@ from camwhisker.bench.contact import (
 )
 from camwhisker.contact.fusion import fuse
 from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.contact.zscore import (
     flag_rates,
     roc_auc,
@@ -21,9 +22,12 @@ from camwhisker.contact.zscore import (
     z_combined,
     z_dissimilarity,
 )
-from camwhisker.mechanics.experiment import NOISE_LEVELS, PAPER_RIGID_RADII_MM, simulate_run
-from camwhisker.mechanics.scenes import PegScene
-from camwhisker.stage import stage_log_from_arrays
+from camwhisker.sim.mechanics.experiment import (
+    NOISE_LEVELS,
+    PAPER_RIGID_RADII_MM,
+    simulate_run,
+)
+from camwhisker.sim.mechanics.scenes import PegScene
 
 # Seeds used only here (never looked at while the back end was written; the curve-fitted
 # MF table of 2026-11-23 was first tried on them too, its settings then fixed on tuning

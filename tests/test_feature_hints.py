@@ -32,13 +32,13 @@ import pytest
 
 from camwhisker.cli import main
 from camwhisker.cli.parser import build_parser
-from camwhisker.model import N_SQUARE, TIP, PlateModel
-from camwhisker.plate import Pose
-from camwhisker.sensor import Sensor, dump_sensor
-from camwhisker.synth.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
-from camwhisker.synth.render import Appearance, SceneRenderer
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS
-from camwhisker.video_out import write_video
+from camwhisker.io.video_out import write_video
+from camwhisker.sensor.file import Sensor, dump_sensor
+from camwhisker.sensor.model import N_SQUARE, TIP, PlateModel
+from camwhisker.sensor.plate import Pose
+from camwhisker.sim.render.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
+from camwhisker.sim.render.render import Appearance, SceneRenderer
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS
 from camwhisker.vision import FeaturesNotFound, FrontEnd, FrontEndOptions
 from camwhisker.vision.colour import white_balance_gains
 from camwhisker.vision.detect import WAY_OUT, detect_features
@@ -241,7 +241,7 @@ def test_calibrate_sensor_starts_its_sweep_with_the_hints(clip):
     """calibrate-sensor's first step, the tip's radius at rest, starts the front end on the
     sweep's first frame: with the wrong file it fails without hints and, with them, measures
     the radius the correct file gives (the same edge points; 0.01 px covers the gains)."""
-    from camwhisker.geometry.sweep import rest_tip_radius_px
+    from camwhisker.calibration.sweep import rest_tip_radius_px
 
     video = clip / "rest.avi"
     with pytest.raises(FeaturesNotFound, match="cross arm ends"):

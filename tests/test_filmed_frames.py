@@ -5,7 +5,7 @@ import numpy as np
 from camwhisker.bench.contact import calibrate_simulated
 from camwhisker.bench.filmed_frames import film_run
 from camwhisker.bench.frames import frame_runs, score_frames
-from camwhisker.mechanics.experiment import FRONT_END_NOISE
+from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE
 
 BUILD = 100  # held out: no constant was chosen on it
 

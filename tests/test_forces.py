@@ -19,14 +19,14 @@ import sys
 import numpy as np
 import pytest
 
+from camwhisker.calibration.springfile import SpringsFileError, read_springs
+from camwhisker.calibration.springs_fit import SpringRun, calibrate_springs
 from camwhisker.cli import main
-from camwhisker.forcelog import ForceLogError, read_force_log
-from camwhisker.forces import SpringRun, calibrate_springs
-from camwhisker.mechanics import simulate_runs
-from camwhisker.mechanics.ftsensor import simulate_force_log
-from camwhisker.mechanics.springs import SpringDesign, Stiffness, suspension_stiffness
-from camwhisker.signals import read_signal_table
-from camwhisker.springfile import SpringsFileError, read_springs
+from camwhisker.io.forcelog import ForceLogError, read_force_log
+from camwhisker.io.signals import read_signal_table
+from camwhisker.sensor.springs import SpringDesign, Stiffness, suspension_stiffness
+from camwhisker.sim.mechanics import simulate_runs
+from camwhisker.sim.mechanics.ftsensor import simulate_force_log
 
 MODEL = suspension_stiffness()
 TRUE = Stiffness(0.85 * MODEL.k_z_n_per_mm, 1.1 * MODEL.k_phi_nmm_per_rad, "simulator")
@@ -201,9 +201,9 @@ def test_calibrate_springs_bad_log_is_exit_2(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    from camwhisker.sensor import Sensor
-    from camwhisker.synth.scenarios import make_scenario
-    from camwhisker.synth.video import render_scenario
+    from camwhisker.sensor.file import Sensor
+    from camwhisker.sim.render.scenarios import make_scenario
+    from camwhisker.sim.render.video import render_scenario
 
     d = tmp_path_factory.mktemp("forces_batch")
     return render_scenario(make_scenario("nominal", 6, 912, fps=25.0), Sensor(), d / "n.avi",

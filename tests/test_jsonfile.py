@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camwhisker.jsonfile import dumps, plain
+from camwhisker.files.jsonfile import dumps, plain
 
 
 def _no_constants(name):
@@ -37,7 +37,7 @@ def test_plain_json_refuses_what_strict_json_refuses():
 
 
 def test_sidecars_are_strict(tmp_path):
-    from camwhisker.signals import write_sidecar
+    from camwhisker.io.signals import write_sidecar
 
     path = write_sidecar(tmp_path / "t.csv", {"phi_rmse_deg": np.float64(np.nan), "rows": 0})
     assert strict_loads(path.read_text()) == {"phi_rmse_deg": None, "rows": 0}

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.tables import read_columns, write_csv
+from camwhisker.files.tables import read_columns, write_csv
 
 WINDOW = 8
 ROWS = 2000

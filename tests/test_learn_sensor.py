@@ -14,6 +14,7 @@ import shutil
 import numpy as np
 import pytest
 
+from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.learn.sensor import (
     SENSOR_INPUTS,
     frame_inputs,
@@ -22,7 +23,6 @@ from camwhisker.learn.sensor import (
     sensor_columns,
 )
 from camwhisker.learn.series import LearnError, segments
-from camwhisker.stage import stage_log_from_arrays
 
 NAN = np.nan
 
@@ -115,13 +115,13 @@ E2E_MEDIAN_MAX_MM = 3.0
 def test_contact_learned_column_end_to_end(tmp_path, capsys):
     from camwhisker.bench.contact import _log, calibrate_simulated
     from camwhisker.bench.learn_sensor import SensorOptions, prepared_runs, training_tables
-    from camwhisker.calibrate import write_calibration
     from camwhisker.cli import main
+    from camwhisker.contact.calibrate import write_calibration
+    from camwhisker.files.tables import read_columns
     from camwhisker.learn.modeldir import save_model
     from camwhisker.learn.train import TrainOptions, train
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE, simulate_runs
-    from camwhisker.mechanics.files import write_runs
-    from camwhisker.tables import read_columns
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, simulate_runs
+    from camwhisker.sim.mechanics.files import write_runs
 
     inputs = ("phi_deg", "dz_mm", "dx_mm")
     opts = SensorOptions(variants=(inputs,))

@@ -29,13 +29,13 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.batch import run_batch
+from camwhisker.io.sources import VideoSource, read_timestamps, timestamps_path
 from camwhisker.live.capture import SourceCapture
 from camwhisker.live.loop import LiveConfig, LiveSession, reprocess_session, run_live
 from camwhisker.live.playback import PlaybackSource
-from camwhisker.sensor import load_sensor
-from camwhisker.sources import VideoSource, read_timestamps, timestamps_path
-from camwhisker.stream import GAP_REASON, live_track
+from camwhisker.run.batch import run_batch
+from camwhisker.sensor.file import load_sensor
+from camwhisker.vision.stream import GAP_REASON, live_track
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"
@@ -113,7 +113,7 @@ def test_opencv_capture_latest_mode(tmp_path, sensor):
 def test_recorded_session_reprocesses_to_the_same_rows(tmp_path, sensor):
     """Every-frame mode through cv2.VideoCapture, recorded, with UDP and JSON lines, and
     the forces (the spring model): live, replay and batch write the same table."""
-    from camwhisker.mechanics.springs import suspension_stiffness
+    from camwhisker.sensor.springs import suspension_stiffness
 
     springs = suspension_stiffness()
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

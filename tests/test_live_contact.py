@@ -35,30 +35,30 @@ import time
 import numpy as np
 import pytest
 
-from camwhisker.calibrate import read_calibration, write_calibration
 from camwhisker.cli.parser import main
 from camwhisker.contact.belief import find_onsets
 from camwhisker.contact.belief_table import table_belief
+from camwhisker.contact.calibrate import read_calibration, write_calibration
 from camwhisker.contact.fusion import KEEP_GM_POSTERIOR, OnlineFusion, fuse
 from camwhisker.contact.online import MAX_EXTRAPOLATE_S, BaseFeed, BaseTrack, OnlineContact
 from camwhisker.contact.pipeline import contact_rows, smooth_half_frames
-from camwhisker.live.base import BaseReceiver, base_log_path, parse_base_datagram
-from camwhisker.live.loop import LiveConfig, LiveSession
-from camwhisker.live.playback import PlaybackSource
-from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
-from camwhisker.mechanics.springs import suspension_stiffness
-from camwhisker.sensor import Sensor
-from camwhisker.signals import read_signal_table
-from camwhisker.stage import (
+from camwhisker.contact.stage import (
     ONSET_PHI_MAX_DEG,
     Pauses,
     pause_index,
     read_stage_log,
     stage_log_from_arrays,
 )
-from camwhisker.synth.experiment import pose_track
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, Scenario
-from camwhisker.synth.video import render_scenario
+from camwhisker.io.signals import read_signal_table
+from camwhisker.live.base import BaseReceiver, base_log_path, parse_base_datagram
+from camwhisker.live.loop import LiveConfig, LiveSession
+from camwhisker.live.playback import PlaybackSource
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.springs import suspension_stiffness
+from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
+from camwhisker.sim.render.experiment import pose_track
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, Scenario
+from camwhisker.sim.render.video import render_scenario
 from tests.test_calibrate import calibration
 
 FPS = 30.0

@@ -23,6 +23,8 @@ import pytest
 from camwhisker.bench.live import _jpegs, bench_frames
 from camwhisker.bench.live import main as bench_main
 from camwhisker.cli import main
+from camwhisker.io.signals import SignalWriter, write_signals
+from camwhisker.io.sources import VideoSource, read_timestamps, timestamps_path
 from camwhisker.live.cameras import (
     C310_PROFILE,
     NO_CAMERA_MESSAGE,
@@ -38,9 +40,7 @@ from camwhisker.live.capture import CameraCapture
 from camwhisker.live.grabber import Grabber
 from camwhisker.live.loop import LiveConfig, run_live
 from camwhisker.live.record import MjpgRoundTrip
-from camwhisker.sensor import load_sensor
-from camwhisker.signals import SignalWriter, write_signals
-from camwhisker.sources import VideoSource, read_timestamps, timestamps_path
+from camwhisker.sensor.file import load_sensor
 from camwhisker.vision.tracker import FrameResult
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"

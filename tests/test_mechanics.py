@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.mechanics import (
+from camwhisker.sim.mechanics import (
     PegScene,
     WhiskerMechanics,
     beam_peg_response,
@@ -13,9 +13,9 @@ from camwhisker.mechanics import (
     simulate_runs,
     sweep,
 )
-from camwhisker.mechanics.experiment import PAPER_C, PAPER_RIGID_RADII_MM
-from camwhisker.mechanics.scenes import SLIP_TOL_MM, BoxScene, CircleScene
-from camwhisker.mechanics.whisker import PHI_LINEAR_MAX_DEG, solve_elastica
+from camwhisker.sim.mechanics.experiment import PAPER_C, PAPER_RIGID_RADII_MM
+from camwhisker.sim.mechanics.scenes import SLIP_TOL_MM, BoxScene, CircleScene
+from camwhisker.sim.mechanics.whisker import PHI_LINEAR_MAX_DEG, solve_elastica
 
 MECH = WhiskerMechanics()
 
@@ -37,7 +37,7 @@ def test_zero_travel_gives_exactly_zero():
 
 def test_elastica_converged():
     # 64 RK4 steps vs 1024: differences far below the sensor noise (1e-4 deg, 1e-5 mm).
-    from camwhisker.mechanics.whisker import solve_elastica
+    from camwhisker.sim.mechanics.whisker import solve_elastica
 
     scene = PegScene(90.0)
     c = scene.constraint(MECH)
@@ -114,7 +114,7 @@ def test_box_sticks_at_the_corner_then_slides_up_its_face():
     assert np.all(np.diff(s.phi_deg[slide]) < 0.0)  # never grows again
     # The load sits on the cone's edge while sliding.
     for x in xs[slide][::5]:
-        from camwhisker.mechanics.scenes import _stick_or_slip
+        from camwhisker.sim.mechanics.scenes import _stick_or_slip
 
         i = int(np.flatnonzero(xs == x)[0])
         sol, slid = _stick_or_slip(BOX, MECH, x, (s.contact_x_mm[i - 1], s.contact_y_mm[i - 1]),

@@ -14,16 +14,15 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.model import PlateModel, geometry_vector
-from camwhisker.plate import Pose
-from camwhisker.sensor import Sensor
-from camwhisker.sources import Frame
-from camwhisker.stream import RestRecord, stream
-from camwhisker.synth.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
-from camwhisker.synth.render import SceneRenderer
-from camwhisker.synth.scenarios import make_scenario
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import PlateModel, geometry_vector
+from camwhisker.sensor.plate import Pose
+from camwhisker.sim.render.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
+from camwhisker.sim.render.render import SceneRenderer
+from camwhisker.sim.render.scenarios import make_scenario
 from camwhisker.vision import FrontEnd
 from camwhisker.vision.mismatch import PHI_ERROR_WARN_DEG, check_mismatch, phi_error_deg
+from camwhisker.vision.stream import Frame, RestRecord, stream
 
 
 def _rest_frame(sensor: Sensor, scene: str, seed: int) -> np.ndarray:

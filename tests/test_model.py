@@ -12,14 +12,14 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.model import (
+from camwhisker.sensor.file import OPTIONAL_PLATE_KEYS, PlateConfig, Sensor
+from camwhisker.sensor.model import (
     GEOMETRY_NAMES,
     TIP,
     PlateModel,
     geometry_vector,
     with_geometry,
 )
-from camwhisker.sensor import OPTIONAL_PLATE_KEYS, PlateConfig, Sensor
 
 REL_TOL = 1e-6
 ABS_TOL = 1e-7

@@ -28,8 +28,7 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.model import N_SQUARE, TIP
-from camwhisker.overlay import (
+from camwhisker.run.overlay import (
     ARROW_BGR,
     OUTLINE_BGR,
     TRACKED_BGR,
@@ -41,10 +40,11 @@ from camwhisker.overlay import (
     status_line,
     write_rest_check,
 )
-from camwhisker.plate import Pose, feature_pixels
-from camwhisker.sensor import Sensor, dump_sensor, load_sensor
-from camwhisker.synth.scenarios import make_scenario
-from camwhisker.synth.video import render_scenario
+from camwhisker.sensor.file import Sensor, dump_sensor, load_sensor
+from camwhisker.sensor.model import N_SQUARE, TIP
+from camwhisker.sensor.plate import Pose, feature_pixels
+from camwhisker.sim.render.scenarios import make_scenario
+from camwhisker.sim.render.video import render_scenario
 from camwhisker.vision.tracker import FrameResult, FrontEnd
 
 COLOUR_TOL_DN = 60
@@ -117,7 +117,7 @@ def test_output_has_every_frame_at_the_input_size(scene, annotated):
     assert len(frames) == len(scene["frames"]) == N_FRAMES
     assert {f.shape for f in frames} == {scene["frames"][0].shape} == {(720, 1280, 3)}
     meta = json.loads((d / "ann.overlay.json").read_text())
-    assert meta["camwhisker_version"] and meta["made_by"] == "camwhisker.overlay.annotate_video"
+    assert meta["camwhisker_version"] and meta["made_by"] == "camwhisker.run.overlay.annotate_video"
     assert meta["frames"] == N_FRAMES and meta["frames_ok"] == N_FRAMES
     assert meta["arrow_scale"] == 10.0 and meta["rest_frame"] == 0
     assert meta["sensor_file"] == str(scene["paths"]["sensor"])

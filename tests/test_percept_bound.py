@@ -44,8 +44,8 @@ def test_a_turned_second_run_narrows_the_bound():
     from camwhisker.bench.contact import calibrate_simulated
     from camwhisker.bench.percept_bound import wall_angle_bound_deg
     from camwhisker.bench.percepts import CALIB_SEED, simulate_sweep
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE, peg_radii
-    from camwhisker.mechanics.objects import draw_sweep
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, peg_radii
+    from camwhisker.sim.mechanics.objects import draw_sweep
 
     # Tuning walls at the front end's target noise. The first run of 2563 slides at phi
     # 1.4-2.8 deg, where MF scatters 20-50 mm along the whisker per pause; 2000's at 6-11 deg;

@@ -9,10 +9,10 @@ import pytest
 
 from camwhisker.cli import main
 from camwhisker.contact.fusion import KEEP_GM_POSTERIOR
-from camwhisker.contact.percepts import MIN_SURFELS, fit_model, object_of, perceive
 from camwhisker.contact.shape import reconstruct
-from camwhisker.contact.surfels import Pose, merge, surfels_from_columns
-from camwhisker.tables import write_csv
+from camwhisker.files.tables import write_csv
+from camwhisker.percept.percepts import MIN_SURFELS, fit_model, object_of, perceive
+from camwhisker.percept.surfels import Pose, merge, surfels_from_columns
 
 # Contact points scatter 0.2 mm about the surface here, as the fused points of the
 # simulated box and bottle do.
@@ -357,7 +357,7 @@ def test_simulated_sweeps_of_each_object():
 
 
 def test_a_turned_run_sees_the_same_wall():
-    from camwhisker.mechanics.objects import draw_sweep, turned_wall_run
+    from camwhisker.sim.mechanics.objects import draw_sweep, turned_wall_run
 
     # The turned run's face, put back in the common frame by its pose, is the wall: its lower
     # end on the wall's, its top on the wall's line (to rounding).
@@ -373,7 +373,7 @@ def test_a_turned_run_sees_the_same_wall():
 
 
 def test_the_second_run_turns_the_fitted_line_steep():
-    from camwhisker.contact.percepts import BLIND_TURN_DEG, RISE_DEG, steep_turn_deg
+    from camwhisker.percept.percepts import BLIND_TURN_DEG, RISE_DEG, steep_turn_deg
 
     # A wall at 75 deg fitted to 0.07 deg (test_line_fit_recovers_the_wall): turned by
     # 75 - RISE_DEG within 0.5 deg. Two contacts fit no line: the blind turn.
@@ -397,7 +397,7 @@ def test_corner_whose_first_slide_comes_from_scattered_mf():
 
 def test_nothing_swept_at_a_quiet_front_ends_noise_is_no_object():
     from camwhisker.bench.percepts import run_campaign
-    from camwhisker.mechanics.experiment import NoiseModel
+    from camwhisker.sim.mechanics.experiment import NoiseModel
 
     # Tuning seeds 9 and 19 (nothing touched) at the noise the front end reaches on hand-made
     # builds, calibrated on 15 pegs: while MF's floor fell to 0 deg there, both were walls.
@@ -409,8 +409,8 @@ def test_after_a_slip_under_mfs_floor_gm_alone_is_no_contact_point():
     from camwhisker.bench.contact import _log, calibrate_simulated
     from camwhisker.bench.percepts import CALIB_SEED, PROTOCOL, run_campaign
     from camwhisker.contact.pipeline import contact_rows
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE, peg_radii, simulate_run
-    from camwhisker.mechanics.objects import draw_sweep
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, peg_radii, simulate_run
+    from camwhisker.sim.mechanics.objects import draw_sweep
 
     # Tuning sweep 126: the wall's contact sticks at its lower end until phi 2.4 deg, then
     # slips up the face with phi steady under MF's floor (2.5 deg). GM alone read the slide

@@ -6,8 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.camera import project, project_rigid
-from camwhisker.plate import (
+from camwhisker.sensor.camera import project, project_rigid
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.plate import (
     Pose,
     corner_edge_directions,
     cross_arm_edges,
@@ -25,7 +26,6 @@ from camwhisker.plate import (
     rotation_cam_from_plate,
     square_corners,
 )
-from camwhisker.sensor import Sensor
 
 SENSOR = Sensor()
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from camwhisker.polygon import polygon_centroid, polygon_centroid_jacobian
+from camwhisker.sensor.polygon import polygon_centroid, polygon_centroid_jacobian
 
 
 def _ellipse(n=64, centre=(300.0, 200.0), axes=(40.0, 25.0), angle=0.4):

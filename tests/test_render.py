@@ -12,10 +12,10 @@ every row, and the mean over rows is far tighter.
 import numpy as np
 import pytest
 
-from camwhisker.camera import project
-from camwhisker.plate import Pose, plate_to_camera, square_corners
-from camwhisker.sensor import Sensor
-from camwhisker.synth.render import SceneRenderer, fibonacci_offsets
+from camwhisker.sensor.camera import project
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.plate import Pose, plate_to_camera, square_corners
+from camwhisker.sim.render.render import SceneRenderer, fibonacci_offsets
 
 RED = 2
 HALF_WINDOW = 6  # px either side of the predicted edge; the cross stays > 20 px away

@@ -1,4 +1,4 @@
-"""The rest reference averaged over the frames at rest (camwhisker.stream).
+"""The rest reference averaged over the frames at rest (camwhisker.vision.stream).
 
 | check | expectation | reason |
 |---|---|---|
@@ -17,14 +17,13 @@ import numpy as np
 import pytest
 
 from camwhisker.live.loop import LiveProcessor
-from camwhisker.plate import Pose
-from camwhisker.sensor import Sensor
-from camwhisker.sources import Frame
-from camwhisker.stream import ONE_FRAME_WARNING, REST_FRAMES, stream
-from camwhisker.synth.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
-from camwhisker.synth.render import SceneRenderer
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.plate import Pose
+from camwhisker.sim.render.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
+from camwhisker.sim.render.render import SceneRenderer
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS
 from camwhisker.vision import FrontEnd, FrontEndOptions
+from camwhisker.vision.stream import ONE_FRAME_WARNING, REST_FRAMES, Frame, stream
 
 SENSOR = Sensor()
 AVERAGED = FrontEndOptions()  # the default: averaged over up to REST_FRAMES
@@ -125,7 +124,7 @@ def test_rebuilt_reference_keeps_the_first_frames_points(renderer):
     """The mean image's reference takes its corners from the first frame's detection
     (nothing to fail where a mean image loses a corner) and measures the tip anew: within
     0.05 px of the first frame's (~5x the tip's rest noise at this webcam)."""
-    from camwhisker.model import TIP
+    from camwhisker.sensor.model import TIP
     from camwhisker.vision.rest import mean_image
 
     frames = _frames(renderer, [Pose()] * 10, seed=44)

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from camwhisker.sensor import Sensor, SensorFileError, dump_sensor, load_sensor
+from camwhisker.sensor.file import Sensor, SensorFileError, dump_sensor, load_sensor
 
 
 def write(tmp_path, text):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camwhisker.sources import (
+from camwhisker.io.sources import (
     TIMESTAMP_COLUMNS,
     ImageFolderSource,
     SessionSource,
@@ -14,7 +14,7 @@ from camwhisker.sources import (
     open_source,
     timestamps_path,
 )
-from camwhisker.synth.video import write_video
+from camwhisker.sim.render.video import write_video
 
 
 def _frames(n, h=72, w=128):

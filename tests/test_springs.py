@@ -1,4 +1,4 @@
-"""The spring model (camwhisker.mechanics.springs) against hand-worked beam cases.
+"""The spring model (camwhisker.sensor.springs) against hand-worked beam cases.
 
 Tolerances: a grillage beam element is exact for end loads, so the chain's
 stiffness matches the closed forms to rounding (1e-9 relative); Roark's
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.mechanics.springs import (
+from camwhisker.sensor.springs import (
     SpringDesign,
     SpringDesignError,
     end_stiffness,

@@ -5,8 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from camwhisker.mechanics import simulate_runs
-from camwhisker.stage import (
+from camwhisker.contact.stage import (
     StageLogError,
     contact_onset_x,
     detect_pauses,
@@ -15,6 +14,7 @@ from camwhisker.stage import (
     read_stage_log,
     stage_log_from_arrays,
 )
+from camwhisker.sim.mechanics import simulate_runs
 
 
 def _write(tmp_path, text):
@@ -141,7 +141,7 @@ def test_onset_from_the_frames_of_a_slow_sweep():
     """Frames of continuous sweeps at 1 mm/s (the front end's noise): single frames near
     the onset dip under CONTACT_PHI_DEG and must not end the onset's fit. Seen: within
     0.03 mm on every run; bound 0.2 mm, a fifth of the simulator's 1 mm step."""
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE, continuous_protocol
+    from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, continuous_protocol
 
     for run in simulate_runs("rigid", 1, noise=FRONT_END_NOISE, protocol=continuous_protocol(1.0)):
         log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])

@@ -7,12 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.plate import Pose, feature_pixels
-from camwhisker.sensor import Sensor, load_sensor
-from camwhisker.synth.artefacts import Artefacts, apply_artefacts, jpeg_roundtrip
-from camwhisker.synth.samples import describe_video
-from camwhisker.synth.scenarios import SCENARIOS, PoseTrack, make_scenario
-from camwhisker.synth.video import render_frames, render_scenario, write_video
+from camwhisker.sensor.file import Sensor, load_sensor
+from camwhisker.sensor.plate import Pose, feature_pixels
+from camwhisker.sim.render.artefacts import Artefacts, apply_artefacts, jpeg_roundtrip
+from camwhisker.sim.render.samples import describe_video
+from camwhisker.sim.render.scenarios import SCENARIOS, PoseTrack, make_scenario
+from camwhisker.sim.render.video import render_frames, render_scenario, write_video
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))
@@ -145,7 +145,7 @@ def test_jpeg_roundtrip_quality_orders_error():
 
 def test_out_of_range_pose_renders_without_warnings():
     # The plate pushed far sideways: most features out of frame, no NaN, no warning.
-    from camwhisker.synth.render import SceneRenderer
+    from camwhisker.sim.render.render import SceneRenderer
 
     img = SceneRenderer(Sensor()).geometry(Pose(sx_mm=30.0))
     assert np.isfinite(img).all()
@@ -156,7 +156,7 @@ def test_out_of_range_pose_renders_without_warnings():
 def test_bundled_sample_regenerates_bit_for_bit(tmp_path):
     from pathlib import Path
 
-    from camwhisker.synth.samples import SAMPLES
+    from camwhisker.sim.render.samples import SAMPLES
 
     bundled = Path(__file__).resolve().parents[1] / "sample_frames"
     sample = next(s for s in SAMPLES if s.file.endswith(".avi"))  # the shortest clip

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from camwhisker.bench.systematics import GROUPS, refit_with_true_points, tilt_coefficients
-from camwhisker.geometry.adjust import adjust_geometry, bias_terms
-from camwhisker.geometry.sweep import Calibration, TrackedSweep
-from camwhisker.model import TIP, PlateModel, geometry_vector
-from camwhisker.sensor import OPTIONAL_PLATE_KEYS, Sensor
+from camwhisker.calibration.adjust import adjust_geometry, bias_terms
+from camwhisker.calibration.sweep import Calibration, TrackedSweep
+from camwhisker.sensor.file import OPTIONAL_PLATE_KEYS, Sensor
+from camwhisker.sensor.model import TIP, PlateModel, geometry_vector
 from camwhisker.vision.mismatch import phi_response
 from tests.test_calibrate_sensor import (
     N_REST,

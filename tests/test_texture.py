@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 
 from camwhisker.cli import main
-from camwhisker.contact.texture import TextureError, estimate_texture, stage_speed
-from camwhisker.mechanics.experiment import NoiseModel
-from camwhisker.mechanics.mode import first_mode_hz
-from camwhisker.mechanics.texture import (
+from camwhisker.percept.texture import TextureError, estimate_texture, stage_speed
+from camwhisker.sim.mechanics.experiment import NoiseModel
+from camwhisker.sim.mechanics.mode import first_mode_hz
+from camwhisker.sim.mechanics.texture import (
     MODE_DAMPING,
     TextureProtocol,
     TextureSurface,
     simulate_texture,
 )
-from camwhisker.mechanics.whisker import WhiskerMechanics
+from camwhisker.sim.mechanics.whisker import WhiskerMechanics
 
 CLEAN = NoiseModel(phi_deg=0.0, dz_mm=0.0, dropout=0.0)
 LENGTH_MM = WhiskerMechanics().length_mm
@@ -186,7 +186,7 @@ def test_bench_takes_the_smallest_gap_with_every_larger_one_resolved():
 
 
 def test_a_flat_extremum_falls_back_to_the_plain_least_squares_se():
-    from camwhisker.contact.texture import _period, _timing_cov
+    from camwhisker.percept.texture import _period, _timing_cov
 
     rng = np.random.default_rng(3)
     maxima = 0.5 * np.arange(12) + rng.normal(0, 0.01, 12)

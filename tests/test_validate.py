@@ -7,11 +7,10 @@ import tomllib
 import numpy as np
 import pytest
 
+from camwhisker.calibration.validate import ValidationError, rigid_phi_deg, validate
 from camwhisker.cli import main
-from camwhisker.mechanics import NoiseModel, simulate_runs
-from camwhisker.mechanics.rigid import rigid_phi_deg
-from camwhisker.stage import read_stage_log, stage_log_from_arrays
-from camwhisker.validate import ValidationError, validate
+from camwhisker.contact.stage import read_stage_log, stage_log_from_arrays
+from camwhisker.sim.mechanics import NoiseModel, simulate_runs
 
 PAPER = NoiseModel()  # the paper's RMSE as per-frame noise: phi 0.22 deg, dz 0.04 mm
 

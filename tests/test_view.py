@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 
 from camwhisker.bench.view import headless_chromium, quit_chromium
+from camwhisker.io.sources import read_timestamps, timestamps_path
 from camwhisker.live.loop import LiveConfig, LiveSession
 from camwhisker.live.playback import PlaybackSource
 from camwhisker.live.view import CLIENT_IDLE_S, VIEW_WIDTH_PX
-from camwhisker.sensor import load_sensor
-from camwhisker.sources import read_timestamps, timestamps_path
+from camwhisker.sensor.file import load_sensor
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"
@@ -212,9 +212,9 @@ def test_a_taken_port_is_an_error_that_writes_nothing(tmp_path, sensor):
 def test_state_figures_from_published_rows():
     """Rows handed over as the loop does: the state has each once, in order, with the frame
     rate from their times and the latency percentiles of the last STATS_ROWS."""
+    from camwhisker.io.sources import Frame
     from camwhisker.live.view import STATS_ROWS, LiveView
-    from camwhisker.model import PlateModel
-    from camwhisker.sources import Frame
+    from camwhisker.sensor.model import PlateModel
     from camwhisker.vision.tracker import FrameResult
 
     commands = []

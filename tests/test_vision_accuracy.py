@@ -28,13 +28,13 @@ import math
 import numpy as np
 import pytest
 
-from camwhisker.model import TIP
-from camwhisker.sensor import Sensor
-from camwhisker.stream import track
-from camwhisker.synth.artefacts import jpeg_roundtrip
-from camwhisker.synth.scenarios import PoseTrack, make_scenario, wrap_deg
-from camwhisker.synth.video import render_frames
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import TIP
+from camwhisker.sim.render.artefacts import jpeg_roundtrip
+from camwhisker.sim.render.scenarios import PoseTrack, make_scenario, wrap_deg
+from camwhisker.sim.render.video import render_frames
 from camwhisker.vision import FeaturesNotFound, FrontEnd, FrontEndOptions
+from camwhisker.vision.stream import track
 from camwhisker.vision.tracker import RIM_REFIT_MM, RIM_REFIT_RAD
 
 
@@ -291,10 +291,10 @@ def test_no_phi_bias_at_large_tilt_under_blur():
     """Blur pulls each detected corner ~1 px into its feature; that offset turns and
     shrinks with the corner under tilt (the tracker moves it by the corner's affine map).
     Noise-free frames, so the mean error over 4 directions is the bias alone."""
-    from camwhisker.plate import Pose
-    from camwhisker.synth.artefacts import apply_artefacts, illumination_field
-    from camwhisker.synth.render import SceneRenderer
-    from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS
+    from camwhisker.sensor.plate import Pose
+    from camwhisker.sim.render.artefacts import apply_artefacts, illumination_field
+    from camwhisker.sim.render.render import SceneRenderer
+    from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS
 
     art = dataclasses.replace(NOMINAL_ARTEFACTS, noise_dn=0.0, cast_drift=0.0, flicker=0.0,
                               jpeg_quality=0)  # fmt: skip

@@ -23,10 +23,10 @@ import cv2
 import numpy as np
 import pytest
 
-from camwhisker.model import TIP, PlateModel
-from camwhisker.plate import Pose, feature_pixels
-from camwhisker.polygon import polygon_area, polygon_centroid
-from camwhisker.sensor import Sensor
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import TIP, PlateModel
+from camwhisker.sensor.plate import Pose, feature_pixels
+from camwhisker.sensor.polygon import polygon_area, polygon_centroid
 from camwhisker.vision import paper
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import (
@@ -749,7 +749,7 @@ def test_ellipse_centre_exact_on_an_ellipse_and_none_on_a_line():
 
 def test_bench_errors_and_table():
     from camwhisker.bench.vision import BenchRow, _errors, table
-    from camwhisker.synth.scenarios import PoseTrack
+    from camwhisker.sim.render.scenarios import PoseTrack
 
     z = np.zeros(4)
     truth = PoseTrack(np.arange(4.0), np.array([0, 0.5, 0.5, 1.0]), np.array([0, 1, 20, 30.0]),

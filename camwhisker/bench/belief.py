@@ -4,11 +4,11 @@ Issue #22 item 3's done-when: on simulated runs the onset is found within 2
 frames of the true one, and 10 minutes of no-contact video (18,000 frames at
 30 frames/s, nominal noise) give no false contact. Both use the front end's real
 noise: frames rendered with the nominal webcam's artefacts, JPEG-compressed as
-MJPG (quality 88), tracked by :func:`camwhisker.stream.stream` as batch does
+MJPG (quality 88), tracked by :func:`camwhisker.vision.stream.stream` as batch does
 (rest segment held and re-measured), then :func:`~camwhisker.contact.belief.find_onsets`
 with eta from the stream's own rest frames.
 
-- Onsets: the mechanics' stage runs (:func:`~camwhisker.mechanics.simulate_runs`,
+- Onsets: the mechanics' stage runs (:func:`~camwhisker.sim.mechanics.simulate_runs`,
   rigid and compliant pegs at 30 frames/s, the base at two speeds: :data:`PROTOCOLS`).
   Each run is rendered as 1 s at rest (the reference), then the frames around its
   true onset (the first frame whose base is past first contact); the pose before
@@ -32,19 +32,18 @@ from collections.abc import Iterator
 import numpy as np
 
 from camwhisker.contact.belief import eta_from_rest, find_onsets
-from camwhisker.mechanics import (
+from camwhisker.sensor.file import Sensor
+from camwhisker.sim.mechanics import (
     NOISE_LEVELS,
     NoiseModel,
     StageProtocol,
     signal_arrays,
     simulate_runs,
 )
-from camwhisker.sensor import Sensor
-from camwhisker.sources import Frame
-from camwhisker.stream import stream
-from camwhisker.synth.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
-from camwhisker.synth.render import SceneRenderer
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, PoseTrack
+from camwhisker.sim.render.artefacts import apply_artefacts, illumination_field, jpeg_roundtrip
+from camwhisker.sim.render.render import SceneRenderer
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, PoseTrack
+from camwhisker.vision.stream import Frame, stream
 
 __all__ = ["FPS", "REST_S", "WINDOW_FRAMES", "PROTOCOLS", "render_poses", "belief_of_track",
            "onset_errors", "signal_onset_errors", "false_contacts", "main"]  # fmt: skip

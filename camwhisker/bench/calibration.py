@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip, seed_list
-from camwhisker.geometry.sweep import calibrate_sensor
-from camwhisker.model import GEOMETRY_NAMES, PlateModel, geometry_vector
-from camwhisker.sensor import Sensor
-from camwhisker.sources import VideoSource
-from camwhisker.synth.builds import REALITY_SUITE, draw_build
+from camwhisker.calibration.sweep import calibrate_sensor
+from camwhisker.io.sources import VideoSource
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import GEOMETRY_NAMES, PlateModel, geometry_vector
+from camwhisker.sim.render.builds import REALITY_SUITE, draw_build
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_error_deg
 

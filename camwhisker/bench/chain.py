@@ -1,7 +1,7 @@
 """The whole mission on a filmed stage experiment, checked against the simulator's truth.
 
 :func:`run_chain` takes a folder made by
-:func:`camwhisker.synth.experiment.render_experiment` (videos, stage logs on
+:func:`camwhisker.sim.render.experiment.render_experiment` (videos, stage logs on
 the stage's clock, truth) and runs what a user runs, in order:
 
 1. ``batch``: the vision front end on every video (in parallel processes);
@@ -23,21 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__, jsonfile
-from camwhisker.atomic import atomic_path
+from camwhisker import __version__
 from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
-from camwhisker.calibrate import CalibrationRun, calibrate, write_calibration
-from camwhisker.campaign import BatchTask, run_many, sidecar_path
+from camwhisker.contact.calibrate import CalibrationRun, calibrate, write_calibration
 from camwhisker.contact.pipeline import contact_rows
+from camwhisker.contact.stage import read_stage_log
 from camwhisker.contact.zscore import flag_rates, roc_auc
-from camwhisker.mechanics.experiment import scene_by_name
-from camwhisker.sensor import load_sensor
-from camwhisker.signals import read_signal_table
-from camwhisker.stage import read_stage_log
-from camwhisker.synth.experiment import read_experiment
-from camwhisker.synth.scenarios import PoseTrack
-from camwhisker.synth.video import sidecar_paths
-from camwhisker.tables import read_columns, write_csv
+from camwhisker.files import jsonfile
+from camwhisker.files.atomic import atomic_path
+from camwhisker.files.tables import read_columns, write_csv
+from camwhisker.io.signals import read_signal_table
+from camwhisker.run.campaign import BatchTask, run_many, sidecar_path
+from camwhisker.sensor.file import load_sensor
+from camwhisker.sim.mechanics.experiment import scene_by_name
+from camwhisker.sim.render.experiment import read_experiment
+from camwhisker.sim.render.scenarios import PoseTrack
+from camwhisker.sim.render.video import sidecar_paths
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "FLAG_Z", "SHAPE_TOL_MM",

@@ -6,7 +6,7 @@ the truth; :func:`summary` computes the numbers of issue #4 (RMSE and bias of
 GM, MF and fused estimates, AUC and flag rates of both Z scores);
 :func:`benchmark` times the vectorised core and prints samples/s beside the error.
 :func:`run_bench` does all of it at each noise level of
-:data:`~camwhisker.mechanics.experiment.NOISE_LEVELS` (the paper's, our front end's).
+:data:`~camwhisker.sim.mechanics.experiment.NOISE_LEVELS` (the paper's, our front end's).
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ import time
 import numpy as np
 
 from camwhisker.bench.frames import evaluate_frames, format_frames
-from camwhisker.calibrate import CalibrationRun, calibrate
+from camwhisker.contact.calibrate import CalibrationRun, calibrate
 from camwhisker.contact.pipeline import Calibration, analyse_run, estimate, pause_estimates
 from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.contact.zscore import flag_rates, roc_auc
-from camwhisker.mechanics.experiment import NOISE_LEVELS, simulate_runs
-from camwhisker.stage import stage_log_from_arrays
+from camwhisker.sim.mechanics.experiment import NOISE_LEVELS, simulate_runs
 
 __all__ = ["BAD_GM_ERROR_MM", "calibrate_simulated", "evaluate_run", "pool",
            "evaluate_kind", "summary", "benchmark",
@@ -144,9 +144,10 @@ def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
               speeds_mm_s: tuple = (1.0, 2.5, 5.0)) -> dict:
     """Calibrate on rigid runs of ``seed``, evaluate all kinds on ``seed + 1``, per noise level.
 
-    Each level of ``noise_levels`` (default :data:`~camwhisker.mechanics.experiment.NOISE_LEVELS`:
-    the paper's noise and our front end's) gets its own calibration (unless
-    ``calib`` is given) and evaluation, as a sensor with that noise would.
+    Each level of ``noise_levels`` (default
+    :data:`~camwhisker.sim.mechanics.experiment.NOISE_LEVELS`: the paper's noise and our front
+    end's) gets its own calibration (unless ``calib`` is given) and evaluation, as a sensor with
+    that noise would.
 
     Per level also the per-frame scores (:mod:`camwhisker.bench.frames`) of paused
     runs and of continuous sweeps at each of ``speeds_mm_s``.
@@ -169,7 +170,7 @@ def run_bench(seed: int, calib: Calibration | None = None, figures_dir=None,
         from pathlib import Path
 
         from camwhisker.contact.plots import plot_error_boxes, plot_shapes
-        from camwhisker.mechanics.experiment import _scenes
+        from camwhisker.sim.mechanics.experiment import _scenes
 
         name = next(iter(out["levels"]))
         noise = first["noise"]

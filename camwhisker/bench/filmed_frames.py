@@ -3,18 +3,18 @@
 :mod:`camwhisker.bench.frames` scores the contact chain on the simulator's
 signals with Gaussian noise. Here the same runs (every contact kind, paused or
 swept at a constant speed) are filmed on a hand-made build
-(:func:`~camwhisker.synth.builds.draw_build`: its own camera, geometry, look
+(:func:`~camwhisker.sim.render.builds.draw_build`: its own camera, geometry, look
 and webcam), written as MJPG, decoded and tracked with the build's true sensor
 file as ``batch`` does, and the tracker's signal table goes through
 :func:`~camwhisker.contact.pipeline.contact_rows` (frame mode, clock offset
 estimated) and is scored as there. The calibration is the simulated one at the
-front end's noise target (:data:`~camwhisker.mechanics.experiment.FRONT_END_NOISE`),
+front end's noise target (:data:`~camwhisker.sim.mechanics.experiment.FRONT_END_NOISE`),
 as in ``contact-bench``: MF's phi floor is the one a user's calibration at that
 noise would set.
 
     python -m camwhisker.bench.filmed_frames [--builds 100] [--speeds 1,5] [--cache DIR]
 
-Builds are those of :data:`~camwhisker.synth.builds.REALITY_SUITE`; none of this
+Builds are those of :data:`~camwhisker.sim.render.builds.REALITY_SUITE`; none of this
 bench's numbers were used to choose a constant.
 """
 
@@ -31,13 +31,13 @@ from tqdm import tqdm
 from camwhisker.bench.contact import calibrate_simulated
 from camwhisker.bench.frames import format_frames, frame_runs, score_frames
 from camwhisker.bench.reality import seed_list
-from camwhisker.mechanics.experiment import FRONT_END_NOISE, StageProtocol
-from camwhisker.sources import VideoSource
-from camwhisker.stream import REST_FRAMES, stream
-from camwhisker.synth.builds import REALITY_SUITE, draw_build
-from camwhisker.synth.experiment import pose_track
-from camwhisker.synth.scenarios import NOMINAL_ARTEFACTS, Scenario
-from camwhisker.synth.video import render_scenario, sidecar_paths
+from camwhisker.io.sources import VideoSource
+from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, StageProtocol
+from camwhisker.sim.render.builds import REALITY_SUITE, draw_build
+from camwhisker.sim.render.experiment import pose_track
+from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, Scenario
+from camwhisker.sim.render.video import render_scenario, sidecar_paths
+from camwhisker.vision.stream import REST_FRAMES, stream
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["film_run", "filmed_scores", "main"]

@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from camwhisker.contact.pipeline import Calibration, contact_rows
+from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.contact.zscore import roc_auc
-from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
-from camwhisker.stage import stage_log_from_arrays
+from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
 
 __all__ = ["FRAME_KINDS", "PHI_MIN_DEG", "frame_runs", "evaluate_frames", "score_frames",
            "format_frames"]

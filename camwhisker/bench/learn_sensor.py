@@ -1,6 +1,6 @@
 """The learned estimator on our sensor (issue #24 item 5), beside GM, MF and fused.
 
-Per noise level (:data:`~camwhisker.mechanics.experiment.NOISE_LEVELS`: the paper's, our
+Per noise level (:data:`~camwhisker.sim.mechanics.experiment.NOISE_LEVELS`: the paper's, our
 front end's), as contact-bench does: calibrate GM and MF on the simulated rigid runs of
 ``seed``, and train the learned estimator on the frames of the same runs
 (:mod:`camwhisker.learn.sensor`: phi, dz, theta, base travel -> the stage log's r). Then
@@ -27,7 +27,7 @@ from camwhisker.learn.sensor import (
     run_tables,
     sensor_columns,
 )
-from camwhisker.mechanics.experiment import NOISE_LEVELS, simulate_runs
+from camwhisker.sim.mechanics.experiment import NOISE_LEVELS, simulate_runs
 
 __all__ = ["SCENES", "PIPELINE", "VARIANTS", "SensorOptions", "variant_name", "prepared_runs",
            "training_tables", "score_scene", "run_sensor", "format_sensor"]  # fmt: skip

@@ -41,9 +41,9 @@ import numpy as np
 
 from camwhisker.live.loop import LiveProcessor, latency_summary
 from camwhisker.live.record import MjpgRoundTrip
-from camwhisker.sensor import Sensor, load_sensor
-from camwhisker.synth.scenarios import PoseTrack, make_scenario
-from camwhisker.synth.video import render_scenario, sidecar_paths
+from camwhisker.sensor.file import Sensor, load_sensor
+from camwhisker.sim.render.scenarios import PoseTrack, make_scenario
+from camwhisker.sim.render.video import render_scenario, sidecar_paths
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["BENCH_SEED", "TARGET_P99_MS", "TARGET_CONTACT_P99_MS", "LatencyBench",
@@ -223,12 +223,11 @@ class ContactBench:
 
 def bench_contact(fps: float = 30.0) -> ContactBench:
     """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes)."""
-    from camwhisker.calibrate import CalibrationRun, calibrate
+    from camwhisker.contact.calibrate import CalibrationRun, calibrate
+    from camwhisker.contact.stage import stage_log_from_arrays
     from camwhisker.live.contact import RowContact
-    from camwhisker.mechanics.experiment import continuous_protocol, simulate_runs
-    from camwhisker.sources import Frame
-    from camwhisker.stage import stage_log_from_arrays
-    from camwhisker.stream import RestRecord
+    from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
+    from camwhisker.vision.stream import Frame, RestRecord
     from camwhisker.vision.tracker import FrameResult
 
     cal_runs = [CalibrationRun(r.signals, stage_log_from_arrays(r.stage["t_s"], r.stage["x_mm"],

@@ -25,7 +25,7 @@ from collections.abc import Iterable, Iterator
 import cv2
 import numpy as np
 
-from camwhisker.model import TIP
+from camwhisker.sensor.model import TIP
 from camwhisker.vision.lk import PATCH_HALF_PX
 
 __all__ = [

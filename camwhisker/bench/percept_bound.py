@@ -21,7 +21,7 @@ import numpy as np
 
 from camwhisker.contact.mf import r_mf
 from camwhisker.contact.shape import reconstruct
-from camwhisker.contact.surfels import Pose
+from camwhisker.percept.surfels import Pose
 
 __all__ = ["line_angle_bound_deg", "wall_angle_bound_deg"]
 

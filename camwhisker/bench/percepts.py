@@ -1,6 +1,6 @@
 """Shape percepts on simulated sweeps: identification, localisation, interval coverage.
 
-Each sweep draws an object (:mod:`camwhisker.mechanics.objects`), simulates
+Each sweep draws an object (:mod:`camwhisker.sim.mechanics.objects`), simulates
 its stage runs (mechanics -> signals with the front end's noise), turns them
 into contact tables (:func:`~camwhisker.contact.pipeline.contact_rows`, clock
 offset estimated, calibration on simulated rigid pegs), then into surfels and a
@@ -35,10 +35,10 @@ from scipy.stats import binomtest
 
 from camwhisker.bench.contact import _log, calibrate_simulated
 from camwhisker.bench.percept_bound import wall_angle_bound_deg
-from camwhisker.contact.percepts import object_of, outline, perceive, steep_turn_deg
 from camwhisker.contact.pipeline import contact_rows
-from camwhisker.contact.surfels import Pose, Surfels, merge, surfels_from_columns
-from camwhisker.mechanics.experiment import (
+from camwhisker.percept.percepts import object_of, outline, perceive, steep_turn_deg
+from camwhisker.percept.surfels import Pose, Surfels, merge, surfels_from_columns
+from camwhisker.sim.mechanics.experiment import (
     FRONT_END_NOISE,
     PAPER_RIGID_RADII_MM,
     NoiseModel,
@@ -46,7 +46,7 @@ from camwhisker.mechanics.experiment import (
     peg_radii,
     simulate_run,
 )
-from camwhisker.mechanics.objects import OBJECT_KINDS, draw_sweep, turned_wall_run
+from camwhisker.sim.mechanics.objects import OBJECT_KINDS, draw_sweep, turned_wall_run
 
 __all__ = ["CALIB_SEED", "HELD_OUT_SEEDS", "TUNING_SEEDS", "MODEL_OF", "fitted_outline",
            "simulate_sweep", "sweep_surfels", "run_sweep", "run_campaign", "share_interval",
@@ -190,7 +190,7 @@ def run_campaign(seeds, calib_seed: int = CALIB_SEED, progress=None,
                  pegs: int = len(PAPER_RIGID_RADII_MM),
                  noise: NoiseModel = FRONT_END_NOISE) -> list[dict]:
     """Every sweep of ``seeds`` (calibration on ``pegs`` simulated rigid pegs,
-    :func:`~camwhisker.mechanics.experiment.peg_radii`, of ``calib_seed``), calibration and
+    :func:`~camwhisker.sim.mechanics.experiment.peg_radii`, of ``calib_seed``), calibration and
     sweeps at the front end's ``noise``."""
     calib = calibrate_simulated(calib_seed, noise=noise, radii_mm=peg_radii(pegs))
     rows = []

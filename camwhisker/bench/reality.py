@@ -1,7 +1,7 @@
 """Reality benchmark: the front end on hand-made builds, with their true and the nominal file.
 
 Renders one clip of a scene seen by each build of the reality suite
-(:data:`camwhisker.synth.builds.REALITY_SUITE`; its held-out seeds by
+(:data:`camwhisker.sim.render.builds.REALITY_SUITE`; its held-out seeds by
 default) and runs the front end on it with (a) the build's true sensor file,
 (b) the true file with the rest reference from one frame, and (c) the nominal
 file, as a user without calibration would; and on clips of the nominal sensor
@@ -32,15 +32,15 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.bench.vision import scene_errors
-from camwhisker.model import PlateModel, geometry_vector
-from camwhisker.sensor import Sensor
-from camwhisker.sources import Frame, VideoSource
-from camwhisker.stream import REST_FRAMES, stream
-from camwhisker.synth.builds import REALITY_SUITE, Build, draw_build
-from camwhisker.synth.scenarios import Scenario, make_scenario
-from camwhisker.synth.video import render_scenario, sidecar_paths
+from camwhisker.io.sources import VideoSource
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import PlateModel, geometry_vector
+from camwhisker.sim.render.builds import REALITY_SUITE, Build, draw_build
+from camwhisker.sim.render.scenarios import Scenario, make_scenario
+from camwhisker.sim.render.video import render_scenario, sidecar_paths
 from camwhisker.vision.detect import FeaturesNotFound
 from camwhisker.vision.mismatch import PHI_ERROR_WARN_DEG, phi_error_deg
+from camwhisker.vision.stream import REST_FRAMES, Frame, stream
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["RealityRow", "render_build_clip", "clip_row", "deviation_phi_deg", "run_build",

@@ -16,8 +16,8 @@ start of the configuration (Linux ``VmHWM``, reset through
 ``/proc/self/clear_refs``); NaN where the system does not offer it.
 
 The error of each scene is set against its Cramér-Rao bound
-(:func:`camwhisker.synth.bound.pose_bound`, with the scene's camera and
-artefacts at :func:`~camwhisker.synth.bound.nominal_bound_pose`, cached).
+(:func:`camwhisker.sim.render.bound.pose_bound`, with the scene's camera and
+artefacts at :func:`~camwhisker.sim.render.bound.nominal_bound_pose`, cached).
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ from camwhisker.bench.configs import DEFAULT, PAPER, Config
 from camwhisker.bench.pareto import pareto_front
 from camwhisker.bench.peers import PEERS
 from camwhisker.bench.vision import SCENES, render_scene, scene_errors
-from camwhisker.model import TIP
-from camwhisker.sources import VideoSource
-from camwhisker.synth.bound import nominal_bound_pose, pose_bound
+from camwhisker.io.sources import VideoSource
+from camwhisker.sensor.model import TIP
+from camwhisker.sim.render.bound import nominal_bound_pose, pose_bound
 from camwhisker.vision.colour import contrast_map
 from camwhisker.vision.detect import detect_features
 from camwhisker.vision.pose import fit_pose

@@ -5,7 +5,7 @@ clip (as :mod:`camwhisker.bench.calibration` does), calibrate, and compare the
 last round's tracked points with where the build's true geometry and the
 scene's true poses put them. A tracked corner is the plate point its rest
 template is centred on, off the true corner by a constant in the plate
-(:mod:`camwhisker.geometry.adjust`): its true place carries its offset at rest
+(:mod:`camwhisker.calibration.adjust`): its true place carries its offset at rest
 as an in-plane shift. Per build and source of error (the tracked points of the
 square's corners, of the cross's, of the tip, or all of them; the rod's diameter,
 which the calibration measures apart), it prints:
@@ -40,19 +40,19 @@ from camwhisker.bench.calibration import (
     sweep_frames_of,
 )
 from camwhisker.bench.reality import clip_row, render_build_clip, seed_list
-from camwhisker.geometry.adjust import bias_terms, corner_shift_jacobian
-from camwhisker.geometry.sweep import (
+from camwhisker.calibration.adjust import bias_terms, corner_shift_jacobian
+from camwhisker.calibration.sweep import (
     ROD_DIAMETER,
     SQUARE_SIDE,
     Calibration,
     adjust_tracked,
     calibrate_sensor,
 )
-from camwhisker.model import TIP, PlateModel
-from camwhisker.sensor import Sensor
-from camwhisker.sources import VideoSource
-from camwhisker.synth.builds import draw_build
-from camwhisker.synth.scenarios import PoseTrack
+from camwhisker.io.sources import VideoSource
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import TIP, PlateModel
+from camwhisker.sim.render.builds import draw_build
+from camwhisker.sim.render.scenarios import PoseTrack
 
 __all__ = ["GROUPS", "GroupRow", "true_poses", "true_tracked_points", "tilt_coefficients",
            "white_noise_px", "refit_with_true_points", "run_build", "main"]  # fmt: skip
@@ -104,7 +104,7 @@ def true_tracked_points(sensor: Sensor, q: np.ndarray, tracked_uv: np.ndarray,
 
 def tilt_coefficients(error_uv: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each point's and coordinate's error regressed on the tilt terms of
-    :func:`~camwhisker.geometry.adjust.bias_terms`, dz and a constant, over its finite
+    :func:`~camwhisker.calibration.adjust.bias_terms`, dz and a constant, over its finite
     frames: the terms' coefficients (13, 2, 3) and the residual's RMS (13, 2), px."""
     terms = np.array([bias_terms(qq[:3]) for qq in q])
     design = np.column_stack([terms, q[:, 0], np.ones(len(q))])

@@ -1,8 +1,8 @@
 """Texture resolution: the smallest gap and amplitude resolved to within 10 %, per frame rate
 and sliding speed, on simulated runs (``python -m camwhisker.bench.texture``).
 
-Each cell simulates (:func:`camwhisker.mechanics.texture.simulate_texture`, the front end's
-noise) and estimates (:func:`camwhisker.contact.texture.estimate_texture`) one texture per
+Each cell simulates (:func:`camwhisker.sim.mechanics.texture.simulate_texture`, the front end's
+noise) and estimates (:func:`camwhisker.percept.texture.estimate_texture`) one texture per
 seed. A gap counts as resolved at a frame rate and speed where every seed's estimate lies
 within :data:`TOLERANCE` of it, and so does every larger gap of the grid (likewise the
 amplitude). Ridges :data:`AMPLITUDE_REF_MM` high for the gaps; :data:`GAP_REF_MM` apart for
@@ -20,14 +20,14 @@ import time
 
 import numpy as np
 
-from camwhisker.contact.texture import estimate_texture
-from camwhisker.mechanics.texture import (
+from camwhisker.percept.texture import estimate_texture
+from camwhisker.sim.mechanics.texture import (
     FRAME_RATES,
     TextureProtocol,
     TextureSurface,
     simulate_texture,
 )
-from camwhisker.mechanics.whisker import WhiskerMechanics
+from camwhisker.sim.mechanics.whisker import WhiskerMechanics
 
 __all__ = ["GAPS_MM", "AMPLITUDES_MM", "SPEEDS_MM_S", "run_cell", "resolution_table",
            "coverage", "main"]
@@ -172,8 +172,8 @@ def main(argv=None) -> int:
     print(format_coverage(runs))
     print(f"\n{len(runs)} runs in {time.perf_counter() - start:.0f} s")
     if args.out:
-        from camwhisker.atomic import atomic_write_text
-        from camwhisker.jsonfile import dumps
+        from camwhisker.files.atomic import atomic_write_text
+        from camwhisker.files.jsonfile import dumps
 
         atomic_write_text(args.out, dumps({"table": table, "runs": runs}, indent=1) + "\n")
         print(f"wrote {args.out}")

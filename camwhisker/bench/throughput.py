@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from camwhisker.campaign import BatchTask, CampaignError, run_many
-from camwhisker.sensor import Sensor
+from camwhisker.run.campaign import BatchTask, CampaignError, run_many
+from camwhisker.sensor.file import Sensor
 
 
 def throughput(videos: Sequence[Path], jobs: int, out_dir: Path) -> dict:

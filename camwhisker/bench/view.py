@@ -33,9 +33,9 @@ import numpy as np
 from camwhisker.bench.live import BENCH_SEED
 from camwhisker.live.loop import LiveConfig, LiveSession, latency_summary
 from camwhisker.live.playback import PlaybackSource
-from camwhisker.sensor import Sensor
-from camwhisker.synth.scenarios import make_scenario
-from camwhisker.synth.video import render_scenario
+from camwhisker.sensor.file import Sensor
+from camwhisker.sim.render.scenarios import make_scenario
+from camwhisker.sim.render.video import render_scenario
 
 __all__ = ["CHROMIUM_FLAGS", "SKIP_ROWS", "headless_chromium", "quit_chromium", "run_bench", "main"]
 

@@ -26,10 +26,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camwhisker.sensor import Sensor
-from camwhisker.sources import VideoSource
-from camwhisker.synth.scenarios import Scenario, make_scenario, wrap_deg
-from camwhisker.synth.video import render_scenario, sidecar_paths
+from camwhisker.io.sources import VideoSource
+from camwhisker.sensor.file import Sensor
+from camwhisker.sim.render.scenarios import Scenario, make_scenario, wrap_deg
+from camwhisker.sim.render.video import render_scenario, sidecar_paths
 from camwhisker.vision.tracker import FrontEnd, FrontEndOptions
 
 __all__ = ["SCENES", "BenchRow", "RenderedScene", "render_scene", "scene_errors", "run_scene",

@@ -14,7 +14,7 @@ from camwhisker.cli.common import (
     springs_arg,
     springs_of,
 )
-from camwhisker.sensor import load_sensor
+from camwhisker.sensor.file import load_sensor
 
 __all__ = ["add_batch", "tracker_args"]
 
@@ -91,8 +91,8 @@ def _run_batch(args) -> int:
         return _run_batch_many(args, sensor, options)
     if len(args.video) != 1 or args.dest:
         raise CommandError("--out takes a single input; for many use --dest (or neither)")
-    from camwhisker.batch import run_batch
-    from camwhisker.workers import stop_signals_interrupt
+    from camwhisker.run.batch import run_batch
+    from camwhisker.run.workers import stop_signals_interrupt
 
     with stop_signals_interrupt():  # SIGTERM unwinds as Ctrl-C does: no temporary file left
         report = run_batch(
@@ -107,7 +107,7 @@ def _run_batch(args) -> int:
 
 
 def _run_batch_many(args, sensor, options) -> int:
-    from camwhisker.campaign import BatchTask, expand_inputs, output_path, run_many
+    from camwhisker.run.campaign import BatchTask, expand_inputs, output_path, run_many
 
     videos = expand_inputs(args.video)
     dest = Path(args.dest) if args.dest else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from camwhisker.calibration.sweep import MAX_ROUNDS
 from camwhisker.cli.common import (
     CommandError,
     command_line,
@@ -12,7 +13,6 @@ from camwhisker.cli.common import (
     features_arg,
     sensor_arg,
 )
-from camwhisker.geometry.sweep import MAX_ROUNDS
 
 __all__ = ["add_calibrate_sensor"]
 
@@ -69,7 +69,7 @@ def _pattern(text: str) -> tuple[int, int]:
 
 
 def _chessboard(args, sensor):
-    from camwhisker.geometry.sweep import intrinsics_from_chessboard
+    from camwhisker.calibration.sweep import intrinsics_from_chessboard
 
     folder = Path(args.chessboard)
     if not folder.is_dir():
@@ -85,11 +85,11 @@ def _chessboard(args, sensor):
 def _run_calibrate_sensor(args) -> int:
     from tqdm import tqdm
 
-    from camwhisker.geometry.report import write_calibration
-    from camwhisker.geometry.sweep import calibrate_sensor
-    from camwhisker.sensor import load_sensor
-    from camwhisker.sources import check_frame_size, open_source
-    from camwhisker.stage import read_stage_log
+    from camwhisker.calibration.report import write_calibration
+    from camwhisker.calibration.sweep import calibrate_sensor
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.io.sources import check_frame_size, open_source
+    from camwhisker.sensor.file import load_sensor
     from camwhisker.vision.tracker import FrontEndOptions
 
     if args.rounds < 1:

@@ -43,7 +43,7 @@ SENSOR_HELP = "sensor file (TOML); default: Table I values"
 
 
 def sensor_arg(p: argparse.ArgumentParser, help_text: str = SENSOR_HELP) -> None:
-    """The ``--sensor FILE`` option, read with :func:`camwhisker.sensor.load_sensor`."""
+    """The ``--sensor FILE`` option, read with :func:`camwhisker.sensor.file.load_sensor`."""
     p.add_argument("--sensor", metavar="FILE", help=help_text)
 
 
@@ -75,7 +75,7 @@ def springs_of(args: argparse.Namespace):
     """The ``--springs`` file's stiffness, or None."""
     if args.springs is None:
         return None
-    from camwhisker.springfile import read_springs
+    from camwhisker.calibration.springfile import read_springs
 
     return read_springs(args.springs)
 

@@ -15,7 +15,7 @@ from camwhisker.cli.common import (
     springs_arg,
     springs_of,
 )
-from camwhisker.sensor import load_sensor
+from camwhisker.sensor.file import load_sensor
 
 __all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
 
@@ -23,7 +23,7 @@ _SENSOR_HELP = "sensor file, for the whisker's length; default: Table I values"
 
 
 def add_simulate_stage(sub) -> None:
-    from camwhisker.mechanics.experiment import (
+    from camwhisker.sim.mechanics.experiment import (
         FRONT_END_NOISE_DZ_MM,
         FRONT_END_NOISE_PHI_DEG,
         KINDS,
@@ -54,16 +54,16 @@ def add_simulate_stage(sub) -> None:
 
 
 def _run_simulate(args) -> int:
-    from camwhisker.mechanics import NoiseModel, WhiskerMechanics, simulate_runs
-    from camwhisker.mechanics.files import write_runs
-    from camwhisker.mechanics.ftsensor import FORCE_KINDS, simulate_force_logs
-    from camwhisker.mechanics.springs import suspension_stiffness
+    from camwhisker.sensor.springs import suspension_stiffness
+    from camwhisker.sim.mechanics import NoiseModel, WhiskerMechanics, simulate_runs
+    from camwhisker.sim.mechanics.files import write_runs
+    from camwhisker.sim.mechanics.ftsensor import FORCE_KINDS, simulate_force_logs
 
     l_w = load_sensor(args.sensor).whisker.length_mm
     noise = NoiseModel(phi_deg=args.noise_phi_deg, dz_mm=args.noise_dz_mm)
     sim = {}
     if args.speed_mm_s is not None:
-        from camwhisker.mechanics.experiment import continuous_protocol
+        from camwhisker.sim.mechanics.experiment import continuous_protocol
 
         if args.kind in FORCE_KINDS:
             raise CommandError(f"--speed-mm-s: {args.kind} follows the paper's stepped protocol")
@@ -100,14 +100,14 @@ def add_calibrate(sub) -> None:
 
 
 def _run_calibrate(args) -> int:
-    from camwhisker.calibrate import (
+    from camwhisker.contact.calibrate import (
         CalibrationRun,
         calibrate,
         format_calibration,
         write_calibration,
     )
-    from camwhisker.signals import read_signal_table
-    from camwhisker.stage import read_stage_log
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.io.signals import read_signal_table
 
     pairs = paired_runs(args, "offset_s")
     sensor = load_sensor(args.sensor)
@@ -153,11 +153,11 @@ def add_contact(sub) -> None:
 
 
 def _run_contact(args) -> int:
-    from camwhisker.calibrate import read_calibration
+    from camwhisker.contact.calibrate import read_calibration
     from camwhisker.contact.pipeline import contact_rows
-    from camwhisker.signals import read_signal_table
-    from camwhisker.stage import read_stage_log
-    from camwhisker.tables import write_csv
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.files.tables import write_csv
+    from camwhisker.io.signals import read_signal_table
 
     calib = read_calibration(args.calib)
     signals = read_signal_table(args.signals)

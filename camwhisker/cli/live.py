@@ -14,7 +14,7 @@ from camwhisker.cli.common import (
     springs_arg,
     springs_of,
 )
-from camwhisker.sensor import load_sensor
+from camwhisker.sensor.file import load_sensor
 
 __all__ = ["add_list_cameras", "add_live", "add_replay"]
 
@@ -55,7 +55,7 @@ def _calib_of(args):
         if base or args.eta_deg is not None:
             raise CommandError("--eta-deg and the base positions need --calib")
         return None
-    from camwhisker.calibrate import read_calibration
+    from camwhisker.contact.calibrate import read_calibration
 
     return read_calibration(args.calib)
 
@@ -64,7 +64,7 @@ def _springs_with(args, calib):
     """--springs; with --calib and none given, the spring model of Table I."""
     springs = springs_of(args)
     if springs is None and calib is not None:
-        from camwhisker.mechanics.springs import suspension_stiffness
+        from camwhisker.sensor.springs import suspension_stiffness
 
         springs = suspension_stiffness()
     return springs

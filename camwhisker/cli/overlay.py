@@ -5,13 +5,13 @@ from __future__ import annotations
 import sys
 
 from camwhisker.cli.common import CommandError, feature_hints, features_arg, sensor_arg
-from camwhisker.sensor import load_sensor
+from camwhisker.sensor.file import load_sensor
 
 __all__ = ["add_overlay"]
 
 
 def add_overlay(sub) -> None:
-    from camwhisker.overlay import ARROW_SCALE
+    from camwhisker.run.overlay import ARROW_SCALE
 
     p = sub.add_parser(
         "overlay",
@@ -35,7 +35,7 @@ def add_overlay(sub) -> None:
 
 
 def _run_overlay(args) -> int:
-    from camwhisker.overlay import annotate_video
+    from camwhisker.run.overlay import annotate_video
     from camwhisker.vision import FrontEndOptions
 
     if args.rest_frame < 0:

@@ -27,7 +27,7 @@ def add_percept(sub) -> None:
 
 
 def _poses(args):
-    from camwhisker.contact.surfels import Pose
+    from camwhisker.percept.surfels import Pose
 
     if not args.pose:
         return [Pose()] * len(args.contacts)
@@ -50,10 +50,16 @@ def _sha256(path) -> str:
 
 def _run_percept(args) -> int:
     from camwhisker import __version__
-    from camwhisker.atomic import atomic_write_text
-    from camwhisker.contact.percepts import RISE_DEG, object_of, outline, perceive, percept_record
-    from camwhisker.contact.surfels import read_surfels
-    from camwhisker.jsonfile import dumps
+    from camwhisker.files.atomic import atomic_write_text
+    from camwhisker.files.jsonfile import dumps
+    from camwhisker.percept.percepts import (
+        RISE_DEG,
+        object_of,
+        outline,
+        perceive,
+        percept_record,
+    )
+    from camwhisker.percept.surfels import read_surfels
 
     poses = _poses(args)
     surfels = read_surfels(args.contacts, poses)
@@ -107,10 +113,10 @@ def add_percept_bench(sub) -> None:
 
 
 def _run_percept_bench(args) -> int:
-    from camwhisker.atomic import atomic_write_text
     from camwhisker.bench.percepts import format_summary, run_campaign, summarise
-    from camwhisker.jsonfile import dumps
-    from camwhisker.mechanics.experiment import NoiseModel, peg_radii
+    from camwhisker.files.atomic import atomic_write_text
+    from camwhisker.files.jsonfile import dumps
+    from camwhisker.sim.mechanics.experiment import NoiseModel, peg_radii
 
     try:
         a, b = (int(v) for v in args.seeds.split("-"))

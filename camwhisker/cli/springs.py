@@ -27,11 +27,11 @@ def add_calibrate_springs(sub) -> None:
 
 
 def _run_calibrate_springs(args) -> int:
-    from camwhisker.forcelog import read_force_log
-    from camwhisker.forces import SpringRun, calibrate_springs
-    from camwhisker.mechanics.springs import SpringDesign, suspension_stiffness
-    from camwhisker.signals import read_signal_table
-    from camwhisker.springfile import read_design, write_springs
+    from camwhisker.calibration.springfile import read_design, write_springs
+    from camwhisker.calibration.springs_fit import SpringRun, calibrate_springs
+    from camwhisker.io.forcelog import read_force_log
+    from camwhisker.io.signals import read_signal_table
+    from camwhisker.sensor.springs import SpringDesign, suspension_stiffness
 
     n = len(args.signals)
     offsets = args.clock_offset_s or [None] * n

@@ -5,8 +5,8 @@ from __future__ import annotations
 import sys
 
 from camwhisker.cli.common import sensor_arg
-from camwhisker.sensor import load_sensor
-from camwhisker.synth.scenarios import SCENARIOS
+from camwhisker.sensor.file import load_sensor
+from camwhisker.sim.render.scenarios import SCENARIOS
 
 __all__ = ["add_render", "add_bound", "add_samples", "add_describe", "add_experiment"]
 
@@ -31,14 +31,14 @@ def add_render(sub) -> None:
 
 
 def _run_render(args) -> int:
-    from camwhisker.synth.scenarios import make_scenario
-    from camwhisker.synth.video import render_scenario
+    from camwhisker.sim.render.scenarios import make_scenario
+    from camwhisker.sim.render.video import render_scenario
 
     scenario = make_scenario(args.scenario, args.frames, args.seed, args.fps)
     sensor = load_sensor(args.sensor)
     build = None
     if args.build is not None:
-        from camwhisker.synth.builds import draw_build
+        from camwhisker.sim.render.builds import draw_build
 
         build = draw_build(args.build, sensor)
     paths = render_scenario(scenario, sensor, args.out, args.seed, True, build)
@@ -64,9 +64,9 @@ def add_bound(sub) -> None:
 
 
 def _run_bound(args) -> int:
-    from camwhisker.plate import Pose
-    from camwhisker.synth.bound import pose_bound
-    from camwhisker.synth.scenarios import make_scenario
+    from camwhisker.sensor.plate import Pose
+    from camwhisker.sim.render.bound import pose_bound
+    from camwhisker.sim.render.scenarios import make_scenario
 
     scenario = make_scenario(args.scenario, 30, 0)  # only its camera is used
     sensor = load_sensor(args.sensor)
@@ -94,7 +94,7 @@ def add_samples(sub) -> None:
 
 
 def _run_samples(args) -> int:
-    from camwhisker.synth.samples import make_samples
+    from camwhisker.sim.render.samples import make_samples
 
     for path in make_samples(args.dest):
         print(path)
@@ -114,7 +114,7 @@ def add_describe(sub) -> None:
 
 
 def _run_describe(args) -> int:
-    from camwhisker.synth.samples import describe_video
+    from camwhisker.sim.render.samples import describe_video
 
     info = describe_video(args.video, args.signals)
     for key, value in info.items():
@@ -148,7 +148,7 @@ def add_experiment(sub) -> None:
 
 
 def _run_experiment(args) -> int:
-    from camwhisker.synth.experiment import render_experiment
+    from camwhisker.sim.render.experiment import render_experiment
 
     print(render_experiment(args.dest, args.seed, jobs=args.jobs))
     return 0

@@ -17,7 +17,10 @@ def _positive(args, *names) -> None:
 
 
 def add_simulate_texture(sub) -> None:
-    from camwhisker.mechanics.experiment import FRONT_END_NOISE_DZ_MM, FRONT_END_NOISE_PHI_DEG
+    from camwhisker.sim.mechanics.experiment import (
+        FRONT_END_NOISE_DZ_MM,
+        FRONT_END_NOISE_PHI_DEG,
+    )
 
     p = sub.add_parser("simulate-texture",
                        help="simulate the whisker's tip sliding over ridges, filmed (signals, "
@@ -40,10 +43,14 @@ def add_simulate_texture(sub) -> None:
 
 
 def _run_simulate_texture(args) -> int:
-    from camwhisker.mechanics import NoiseModel, WhiskerMechanics
-    from camwhisker.mechanics.files import write_texture_run
-    from camwhisker.mechanics.texture import TextureProtocol, TextureSurface, simulate_texture
-    from camwhisker.sensor import load_sensor
+    from camwhisker.sensor.file import load_sensor
+    from camwhisker.sim.mechanics import NoiseModel, WhiskerMechanics
+    from camwhisker.sim.mechanics.files import write_texture_run
+    from camwhisker.sim.mechanics.texture import (
+        TextureProtocol,
+        TextureSurface,
+        simulate_texture,
+    )
 
     _positive(args, "gap_mm", "speed_mm_s", "fps")
     if not args.amplitude_mm >= 0:
@@ -86,8 +93,8 @@ def _speed(args):
     """(speed, its standard error) from the stage log where given, else V (exact)."""
     if args.stage is None:
         return args.speed_mm_s, 0.0
-    from camwhisker.contact.texture import stage_speed
-    from camwhisker.stage import read_stage_log
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.percept.texture import stage_speed
 
     log = read_stage_log(args.stage)
     speed, se = stage_speed(log.t_s, log.x_mm, args.stage)
@@ -99,11 +106,11 @@ def _speed(args):
 
 def _run_texture(args) -> int:
     from camwhisker import __version__
-    from camwhisker.atomic import atomic_write_text
-    from camwhisker.contact.texture import estimate_texture, texture_record
-    from camwhisker.jsonfile import dumps
-    from camwhisker.sensor import load_sensor
-    from camwhisker.signals import read_signal_table
+    from camwhisker.files.atomic import atomic_write_text
+    from camwhisker.files.jsonfile import dumps
+    from camwhisker.io.signals import read_signal_table
+    from camwhisker.percept.texture import estimate_texture, texture_record
+    from camwhisker.sensor.file import load_sensor
 
     _positive(args, "speed_mm_s")
     length = load_sensor(args.sensor).whisker.length_mm

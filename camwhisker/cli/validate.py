@@ -10,7 +10,7 @@ from camwhisker.cli.common import (
     sensor_arg,
     springs_of,
 )
-from camwhisker.sensor import load_sensor
+from camwhisker.sensor.file import load_sensor
 
 __all__ = ["add_validate"]
 
@@ -42,11 +42,11 @@ def add_validate(sub) -> None:
 
 
 def _run_validate(args) -> int:
-    from camwhisker.forcelog import read_force_log
-    from camwhisker.mechanics.springs import suspension_stiffness
-    from camwhisker.signals import read_signal_table
-    from camwhisker.stage import read_stage_log
-    from camwhisker.validate import force_check, pooled, validate, write_validation
+    from camwhisker.calibration.validate import force_check, pooled, validate, write_validation
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.io.forcelog import read_force_log
+    from camwhisker.io.signals import read_signal_table
+    from camwhisker.sensor.springs import suspension_stiffness
 
     pairs = paired_runs(args, "clock_offset_s", "contact_x_mm", "forces")
     sensor = load_sensor(args.sensor)

@@ -8,7 +8,7 @@ with eta "the peak value of |d| seen in no-contact trials plus about 50 %".
 Here d is the plate's tilt as a 2D vector, (phi cos theta, phi sin theta) in
 degrees, relative to rest. Its norm is the signal table's ``phi_deg`` itself:
 the table's pose is measured against the rest reference (the mean image of the
-rest frames, :mod:`camwhisker.stream`), so the rest offset is already zero, and
+rest frames, :mod:`camwhisker.vision.stream`), so the rest offset is already zero, and
 theta is not needed (it is left empty below 0.6 deg, far above the rest noise,
 so the vector's components cannot be formed there anyway). dz is left out: a
 lateral contact, the one a robot whisker meets, moves dz only to second order in

@@ -2,7 +2,7 @@
 columns added (docs/sensor.md section 6.2), with a sidecar listing the onsets.
 
 The rest frames are the ones the stream averaged for its rest reference
-(:mod:`camwhisker.stream`): the sidecar ``S.json`` records each reference's
+(:mod:`camwhisker.vision.stream`): the sidecar ``S.json`` records each reference's
 first frame and how many frames it used (``rest_references``). A table without
 a sidecar (simulated, or from another program) names them with ``rest_frames``
 (the first N rows), or skips them with a given eta (the paper's way: from
@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__, jsonfile
-from camwhisker.atomic import atomic_path
+from camwhisker import __version__
 from camwhisker.contact.belief import (
     ETA_FACTOR,
     ETA_QUANTILE,
@@ -28,7 +27,9 @@ from camwhisker.contact.belief import (
     eta_from_rest,
     find_onsets,
 )
-from camwhisker.signals import SignalTableError, read_signal_table, sidecar_path
+from camwhisker.files import jsonfile
+from camwhisker.files.atomic import atomic_path
+from camwhisker.io.signals import SignalTableError, read_signal_table, sidecar_path
 
 __all__ = ["BELIEF_COLUMNS", "TableBelief", "rest_rows", "table_belief", "write_belief_table"]
 
@@ -98,7 +99,7 @@ def table_belief(
 
     Raises
     ------
-    camwhisker.tables.TableError
+    camwhisker.files.tables.TableError
         A missing or broken table, no sidecar or rest frames, or too few trusted ones
         (named by file and key).
     """

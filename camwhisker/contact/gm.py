@@ -1,12 +1,12 @@
 """Gradient-Moment (GM) estimate of the radial contact distance, eq. (8), and a beam alternative.
 
-Eq. (8) of the paper, with phi in degrees and dx in mm (:mod:`camwhisker.eq8`,
+Eq. (8) of the paper, with phi in degrees and dx in mm (:mod:`camwhisker.contact.eq8`,
 which the simulator shares; its functions are re-exported here)::
 
     r_GM = C (dx / phi) l_w / (l_w + C dx / phi)
 
 :func:`r_gm_beam` is the alternative derived from the small-deflection beam of
-:mod:`camwhisker.mechanics.whisker` (rigid rotation plus the cone's bending)::
+:mod:`camwhisker.sim.mechanics.whisker` (rigid rotation plus the cone's bending)::
 
     dx = r sin(phi) + beta phi r^2 / (3 (1 - kappa r))
 
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from camwhisker.eq8 import PHI_MIN_DEG, defined, eq8_dx_mm, eq8_phi_deg, r_gm_eq8
+from camwhisker.contact.eq8 import PHI_MIN_DEG, defined, eq8_dx_mm, eq8_phi_deg, r_gm_eq8
 
 # scipy.optimize and scipy.stats are imported where they are used: together they
 # take ~1 s to import, and every command line builds its parser from modules

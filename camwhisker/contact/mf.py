@@ -140,7 +140,7 @@ class MFTable:
     r_mm: np.ndarray
     tree: cKDTree = field(repr=False, compare=False, default=None)
     # Queries below this phi get no estimate (a calibration sets it where MF's scatter
-    # from noise exceeds what it must detect: camwhisker.calibrate.MF_MAX_SPREAD_MM).
+    # from noise exceeds what it must detect: camwhisker.contact.calibrate.MF_MAX_SPREAD_MM).
     phi_min_deg: float = PHI_MIN_DEG
     # Per phi bin of MF_CURVE_STEP_DEG from bin phi_bin0: the dz above which a query is
     # past the outermost curve (inf where a bin has one radius only; module docstring).

@@ -13,7 +13,7 @@ from its frame and the earlier ones, with the same functions:
 - phi and dz smoothed by :func:`~camwhisker.contact.smooth.local_line` over the
   same window with the later frames missing (what batch does at a run's last
   frame): a line through the last h + 1 frames, read at the newest;
-- the contact onset by :func:`~camwhisker.stage.contact_onset_x` over the frames
+- the contact onset by :func:`~camwhisker.contact.stage.contact_onset_x` over the frames
   so far, fixed once phi passes ``ONSET_PHI_MAX_DEG`` (batch uses no frame past
   that either), and found again for each new contact (where the belief's contact
   ends: batch takes one per run);
@@ -24,7 +24,7 @@ from its frame and the earlier ones, with the same functions:
 - ``doubt`` by :func:`~camwhisker.contact.pipeline.doubt`.
 
 Base positions (:class:`BaseTrack`, camera clock) are interpolated to the frame
-time as :meth:`camwhisker.stage.StageLog.x_at` does; past the newest sample
+time as :meth:`camwhisker.contact.stage.StageLog.x_at` does; past the newest sample
 (the usual case live: the frame is newer than the last position received) they
 are extrapolated along the last segment, up to :data:`MAX_EXTRAPOLATE_S`.
 :class:`BaseFeed` hands a frame the samples received by its capture time, so a
@@ -50,7 +50,7 @@ from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
 from camwhisker.contact.smooth import local_line
-from camwhisker.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
+from camwhisker.contact.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
 __all__ = ["MAX_EXTRAPOLATE_S", "ONSET_MAX_FRAMES", "BELIEF_FIELDS", "MF_FIELDS", "BASE_FIELDS",
            "BaseTrack", "BaseFeed", "OnlineContact"]
@@ -91,7 +91,7 @@ class BaseTrack:
 
     @property
     def travel_sign(self) -> float:
-        """As :attr:`camwhisker.stage.StageLog.travel_sign`, over the samples so far."""
+        """As :attr:`camwhisker.contact.stage.StageLog.travel_sign`, over the samples so far."""
         return 1.0 if not self.x_mm or self.x_mm[-1] >= self.x_mm[0] else -1.0
 
     def at(self, t_s: float) -> tuple[float, float]:

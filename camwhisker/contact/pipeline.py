@@ -12,15 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camwhisker.clock import estimate_offset_motion
+from camwhisker.contact.clock import estimate_offset_motion
 from camwhisker.contact.fusion import MF_BIAS_FLOOR_MM, fuse
 from camwhisker.contact.gm import GMFit, r_gm
 from camwhisker.contact.mf import MFTable, r_mf
 from camwhisker.contact.shape import BendCorrection, reconstruct
 from camwhisker.contact.slip import slip_segments, slip_state, slipped, slipping
 from camwhisker.contact.smooth import local_line
-from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
-from camwhisker.stage import (
+from camwhisker.contact.stage import (
     CONTACT_PHI_DEG,
     PauseTable,
     StageLog,
@@ -30,6 +29,7 @@ from camwhisker.stage import (
     pause_index,
     pause_medians,
 )
+from camwhisker.contact.zscore import SpreadTable, z_combined, z_dissimilarity
 
 __all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_rows", "base_speed",
            "doubt", "smooth_half_frames", "MODES"]
@@ -37,7 +37,7 @@ __all__ = ["Calibration", "RunAnalysis", "analyse_run", "estimate", "contact_row
 
 @dataclass(frozen=True)
 class Calibration:
-    """Everything the contact estimates need (see :mod:`camwhisker.calibrate`)."""
+    """Everything the contact estimates need (see :mod:`camwhisker.contact.calibrate`)."""
 
     gm: GMFit
     gm_spread: SpreadTable

@@ -23,8 +23,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from camwhisker import __version__  # noqa: E402
-from camwhisker.atomic import atomic_write_bytes  # noqa: E402
 from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
+from camwhisker.files.atomic import atomic_write_bytes
 
 __all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "plot_texture",
            "save_figure"]

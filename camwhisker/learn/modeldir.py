@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker import __version__, jsonfile
-from camwhisker.atomic import atomic_path, atomic_write_text
+from camwhisker import __version__
+from camwhisker.files import jsonfile
+from camwhisker.files.atomic import atomic_path, atomic_write_text
 from camwhisker.learn.net import build_net, import_torch
 from camwhisker.learn.series import Columns, LearnError, Normalisation
 

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from camwhisker.files.tables import write_csv
 from camwhisker.learn.modeldir import Model
 from camwhisker.learn.series import decode_targets, read_series, segments, window_ends
 from camwhisker.learn.train import predict_encoded
-from camwhisker.tables import write_csv
 
 __all__ = ["predict_rows", "predict_segments", "predict_table", "write_predictions"]
 

@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from camwhisker.contact.stage import StageLog
 from camwhisker.learn.series import Columns, LearnError, Series, segments
-from camwhisker.stage import StageLog
 
 __all__ = ["SENSOR_INPUTS", "TARGET", "sensor_columns", "frame_inputs", "input_matrix",
            "usable_rows", "run_tables", "log_r_mm", "learned_r_mm"]  # fmt: skip

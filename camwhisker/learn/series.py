@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.tables import read_columns
+from camwhisker.files.tables import read_columns
 
 __all__ = ["LearnError", "Columns", "Series", "Normalisation", "read_series",
            "fit_normalisation", "encode_targets", "decode_targets", "window_ends",

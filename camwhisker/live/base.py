@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.atomic import atomic_path
-from camwhisker.stage import StageLogError
-from camwhisker.tables import read_log
+from camwhisker.contact.stage import StageLogError
+from camwhisker.files.atomic import atomic_path
+from camwhisker.files.tables import read_log
 
 __all__ = ["DEFAULT_BASE_HOST", "BaseReceiver", "parse_base_datagram", "base_log_path",
            "write_base_log", "read_base_log"]
@@ -161,7 +161,7 @@ def read_base_log(path: str | Path, offset_s: float = 0.0) -> list[tuple[float, 
 
     Raises
     ------
-    camwhisker.stage.StageLogError
+    camwhisker.contact.stage.StageLogError
         Missing file or column, a bad cell (named by file, row and column).
     """
     cols, _ = read_log(path, ("t_s", "x_mm"), ("received_s",), "base log", StageLogError)

@@ -16,7 +16,7 @@ and, where it has them:
 
 :class:`CameraCapture` opens a V4L2 camera, applies a :class:`CameraProfile`
 and discards warm-up frames, on open and on every reopen.
-:class:`SourceCapture` wraps a :mod:`camwhisker.sources` source (file or
+:class:`SourceCapture` wraps a :mod:`camwhisker.io.sources` source (file or
 folder), decoded exactly as batch decodes it.
 :class:`~camwhisker.live.playback.PlaybackSource` paces a file at camera rate.
 """
@@ -30,6 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from camwhisker.io.sources import open_source
 from camwhisker.live.cameras import (
     C310_PROFILE,
     AppliedSettings,
@@ -37,7 +38,6 @@ from camwhisker.live.cameras import (
     apply_profile,
     resolve_camera,
 )
-from camwhisker.sources import open_source
 
 __all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is_ended",
            "describe"]  # fmt: skip
@@ -160,7 +160,7 @@ class CameraCapture:
 
 
 class SourceCapture:
-    """A :mod:`camwhisker.sources` source (video file or image folder) read frame by frame.
+    """A :mod:`camwhisker.io.sources` source (video file or image folder) read frame by frame.
 
     The frames are decoded exactly as ``camwhisker batch`` decodes them.
     """

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from camwhisker.contact.online import BaseFeed, BaseTrack, OnlineContact
-from camwhisker.sources import Frame
+from camwhisker.vision.stream import Frame
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["FORMATS", "RowContact"]

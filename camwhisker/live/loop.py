@@ -1,7 +1,7 @@
 """The live loop: grabbed frames -> the streaming core -> CSV, JSON lines, UDP, recording.
 
 :class:`LiveSession` feeds the grabbed frames, with the live events (re-zero,
-re-detect, a gap where no frame came), to :func:`camwhisker.stream.stream`
+re-detect, a gap where no frame came), to :func:`camwhisker.vision.stream.stream`
 and sends each row to the outputs. It runs the grabber thread, takes commands
 (``r`` re-zero, ``d`` re-detect, ``s`` start/stop recording, ``q`` quit) from the
 terminal, from the browser view (:mod:`camwhisker.live.view`) or from
@@ -10,7 +10,7 @@ the sidecar (settings, grabber counts, latency, the rest references and their
 mismatch checks; a mismatch is logged as a warning).
 
 :func:`reprocess_session` drives the same generator over a recorded session
-(:class:`~camwhisker.sources.SessionSource`): the live table again, row for
+(:class:`~camwhisker.io.sources.SessionSource`): the live table again, row for
 row. :class:`LiveProcessor` hands the generator one frame at a time, for a
 caller that times each frame.
 """
@@ -34,7 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.atomic import atomic_path
+from camwhisker.files.atomic import atomic_path
+from camwhisker.io.signals import (
+    SignalWriter,
+    sidecar,
+    sidecar_path,
+    write_sidecar,
+    write_signals,
+)
+from camwhisker.io.sources import SessionSource, SourceError, check_frame_size
 from camwhisker.live.base import BaseReceiver, base_log_path, write_base_log
 from camwhisker.live.capture import describe
 from camwhisker.live.contact import RowContact
@@ -42,11 +50,9 @@ from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
 from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
 from camwhisker.live.view import DEFAULT_VIEW_HOST, LiveView
-from camwhisker.model import PlateModel
-from camwhisker.sensor import Sensor
-from camwhisker.signals import SignalWriter, sidecar, sidecar_path, write_sidecar, write_signals
-from camwhisker.sources import Frame, SessionSource, SourceError, check_frame_size
-from camwhisker.stream import stream
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import PlateModel
+from camwhisker.vision.stream import Frame, stream
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
 __all__ = ["LiveProcessor", "reprocess_session", "LiveConfig", "LiveSession", "LiveReport",
@@ -66,7 +72,7 @@ KEYS = {"r": "rezero", "d": "redetect", "s": "record", "q": "quit"}
 
 
 class LiveProcessor:
-    """The live stream (:func:`~camwhisker.stream.stream`) fed one frame per call."""
+    """The live stream (:func:`~camwhisker.vision.stream.stream`) fed one frame per call."""
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
         self._frame: Frame | None = None
@@ -94,7 +100,7 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
     ------
     FileNotFoundError
         No video or no timestamps file.
-    camwhisker.sources.SourceError
+    camwhisker.io.sources.SourceError
         The video cannot be decoded, or holds fewer frames than the timestamps list.
     """
     source = SessionSource(video)
@@ -160,7 +166,7 @@ class LiveConfig:
     max_reconnects: int = MAX_RECONNECTS
     backoff_s: float = BACKOFF_S
     handle_signals: bool = True
-    springs: object = None  # camwhisker.mechanics.springs.Stiffness
+    springs: object = None  # camwhisker.sensor.springs.Stiffness
     view_port: int | None = None
     view_host: str = DEFAULT_VIEW_HOST
     calib: object = None  # camwhisker.contact.pipeline.Calibration
@@ -223,7 +229,7 @@ class LiveSession:
         self._stdout_closed = False
         #: Sequence numbers of the rows, in order (for the drop check).
         self.seqs: list[int] = []
-        #: The rest references built (camwhisker.stream.RestRecord), for the sidecar.
+        #: The rest references built (camwhisker.vision.stream.RestRecord), for the sidecar.
         self.rest_log: list = []
         self._input: dict = {}
         #: The grabbed item of the frame being processed, and when it went in (perf_counter s).

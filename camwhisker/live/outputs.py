@@ -1,6 +1,6 @@
 """Where live results go besides the signal table: JSON lines and UDP.
 
-The signal table is :class:`camwhisker.signals.SignalWriter`'s, flushed row by row.
+The signal table is :class:`camwhisker.io.signals.SignalWriter`'s, flushed row by row.
 JSON lines and UDP datagrams carry one object per frame: frame, seq, t_s,
 dz_mm, phi_deg, theta_deg, ok, latency_ms, note. Untrusted values are null.
 """
@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 import socket
 
-from camwhisker import jsonfile
-from camwhisker.signals import FORCE_COLUMNS
+from camwhisker.files import jsonfile
+from camwhisker.io.signals import FORCE_COLUMNS
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]

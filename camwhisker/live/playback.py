@@ -56,7 +56,7 @@ class PlaybackSource:
 
     @property
     def source(self):
-        """The file's :mod:`camwhisker.sources` source (its frame size, its problem)."""
+        """The file's :mod:`camwhisker.io.sources` source (its frame size, its problem)."""
         return self._src.source
 
     @property

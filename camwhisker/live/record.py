@@ -24,7 +24,7 @@ import av
 import cv2
 import numpy as np
 
-from camwhisker.sources import TIMESTAMP_COLUMNS, timestamps_path
+from camwhisker.io.sources import TIMESTAMP_COLUMNS, timestamps_path
 
 __all__ = ["MjpgRoundTrip", "SessionRecorder", "decode_only", "JPEG_QUALITY"]
 

@@ -2,7 +2,7 @@
 
 :class:`LiveView` serves, with the standard library's threading HTTP server,
 one page (``view.html``, plain JavaScript, nothing fetched from elsewhere):
-the current frame drawn by :func:`camwhisker.overlay.annotate_frame` (tracked
+the current frame drawn by :func:`camwhisker.run.overlay.annotate_frame` (tracked
 corners, tip, the fitted model's outline, motion arrows at 10x), rolling plots
 of phi, dz and theta, the frame rate, drops and latency, and buttons that send
 the session the commands its keys send (re-zero, re-detect, start/stop
@@ -40,9 +40,9 @@ from urllib.parse import parse_qs, urlsplit
 import cv2
 import numpy as np
 
-from camwhisker.model import PlateModel
-from camwhisker.overlay import Placement, annotate_frame, is_rest_row, pose_vector
-from camwhisker.sources import Frame
+from camwhisker.run.overlay import Placement, annotate_frame, is_rest_row, pose_vector
+from camwhisker.sensor.model import PlateModel
+from camwhisker.vision.stream import Frame
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["DEFAULT_VIEW_HOST", "COMMANDS", "LiveView", "Published"]

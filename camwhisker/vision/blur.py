@@ -17,7 +17,7 @@ import math
 import cv2
 import numpy as np
 
-from camwhisker.model import N_SQUARE
+from camwhisker.sensor.model import N_SQUARE
 
 __all__ = [
     "REBLUR_PAD_PX",

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camwhisker.model import N_SQUARE, TIP, PlateModel
-from camwhisker.polygon import polygon_area
+from camwhisker.sensor.model import N_SQUARE, TIP, PlateModel
+from camwhisker.sensor.polygon import polygon_area
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.colour import contrast_map
 from camwhisker.vision.hints import FeatureHints

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from camwhisker.tomlfile import read_toml
+from camwhisker.files.tomlfile import read_toml
 
 __all__ = ["FeatureHints", "FeatureHintsError", "load_feature_hints", "feature_hints_from_dict"]
 

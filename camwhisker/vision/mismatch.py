@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camwhisker.model import (
+from camwhisker.sensor.model import (
     GEOMETRY_NAMES,
     N_SQUARE,
     RELATIVE_TOLERANCE,

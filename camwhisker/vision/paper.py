@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camwhisker.model import N_SQUARE, TIP
-from camwhisker.sensor import Sensor
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import N_SQUARE, TIP
 
 __all__ = [
     "axial_deflection",

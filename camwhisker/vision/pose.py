@@ -1,9 +1,9 @@
 """Plate pose from tracked image points, through the forward model.
 
 The pose vector is q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm) of
-:mod:`camwhisker.plate`; the model pixels of the tracked points
-(``camwhisker.model.POINT_NAMES``) and their Jacobian come from
-:class:`camwhisker.model.PlateModel`.
+:mod:`camwhisker.sensor.plate`; the model pixels of the tracked points
+(``camwhisker.sensor.model.POINT_NAMES``) and their Jacobian come from
+:class:`camwhisker.sensor.model.PlateModel`.
 
 The fit is Gauss-Newton on the pixel residuals
 ``measured - offset - model(q)``, with OpenCV's analytic projection
@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 from numba import njit
 
-from camwhisker.model import TIP, PlateModel
-from camwhisker.plate import Pose, q_to_pose
+from camwhisker.sensor.model import TIP, PlateModel
+from camwhisker.sensor.plate import Pose, q_to_pose
 
 __all__ = [
     "PoseFit",

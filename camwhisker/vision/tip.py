@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from camwhisker.polygon import polygon_centroid
+from camwhisker.sensor.polygon import polygon_centroid
 from camwhisker.vision.blobs import blobs
 from camwhisker.vision.blur import erf_sigmas
 

@@ -46,9 +46,9 @@ import cv2
 import numpy as np
 from numba import njit
 
-from camwhisker.model import N_SQUARE, TIP, PlateModel
-from camwhisker.polygon import polygon_area
-from camwhisker.sensor import Sensor
+from camwhisker.sensor.file import Sensor
+from camwhisker.sensor.model import N_SQUARE, TIP, PlateModel
+from camwhisker.sensor.polygon import polygon_area
 from camwhisker.vision.blur import REBLUR_PAD_PX, reblur_templates, square_blur_px
 from camwhisker.vision.colour import (
     cloth_level,
@@ -150,7 +150,7 @@ class FrontEndOptions:
         converge in.
     rest_frames : the rest reference is averaged over up to this many frames at
         rest from the rest frame (and each re-zero) on (see
-        :mod:`camwhisker.stream`); 1: the rest frame alone.
+        :mod:`camwhisker.vision.stream`); 1: the rest frame alone.
     features : the user's rough positions of the features in the rest frame
         (:func:`~camwhisker.vision.hints.load_feature_hints`): detection searches
         each hinted feature around its hint; None: where the model puts them.

@@ -1,0 +1,691 @@
+"""Bundle adjustment of a sensor's intrinsics and plate geometry over a sweep.
+
+Unknowns: the geometry of ``GEOMETRY_NAMES`` (camera intrinsics and
+distortion, the ``[plate]`` dimensions) and, per frame off rest, the pose
+(dz_mm, a_rad, b_rad). The residuals are the tracked image points (12 corners
+and the tip, :mod:`camwhisker.sensor.model`) minus the model's, under a Huber loss on
+each point's distance, scaled to that point's own scatter. The normal
+equations are solved by Levenberg-Marquardt with the per-frame pose blocks
+eliminated (Schur complement), so a sweep of hundreds of frames costs little
+more than its geometry.
+
+Gauges, and what holds them:
+
+- Frames at rest have pose zero (that is what rest means): they fix dz = 0
+  against the depth z_i. Their tip does not count: the front end reads the tip
+  at rest up to 0.3 px off where it reads it once tilted, a constant the
+  moving frames do not share.
+- The lateral shift (sx, sy) is held at zero: a free shift lets the depth of
+  the rotation centre trade off against the features' depths.
+- The overall scale is invisible in the images: one known length (the
+  square's side, measured with calipers) must be held at its value, or frames
+  with a known dz (a stage's axial steps) given: a prior on their poses.
+
+The tracked corners: a tracked corner is the plate point that its rest
+template is centred on, the detected corner, which lies off the true corner
+by a constant (blur rounds a corner, compression moves an edge). With
+``corner_shifts`` each video's corners carry that offset as an in-plane shift
+in the plate, fitted under a prior: centred where an independent measurement
+of the true corner at rest puts it (``corner_offsets_uv``, the crossing of
+its edges' lines), with that measurement's error as its SD. A constant
+per-point error is then a parameter, not geometry, and its uncertainty enters
+every SE.
+
+Weights: each point's residuals are weighted by its own noise SD, its robust
+residual SD (its degrees of freedom less the share of the poses it absorbs)
+inflated for the frame-to-frame correlation of its residuals, measured at the
+solution and the fit repeated until they agree. A point measured worse (the
+tip, whose rim and rod the front end places by the sensor file being fitted,
+or a corner a spring disturbs) then weighs less. The shifts' prior keeps its
+own SD.
+
+Determinability: the standard error (SE) of every fitted parameter is the
+larger of two: the Gauss-Newton covariance at the solution, and the sandwich
+covariance with the residuals' scores summed over blocks of ``BLOCK_FRAMES``
+(tracking errors drift: within a block they may correlate in any way). A
+parameter whose SE exceeds ``SE_LIMIT`` times its build tolerance
+(``tolerances``) is not determined by the sweep: it is held at its nominal
+value, the worst first, and the rest fitted again.
+
+Both leave out what no residual shows: a tracking error that grows smoothly with
+the tilt, which the fit takes into the geometry. Each point is given one per
+coordinate, c1 a/PHI0 + c2 b/PHI0 + c3 (a^2 + b^2)/PHI0^2 with each c of SD
+``SYSTEMATIC_PX`` (measured on tuning builds), and the geometry's linear response
+to them adds to every variance. Which parameters to hold is decided without it:
+holding one does not remove that error, it passes it to the parameters correlated
+with the held one and adds its own (up to its tolerance).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from camwhisker.sensor.camera import JAC_TVEC, project_rigid
+from camwhisker.sensor.file import Sensor, SensorFileError
+from camwhisker.sensor.model import (
+    GEOMETRY_NAMES,
+    TIP,
+    PlateModel,
+    build_tolerances,
+    geometry_vector,
+    with_geometry,
+)
+from camwhisker.sensor.plate import rigid_motion
+from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_response
+
+__all__ = [
+    "HUBER_PX",
+    "SE_LIMIT",
+    "PHI_MIN_SWEEP_DEG",
+    "Adjustment",
+    "tolerances",
+    "adjust_geometry",
+    "corner_shift_jacobian",
+    "bias_terms",
+]
+
+#: The Huber loss is quadratic within this distance of a point's model (px):
+#: above the tracking noise (~0.1 px), below a mistracked corner (pixels).
+HUBER_PX = 0.5
+#: Once its residuals are measured, a point's Huber distance is this many times its
+#: own robust scatter (px per coordinate), up to HUBER_PX: a corner that a spring
+#: reaches in some frames of the sweep then counts less in those frames alone.
+HUBER_SCATTERS = 3.0
+#: Median of a 2D normal vector's length, in SDs per coordinate: sqrt(2 ln 2).
+_RAYLEIGH_MEDIAN = math.sqrt(2 * math.log(2))
+#: A parameter whose SE exceeds this fraction of its build tolerance is held:
+#: the sweep says less about it than the build's tolerance already does.
+SE_LIMIT = 0.5
+#: A sweep whose largest tilt stays below this (deg) leaves the depths and the
+#: distortion poorly determined.
+PHI_MIN_SWEEP_DEG = 15.0
+#: Prior SD of a tracked corner's in-plane shift about the one its measured offset
+#: gives (mm): the edges' crossings' error on tuning builds (0.0053 mm RMS over the
+#: moving frames, 0.010 at rest alone: compression moves an edge, the same way in
+#: every still frame); and where none was measured (the detected corner taken as the
+#: true one): the detection's error.
+CORNER_SHIFT_MM = 0.006
+CORNER_SHIFT_UNMEASURED_MM = 0.03
+#: Frames whose residuals the sandwich SE lets correlate freely: 1 s at 30 fps, longer
+#: than the tracking errors take to drift.
+BLOCK_FRAMES = 30
+#: SD (px) of a point's tilt-dependent tracking error at PHI0 of tilt, per term: the
+#: tracked-minus-true points of tuning builds 0-4 regressed on the terms, the RMS
+#: coefficient (0.074 px) less the regressions' own noise (0.021 px), in quadrature.
+SYSTEMATIC_PX = 0.071
+SYSTEMATIC_PHI0_RAD = math.radians(20.0)
+#: The frame-to-frame residual correlation used for the noise SD is capped here.
+MAX_FRAME_CORRELATION = 0.95
+#: The residuals' SD (px) assumed before the first fit measures it, and the
+#: relative change of the measured one below which the fit is not repeated.
+NOISE_START_PX = 0.1
+NOISE_RTOL = 0.1
+#: Fewest degrees of freedom a point's own noise SD is measured from.
+MIN_NOISE_DOF = 20
+#: Fits with the noise SDs updated, at most.
+_NOISE_PASSES = 4
+#: Points a frame needs for its pose (3 unknowns) to be checked by the others.
+MIN_POINTS = 4
+#: SD of a known dz (mm) per stage pause: a stage's step error.
+KNOWN_DZ_SD_MM = 0.001
+#: Parameters no sweep determines, always held at nominal, and why.
+ALWAYS_HELD = {
+    "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
+}
+#: Ridge (relative to the mean diagonal) that keeps an exactly singular reduced
+#: system solvable; a gauge direction then gets an SE of ~1e5 tolerances.
+_RIDGE = 1e-10
+#: Iterations at most; fewer for the poses alone at the start: they only start the
+#: geometry's fit, which moves them again, and the start geometry's px-sized
+#: residuals make Huber's reweighting converge slowly.
+_MAX_ITER = 60
+_START_ITER = 10
+#: Iterations stop when the cost (residuals in units of their SD, squared) falls by
+#: less than this: the last steps crawl along directions the sweep hardly determines.
+COST_ATOL = 0.01
+
+
+def tolerances(sensor: Sensor) -> np.ndarray:
+    """Each parameter's build tolerance, in the order of ``GEOMETRY_NAMES``."""
+    return build_tolerances(sensor)
+
+
+@dataclass(frozen=True)
+class Adjustment:
+    """The adjusted geometry, its standard errors and the residuals.
+
+    Attributes
+    ----------
+    sensor : Sensor
+        The nominal sensor with the fitted geometry.
+    nominal, value, se : ndarray, shape (len(GEOMETRY_NAMES),)
+        Nominal and fitted values, standard errors (NaN where held).
+    se_data : ndarray, shape (len(GEOMETRY_NAMES),)
+        The SEs without the tilt-dependent tracking error: what the sweep's data
+        say, which decides what is held and when the rounds are stable.
+    covariance : ndarray, shape (G, G)
+        The covariance behind ``se``; zero in a held parameter's row and column.
+    held : dict
+        Held parameter name -> why.
+    q : ndarray, shape (F, 5)
+        Per-frame poses (dz_mm, a_rad, b_rad, sx_mm, sy_mm); NaN for unused frames.
+    residual_uv : ndarray, shape (F, 13, 2)
+        Tracked minus model pixels; NaN where a point was not tracked.
+    used : ndarray of bool, shape (F,)
+        Frames in the adjustment (enough tracked points).
+    sigma_px : float
+        Robust residual standard deviation per coordinate.
+    n_iter : int
+    corner_shifts_mm : ndarray, shape (V, 12, 2)
+        Each video's tracked corners' in-plane shifts (x, y) in the plate.
+    noise_px : ndarray, shape (13,)
+        Each point's noise SD per coordinate, which weights its residuals: their
+        robust SD inflated for their frame-to-frame correlation.
+    warnings : list of str
+    """
+
+    sensor: Sensor
+    nominal: np.ndarray
+    value: np.ndarray
+    se: np.ndarray
+    se_data: np.ndarray
+    covariance: np.ndarray
+    held: dict
+    q: np.ndarray
+    residual_uv: np.ndarray
+    used: np.ndarray
+    sigma_px: float
+    n_iter: int
+    corner_shifts_mm: np.ndarray
+    noise_px: np.ndarray
+    warnings: list = field(default_factory=list)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return GEOMETRY_NAMES
+
+    @property
+    def phi_max_deg(self) -> float:
+        return float(np.degrees(np.nanmax(np.hypot(self.q[:, 1], self.q[:, 2]))))
+
+    def phi_se_deg(self, phi_deg: float = CHECK_PHI_DEG) -> float:
+        """SE of phi at ``phi_deg`` read with the fitted file, from the fitted
+        parameters' covariance (held ones count as exact), in the worst direction."""
+        response = phi_response(PlateModel(self.sensor), phi_deg)
+        return float(np.sqrt(np.einsum("tg,gh,th->t", response, self.covariance, response).max()))
+
+    def rms_per_point_px(self) -> np.ndarray:
+        """RMS residual distance of each tracked point over the used frames, shape (13,)."""
+        d2 = np.sum(self.residual_uv[self.used] ** 2, axis=-1)
+        return np.sqrt(np.nanmean(d2, axis=0))
+
+    def rms_per_frame_px(self) -> np.ndarray:
+        """RMS residual distance over each frame's tracked points, shape (F,)."""
+        d2 = np.sum(self.residual_uv**2, axis=-1)
+        with np.errstate(invalid="ignore"):
+            return np.sqrt(np.nanmean(np.where(np.isnan(d2).all(axis=1)[:, None], 0.0, d2), axis=1))
+
+
+@dataclass
+class _Problem:
+    """What one solve works on: observations, which frames and parameters, scaling."""
+
+    obs: np.ndarray  # (F, 13, 2)
+    valid: np.ndarray  # (F, 13)
+    rest: np.ndarray  # (F,)
+    video: np.ndarray  # (F,) each frame's video
+    sensor: Sensor
+    tol: np.ndarray  # (G + 2 TIP V,): the geometry's, then the shifts' prior SDs (mm)
+    shift_prior: np.ndarray  # (2 TIP V,): the shifts' prior centres (mm)
+    free: np.ndarray  # indices into the geometry, then the shifts
+    huber_max_px: float
+    huber_px: np.ndarray  # (13,) each point's Huber distance (px), at most huber_max_px
+    noise_px: np.ndarray  # (13,) each point's residuals' SD per coordinate: their weight
+    known_dz: np.ndarray  # (F,) a known dz (mm) per frame, NaN where none
+    known_dz_sd: np.ndarray  # (F,) its SD per frame (mm)
+
+
+@dataclass
+class _Normal:
+    """The robust normal equations at one point: geometry block U (n, n), its
+    right side bg (n,), pose blocks V (F, 3, 3), bp (F, 3), couplings W (F, n, 3)."""
+
+    cost: float
+    U: np.ndarray
+    bg: np.ndarray
+    V: np.ndarray
+    bp: np.ndarray
+    W: np.ndarray
+    residual: np.ndarray  # (F, 13, 2)
+    weight: np.ndarray  # (F, 13)
+    bg_frame: np.ndarray  # (F, n): each frame's share of bg
+    leverage: np.ndarray  # (F, 13): each point's share of its frame's pose (two coordinates)
+    systematic: np.ndarray  # (13, 2, 3, n): the reduced score's response to each bias term
+
+
+def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """Huber loss of point distances and its IRLS weights."""
+    quad = dist <= k
+    rho = np.where(quad, dist**2, 2 * k * dist - k * k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(quad, 1.0, k / dist)
+    return rho, w
+
+
+def corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
+    """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2).
+
+    Not in :class:`PlateModel`: its Jacobians are by the shared dimensions only.
+    """
+    rvec, tvec = rigid_motion(q5, model.z_i_mm)
+    _, jac = project_rigid(model.object_points[:TIP], rvec, tvec, model.camera)
+    d_cam = jac.reshape(TIP, 2, -1)[:, :, JAC_TVEC]
+    return d_cam @ cv2.Rodrigues(rvec)[0][:, :2]
+
+
+def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
+    """Linearise at g (the geometry, then the corners' shifts) and poses q (F, 3);
+    None if g is not a valid sensor."""
+    n_geo = len(GEOMETRY_NAMES)
+    shifts = g[n_geo:].reshape(-1, TIP, 2)
+    try:
+        model = PlateModel(with_geometry(p.sensor, g[:n_geo]))
+    except SensorFileError:
+        return None
+    n_f, n = len(q), len(p.free)
+    U, bg = np.zeros((n, n)), np.zeros(n)
+    V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
+    bg_frame = np.zeros((n_f, n))
+    residual = np.full((n_f, TIP + 1, 2), np.nan)
+    weight = np.zeros((n_f, TIP + 1))
+    leverage = np.zeros((n_f, TIP + 1))
+    d_shift = np.zeros((TIP + 1, 2, shifts.size))
+    systematic = np.zeros((TIP + 1, 2, 3, n))
+    cost = 0.0
+    q5 = np.zeros(5)
+    for f in np.flatnonzero(p.valid.any(axis=1)):
+        q5[:3] = q[f]
+        jac = model.jacobians(q5)
+        d_corner = corner_shift_jacobian(model, q5)
+        d_shift[:] = 0.0
+        first = 2 * TIP * p.video[f]
+        for j in range(TIP):  # block-diagonal: each shift moves its own corner
+            d_shift[j, :, first + 2 * j : first + 2 * j + 2] = d_corner[j]
+        m = p.valid[f]
+        uv = jac.uv.copy()
+        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts[p.video[f]])  # first order
+        r = p.obs[f][m] - uv[m]
+        rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px[m])
+        residual[f][m], weight[f][m] = r, w
+        cost += float(np.sum(rho / p.noise_px[m] ** 2))
+        sw = np.repeat(np.sqrt(w) / p.noise_px[m], 2)  # residuals in units of their SD
+        rw = r.reshape(-1) * sw
+        d_all = np.concatenate([jac.geometry, d_shift], axis=2)
+        jg = (d_all[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
+        U += jg.T @ jg
+        bg_frame[f] = jg.T @ rw
+        bg += bg_frame[f]
+        if not p.rest[f]:
+            jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
+            V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
+            if np.isfinite(p.known_dz[f]):  # a prior on the pose's dz, in units of its SD
+                r_dz = (p.known_dz[f] - q[f, 0]) / p.known_dz_sd[f]
+                V[f][0, 0] += p.known_dz_sd[f] ** -2
+                bp[f][0] += r_dz / p.known_dz_sd[f]
+                cost += r_dz**2
+            v_inv = np.linalg.pinv(V[f])
+            # The hat matrix's diagonal: how much of each residual the pose absorbs.
+            hat = np.einsum("ij,jk,ik->i", jp, v_inv, jp)
+            leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
+            # What of the geometry's rows the pose cannot absorb, per pixel of bias.
+            reduced = (jg - jp @ v_inv @ W[f].T) * sw[:, None]
+            systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
+                                       bias_terms(q[f]))  # fmt: skip
+    # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
+    is_shift = p.free >= n_geo
+    k = p.free[is_shift] - n_geo
+    x = (g[n_geo:][k] - p.shift_prior[k]) / p.tol[p.free[is_shift]]
+    U[is_shift, is_shift] += 1.0
+    bg[is_shift] -= x
+    cost += float(x @ x)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+
+
+def bias_terms(q3: np.ndarray) -> np.ndarray:
+    """The tilt-dependent tracking error's terms at pose (dz, a, b), shape (3,)."""
+    a, b = q3[1:3] / SYSTEMATIC_PHI0_RAD
+    return np.array([a, b, a * a + b * b])
+
+
+def _reduced(ne: _Normal, lam: float, moving: np.ndarray):
+    """The Schur complement S and right side of the geometry step, with Marquardt
+    damping lam, and the damped pose blocks' inverses (F, 3, 3)."""
+    eye3 = np.eye(3)
+    vd = ne.V + lam * ne.V * eye3 + np.where(moving, 0.0, 1.0)[:, None, None] * eye3
+    vinv = np.linalg.inv(vd)
+    wv = ne.W @ vinv  # (F, n, 3)
+    S = ne.U + lam * np.diag(np.diag(ne.U)) - np.einsum("fij,fkj->ik", wv, ne.W)
+    rhs = ne.bg - np.einsum("fij,fj->i", wv, ne.bp)
+    n = len(S)
+    if n:
+        S = S + _RIDGE * max(np.trace(S) / n, 1e-300) * np.eye(n)
+    return S, rhs, vinv
+
+
+def _step(ne: _Normal, lam: float, moving: np.ndarray):
+    """Levenberg-Marquardt step: geometry (n,) in tolerance units, poses (F, 3)."""
+    S, rhs, vinv = _reduced(ne, lam, moving)
+    dg = np.linalg.solve(S, rhs) if len(S) else np.zeros(0)
+    dq = np.einsum("fij,fj->fi", vinv, ne.bp - np.einsum("fij,i->fj", ne.W, dg))
+    return dg, np.where(moving[:, None], dq, 0.0)
+
+
+def _solve(p: _Problem, g: np.ndarray, q: np.ndarray, moving: np.ndarray,
+           max_iter: int = _MAX_ITER):  # fmt: skip
+    """Minimise the robust cost from (g, q); returns g, q, the last normal equations
+    and the number of iterations."""
+    ne = _normal(p, g, q)
+    if ne is None:
+        raise SensorFileError("the starting geometry is not a valid sensor")
+    lam, n_iter = 1e-3, 0
+    while n_iter < max_iter:
+        n_iter += 1
+        dg, dq = _step(ne, lam, moving)
+        g_try = g.copy()
+        g_try[p.free] += dg * p.tol[p.free]
+        q_try = q + dq
+        trial = _normal(p, g_try, q_try)
+        if trial is not None and trial.cost <= ne.cost:
+            done = ne.cost - trial.cost <= COST_ATOL
+            g, q, ne, lam = g_try, q_try, trial, max(lam / 3, 1e-9)
+            if done:
+                break
+        else:
+            lam *= 4
+            if lam > 1e8:
+                break
+    return g, q, ne, n_iter
+
+
+def _noise(ne: _Normal, p: _Problem, moving: np.ndarray
+           ) -> tuple[float, np.ndarray, np.ndarray]:  # fmt: skip
+    """The robust residual SD per coordinate (px); each point's noise SD, shape
+    (13,): its own robust residual SD inflated for its frame-to-frame correlation;
+    and each point's Huber distance (13,), ``HUBER_SCATTERS`` times its scatter
+    (from its median residual), at most ``huber_max_px``.
+    Per point, since a point measured with a biased model (the tip's rim and rod)
+    scatters far more than the corners, and must not drag their geometry."""
+    n_obs = 2 * int(np.count_nonzero(ne.weight))
+    dof = max(n_obs - 3 * int(moving.sum()) - len(p.free), 1)
+    r2 = np.nansum(ne.residual**2, axis=-1)
+    sigma = float(np.sqrt(np.sum(ne.weight * r2) / dof))
+    noise, huber = p.noise_px.copy(), p.huber_px.copy()
+    for j in range(TIP + 1):
+        # Its dof: its coordinates less the share of the poses they absorb (a point
+        # weighted heavily fits its frames' poses itself and shows no residual).
+        dof_j = 2 * np.count_nonzero(ne.weight[:, j]) - ne.leverage[:, j].sum()
+        if dof_j >= MIN_NOISE_DOF:
+            s_j = math.sqrt(np.sum(ne.weight[:, j] * r2[:, j]) / dof_j)
+            noise[j] = s_j * math.sqrt(_correlation_inflation(ne.residual[:, j]))
+            scatter = np.nanmedian(np.sqrt(r2[:, j][ne.weight[:, j] > 0])) / _RAYLEIGH_MEDIAN
+            huber[j] = min(HUBER_SCATTERS * scatter, p.huber_max_px)
+    return sigma, noise, huber
+
+
+def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """SE of the free parameters (their units) from the undamped reduced system, whose
+    residuals are in units of their noise SD: the larger of the model's covariance
+    S^-1 and the sandwich S^-1 M S^-1 with the residuals' scores summed over blocks
+    of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across),
+    and that plus the variance from the tilt-dependent errors (``SYSTEMATIC_PX``).
+    Third, the covariance behind the second: the sandwich's correlations with those
+    variances, plus the tilt-dependent errors' own."""
+    if not len(p.free):
+        return np.zeros(0), np.zeros(0), np.zeros((0, 0))
+    S, _, vinv = _reduced(ne, 0.0, moving)
+    score = ne.bg_frame - np.einsum("fij,fj->fi", ne.W @ vinv, ne.bp)  # each frame's share
+    # A block never spans two videos, and each video's rest frames are one block.
+    in_video = np.where(p.rest, -1, np.arange(len(p.rest)) // BLOCK_FRAMES)
+    block = p.video * (len(p.rest) + 1) + in_video
+    _, index = np.unique(block, return_inverse=True)
+    sums = np.zeros((index.max() + 1, S.shape[0]))
+    np.add.at(sums, index, score)
+    meat = sums.T @ sums
+    is_shift = p.free >= len(GEOMETRY_NAMES)
+    meat[is_shift, is_shift] += 1.0  # the prior: an observation of unit variance
+    s_inv = np.linalg.inv(S)
+    sandwich = s_inv @ meat @ s_inv
+    var = np.clip(np.maximum(np.diag(s_inv), np.diag(sandwich)), 0.0, None)
+    response = s_inv @ ne.systematic.reshape(-1, S.shape[0]).T  # (n, 13 * 2 * 3)
+    var_sys = SYSTEMATIC_PX**2 * np.sum(response**2, axis=1)
+    d = np.sqrt(np.clip(np.diag(sandwich), 1e-300, None))
+    scale = np.sqrt(var) / d
+    cov = sandwich * np.outer(scale, scale) + SYSTEMATIC_PX**2 * response @ response.T
+    tol = p.tol[p.free]
+    return np.sqrt(var) * tol, np.sqrt(var + var_sys) * tol, cov * np.outer(tol, tol)
+
+
+def _correlation_inflation(residual: np.ndarray) -> float:
+    """Variance factor (1 + rho) / (1 - rho) for residuals correlated from one frame
+    to the next with lag-1 correlation rho (AR(1)): tracking errors drift smoothly,
+    so consecutive frames are not independent measurements."""
+    a, b = residual[:-1], residual[1:]
+    both = np.isfinite(a) & np.isfinite(b)
+    if both.sum() < 10:
+        return 1.0
+    a, b = a[both], b[both]
+    rho = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = min(max(rho, 0.0), MAX_FRAME_CORRELATION)
+    return (1 + rho) / (1 - rho)
+
+
+def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float):
+    """Fit, with the noise SD measured at the solution until it agrees with the one
+    used; then hold the free geometry parameter worst determined (SE above
+    se_limit tolerances) at nominal and fit again, until none is; ``held``,
+    ``p.free`` and ``p.noise_px`` are updated. Returns g, q, the normal
+    equations, the free SEs (with and without the tilt-dependent error) and their
+    covariance, sigma and the iterations."""
+    n_geo, n_iter, passes = len(nominal), 0, 0
+    while True:
+        g, q, ne, it = _solve(p, g, q, moving)
+        n_iter += it
+        passes += 1
+        sigma, noise, huber = _noise(ne, p, moving)
+        change = np.abs(np.concatenate([noise / p.noise_px, huber / p.huber_px]) - 1)
+        if change.max() > NOISE_RTOL and passes < _NOISE_PASSES:
+            # The weights were off: fit again with the measured SDs and Huber distances.
+            p.noise_px, p.huber_px = noise, huber
+            continue
+        se_data, se_free, cov = _standard_errors(ne, p, moving)
+        n_free_geo = int(np.count_nonzero(p.free < n_geo))
+        # By what the sweep's data say: holding does not remove the tilt-dependent error,
+        # it passes it to the parameters correlated with the held one, and adds its own.
+        ratio = se_data[:n_free_geo] / p.tol[p.free[:n_free_geo]]
+        if not len(ratio) or ratio.max() <= se_limit:
+            return g, q, ne, (se_free, se_data, cov), sigma, n_iter
+        worst = int(np.argmax(ratio))
+        i = int(p.free[worst])
+        held[GEOMETRY_NAMES[i]] = (
+            f"not determined by the sweep (SE {se_data[worst]:.3g} > {se_limit} x tolerance "
+            f"{p.tol[i]:.3g}): held at nominal"
+        )
+        g[i] = nominal[i]
+        p.free = np.delete(p.free, worst)
+
+
+def _shift_prior(sensor: Sensor, offsets_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The shifts' prior centres (mm) from the corners' rest offsets (px), and their
+    SDs (mm): each offset carried into the plate through its corner's Jacobian at rest;
+    an unmeasured one (NaN) centres at zero with the wider SD."""
+    d_corner = corner_shift_jacobian(PlateModel(sensor), np.zeros(5))  # (12, 2, 2)
+    measured = np.isfinite(offsets_uv).all(axis=-1)  # (V, 12)
+    centre = np.linalg.solve(d_corner[None], np.nan_to_num(offsets_uv)[..., None])[..., 0]
+    centre[~measured] = 0.0
+    sd = np.where(measured, CORNER_SHIFT_MM, CORNER_SHIFT_UNMEASURED_MM)
+    return centre.reshape(-1), np.repeat(sd.reshape(-1), 2)
+
+
+def _checked(points_uv, rest, video, corner_offsets_uv, fixed):
+    """adjust_geometry's inputs as arrays (and a dict), with their defaults; ValueError
+    naming the first that is malformed."""
+    points_uv = np.asarray(points_uv, dtype=float)
+    rest = np.asarray(rest, dtype=bool)
+    n_frames = len(points_uv)
+    if points_uv.ndim != 3 or points_uv.shape[1:] != (TIP + 1, 2) or len(rest) != n_frames:
+        raise ValueError(f"points_uv must be (F, {TIP + 1}, 2) with one rest flag per frame")
+    video = np.zeros(n_frames, int) if video is None else np.asarray(video, dtype=int)
+    if video.shape != (n_frames,) or video.min(initial=0) < 0:
+        raise ValueError("video must give each frame's video index, 0 or more")
+    n_videos = int(video.max(initial=0)) + 1
+    if corner_offsets_uv is None:
+        corner_offsets_uv = np.full((n_videos, TIP, 2), np.nan)
+    corner_offsets_uv = np.asarray(corner_offsets_uv, dtype=float)
+    if corner_offsets_uv.shape != (n_videos, TIP, 2):
+        raise ValueError(f"corner_offsets_uv must be ({n_videos}, {TIP}, 2): one row per video")
+    fixed = dict(fixed or {})
+    unknown = set(fixed) - set(GEOMETRY_NAMES)
+    if unknown:
+        raise ValueError(f"unknown geometry parameter {sorted(unknown)[0]!r}")
+    return points_uv, rest, video, corner_offsets_uv, fixed
+
+
+def adjust_geometry(
+    points_uv: np.ndarray,
+    sensor: Sensor,
+    rest: np.ndarray,
+    fixed: dict[str, float] | None = None,
+    q0: np.ndarray | None = None,
+    corner_shifts: bool = False,
+    corner_offsets_uv: np.ndarray | None = None,
+    video: np.ndarray | None = None,
+    huber_px: float = HUBER_PX,
+    se_limit: float = SE_LIMIT,
+    known_dz_mm: np.ndarray | None = None,
+    known_dz_sd_mm: np.ndarray | float = KNOWN_DZ_SD_MM,
+) -> Adjustment:
+    """Fit the geometry and per-frame poses to tracked points over a sweep.
+
+    Parameters
+    ----------
+    points_uv : ndarray, shape (F, 13, 2)
+        Tracked image points per frame (12 corners, the tip); NaN where not tracked.
+    sensor : Sensor
+        The starting (nominal) sensor; held parameters keep its values.
+    rest : ndarray of bool, shape (F,)
+        Frames at rest (pose zero). At least one is needed.
+    fixed : dict, optional
+        Parameters held at given values, e.g. ``{"plate.square_side_mm": 5.02}``
+        (the known length that fixes the scale).
+    q0 : ndarray, shape (F, 3) or (F, 5), optional
+        Starting poses (dz_mm, a_rad, b_rad, ...); default zero.
+    corner_shifts : bool
+        Fit each video's tracked corners' in-plane positions in the plate too,
+        under the prior of the module notes; otherwise they are held at its centre.
+    corner_offsets_uv : ndarray, shape (V, 12, 2), optional
+        Each video's tracked corners minus the true corners at rest (px), measured
+        apart from the detection (NaN: not measured); default: none measured.
+    video : ndarray of int, shape (F,), optional
+        Each frame's video, 0 ... V - 1 (its rest templates); default all 0.
+    huber_px, se_limit : float
+        See ``HUBER_PX`` (each point's Huber distance at most) and ``SE_LIMIT``.
+    known_dz_mm, known_dz_sd_mm : ndarray, shape (F,), optional; float or ndarray
+        A frame's known dz (mm; NaN where unknown), such as a stage's axial steps, and
+        its SD: a prior on the frame's pose that fixes the scale without a length.
+
+    Returns
+    -------
+    Adjustment
+    """
+    points_uv, rest, video, corner_offsets_uv, fixed = _checked(
+        points_uv, rest, video, corner_offsets_uv, fixed
+    )
+    known_dz, known_sd = _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames := len(points_uv))
+    n_videos = len(corner_offsets_uv)
+    valid = np.isfinite(points_uv).all(axis=-1)
+    used = valid.sum(axis=1) >= MIN_POINTS
+    if not (rest & used).any():
+        raise ValueError("no rest frame with enough tracked points: the depth has no zero")
+    valid &= used[:, None]
+    valid[rest, TIP] = False  # see the module notes
+    g = geometry_vector(sensor)
+    for name, value in fixed.items():
+        g[GEOMETRY_NAMES.index(name)] = value
+    start = with_geometry(sensor, g)
+    nominal = geometry_vector(sensor)
+    n_geo = len(g)
+    shift_prior, shift_sd = _shift_prior(start, corner_offsets_uv)
+    g = np.concatenate([g, shift_prior])  # then the corners' shifts (mm)
+    q = np.zeros((n_frames, 3)) if q0 is None else np.array(q0, dtype=float)[:, :3]
+    q[rest | ~used] = 0.0
+    moving = used & ~rest
+    tol = np.concatenate([tolerances(sensor), shift_sd])
+    held = {name: "held at the given value" for name in fixed}
+    held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
+    p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior, np.zeros(0, dtype=int),
+                 huber_px, np.full(TIP + 1, huber_px), np.full(TIP + 1, NOISE_START_PX),
+                 known_dz, known_sd)  # fmt: skip
+    g, q, ne, n_iter = _solve(p, g, q, moving, _START_ITER)  # the poses alone first
+    free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
+    p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
+    g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
+    n_iter += it
+    se, se_data, covariance = _geometry_errors(p.free, n_geo, *se_free)
+    g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
+    q5 = np.where(used[:, None], np.pad(q, ((0, 0), (0, 2))), np.nan)
+    scaled_by_dz = bool(np.nan_to_num(known_dz)[moving].any())
+    return Adjustment(
+        with_geometry(sensor, g), nominal, g, se, se_data, covariance, held, q5, ne.residual,
+        used, sigma, n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, scaled_by_dz),
+    )  # fmt: skip
+
+
+def _geometry_errors(free: np.ndarray, n_geo: int, se, se_data, cov):
+    """The free parameters' SEs (with and without the tilt-dependent error) and
+    covariance placed in the geometry's order: NaN SEs and zero covariance where held."""
+    geo = free[free < n_geo]  # the free geometry comes first, then the shifts
+    out_se, out_se_data = np.full((2, n_geo), np.nan)
+    out_se[geo], out_se_data[geo] = se[: len(geo)], se_data[: len(geo)]
+    covariance = np.zeros((n_geo, n_geo))
+    covariance[np.ix_(geo, geo)] = cov[: len(geo), : len(geo)]
+    return out_se, out_se_data, covariance
+
+
+def _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames: int):
+    """The known dz and its SD as (F,) arrays; ValueError naming what is malformed."""
+    known = np.full(n_frames, np.nan) if known_dz_mm is None else np.asarray(known_dz_mm, float)
+    sd = np.broadcast_to(np.asarray(known_dz_sd_mm, float), known.shape).copy()
+    if known.shape != (n_frames,):
+        raise ValueError(f"known_dz_mm must give one value (or NaN) per frame, {n_frames}")
+    if not np.all(sd[np.isfinite(known)] > 0):
+        raise ValueError("known_dz_sd_mm must be positive where a dz is known")
+    return known, sd
+
+
+def _warnings(q5: np.ndarray, held: dict, fixed: dict, known_dz: bool) -> list[str]:
+    """What the user should know about the sweep and the gauge (``known_dz``: a
+    moving frame's dz, not zero, is known, which fixes the scale)."""
+    out = []
+    phi_max = float(np.degrees(np.nanmax(np.hypot(q5[:, 1], q5[:, 2]))))
+    if phi_max < PHI_MIN_SWEEP_DEG:
+        out.append(
+            f"the sweep's largest tilt is {phi_max:.1f} deg (< {PHI_MIN_SWEEP_DEG:g} deg): "
+            "the depths and the distortion are poorly determined; sweep to ~30 deg"
+        )
+    lengths = [n for n in GEOMETRY_NAMES if n.endswith("_mm")]
+    if not known_dz and not any(n in fixed for n in lengths):
+        scale_held = [n for n in lengths if n in held]
+        out.append(
+            "no known length: the overall scale is not determined by images; "
+            + (f"held {', '.join(scale_held)} at nominal" if scale_held else "the fit is unscaled")
+            + " (give the square's side measured with calipers, or known dz steps)"
+        )
+    for name, why in held.items():
+        if name not in fixed:
+            out.append(f"{name} {why}")
+    return out

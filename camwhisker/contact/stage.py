@@ -1,0 +1,445 @@
+"""Linear-stage logs: parse and validate, find pauses, estimate the clock offset, pause medians.
+
+A stage log (docs/sensor.md section 7) is a CSV with header ``t_s,x_mm`` and an
+optional ``r_mm`` (known contact distance) and ``dz_mm`` (applied axial
+deflection), on the stage's own clock. The camera's signal table
+(section 6) has its own clock; ``offset_s`` below always means
+
+    t_camera = t_stage + offset_s.
+
+The paper takes, for every pause of the stage (stationary >= 1 s), the median
+of phi and dz over the frames of the pause; :func:`pause_medians` does that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker.files.tables import read_log
+
+__all__ = [
+    "StageLogError",
+    "StageLog",
+    "Pauses",
+    "PauseTable",
+    "read_stage_log",
+    "stage_log_from_arrays",
+    "detect_pauses",
+    "estimate_offset",
+    "best_offset",
+    "pause_medians",
+    "pause_index",
+    "pause_frames",
+    "log_pause_medians",
+    "contact_onset_x",
+    "MIN_PAUSE_S",
+]
+
+# The paper: "We ensured at least one second between steps."
+MIN_PAUSE_S = 1.0
+# Position changes below this count as standing still: the NRT-150's 0.1 um
+# resolution is far finer; 1 um also absorbs a printed rounding of x_mm.
+STATIONARY_TOL_MM = 1e-3
+# Frames this close to either end of a pause are left out of its median: it
+# covers a residual clock-offset error and the settling of a quasi-static step.
+PAUSE_TRIM_S = 0.1
+# A pause needs this many trusted frames to give a median: three is the fewest
+# whose median still rejects one bad frame, and what a 1.2 s pause holds at a
+# low recording rate of 3 frames/s (at 30 frames/s a pause holds 30 or more).
+MIN_PAUSE_FRAMES = 3
+# Offset search: coarse grid then a fine grid around the best coarse value.
+OFFSET_COARSE_STEP_S = 0.1
+OFFSET_FINE_STEP_S = 0.004
+# Coarse local maxima refined on the fine grid (the best refined one wins).
+OFFSET_CANDIDATES = 3
+# Default search range of the offset (+-, s); a caller that knows better passes search_s.
+DEFAULT_OFFSET_RANGE_S = 30.0
+# Scores within this of the best count as the best plateau: about the score's
+# noise from one frame's worth of noise moving in or out of a pause.
+OFFSET_PLATEAU = 1e-4
+
+
+class StageLogError(ValueError):
+    """A stage log that cannot be used; the message names the file, row and problem."""
+
+
+@dataclass(frozen=True)
+class StageLog:
+    """A validated stage log: arrays of shape (N,), times strictly increasing."""
+
+    t_s: np.ndarray
+    x_mm: np.ndarray
+    r_mm: np.ndarray | None
+    source: str
+    dz_mm: np.ndarray | None = None
+
+    @property
+    def travel_sign(self) -> float:
+        """+1 if the stage travels toward +x over the log, -1 if toward -x."""
+        return 1.0 if self.x_mm[-1] >= self.x_mm[0] else -1.0
+
+    def x_at(self, t_stage_s) -> np.ndarray:
+        """Stage position at stage-clock times; NaN outside the log."""
+        t = np.asarray(t_stage_s, float)
+        x = np.interp(t, self.t_s, self.x_mm)
+        return np.where((t >= self.t_s[0]) & (t <= self.t_s[-1]), x, np.nan)
+
+
+def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog:
+    """Read and validate a stage log CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+    max_gap_s : float
+        Largest allowed interval between consecutive samples; a longer gap
+        could hide a motion, so it is an error.
+
+    Raises
+    ------
+    StageLogError
+        Missing file or columns, a non-numeric or non-finite cell, times not
+        strictly increasing (unsorted or duplicate), a gap, or fewer than two rows.
+        The message names the file and the 1-based row (the header is row 1).
+    """
+    path = Path(path)
+    arrays, _ = read_log(path, ("t_s", "x_mm"), ("r_mm", "dz_mm"), "stage log", StageLogError)
+    return stage_log_from_arrays(arrays["t_s"], arrays["x_mm"], arrays.get("r_mm"),
+                                 source=str(path), max_gap_s=max_gap_s, first_row=2,
+                                 dz_mm=arrays.get("dz_mm"))
+
+
+def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN_PAUSE_S,
+                          first_row=0, dz_mm=None) -> StageLog:
+    """Validate arrays as a stage log (see :func:`read_stage_log`); rows counted from first_row."""
+    t = np.asarray(t_s, float)
+    x = np.asarray(x_mm, float)
+    if t.size < 2:
+        raise StageLogError(f"{source}: needs at least 2 samples, got {t.size}")
+    if x.shape != t.shape or any(v is not None and np.shape(v) != t.shape for v in (r_mm, dz_mm)):
+        raise StageLogError(f"{source}: columns have different lengths")
+    for name, v in (("t_s", t), ("x_mm", x)):
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise StageLogError(f"{source}: row {bad[0] + first_row}: {name} is not finite")
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = bad[0]
+        what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
+        raise StageLogError(
+            f"{source}: row {k + 1 + first_row}: {what}: t_s = {float(t[k + 1])!r} "
+            f"after {float(t[k])!r}"
+        )
+    gap = np.flatnonzero(dt > max_gap_s)
+    if gap.size:
+        k = gap[0]
+        raise StageLogError(
+            f"{source}: row {k + 1 + first_row}: gap of {dt[k]:.3f} s after t_s = {float(t[k])!r} "
+            f"(more than {max_gap_s} s without a sample)"
+        )
+    r = None if r_mm is None else np.asarray(r_mm, float)
+    dz = None if dz_mm is None else np.asarray(dz_mm, float)
+    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source, dz_mm=dz)
+
+
+@dataclass(frozen=True)
+class Pauses:
+    """Stationary intervals of a stage log (stage clock), arrays shape (P,)."""
+
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    x_mm: np.ndarray
+
+
+def detect_pauses(log: StageLog, min_pause_s: float = MIN_PAUSE_S,
+                  tol_mm: float = STATIONARY_TOL_MM) -> Pauses:
+    """Intervals where the stage stands still for at least ``min_pause_s``.
+
+    Consecutive samples closer than ``tol_mm`` belong to the same stationary run;
+    a run's duration is from its first to its last sample.
+    """
+    moving = np.abs(np.diff(log.x_mm)) > tol_mm
+    # Run boundaries: a new run starts after every moving interval.
+    starts, ends = [], []
+    i = 0
+    n = log.t_s.size
+    while i < n:
+        j = i
+        while j < n - 1 and not moving[j]:
+            j += 1
+        starts.append(i)
+        ends.append(j)
+        i = j + 1
+    s, e = np.array(starts), np.array(ends)
+    keep = (log.t_s[e] - log.t_s[s]) >= min_pause_s
+    s, e = s[keep], e[keep]
+    return Pauses(t_start_s=log.t_s[s], t_end_s=log.t_s[e], x_mm=log.x_mm[s])
+
+
+def pause_index(t_camera_s, pauses: Pauses, offset_s: float, trim_s: float):
+    """Index of the pause each camera time falls in (-1 for none), ``trim_s`` in from each end."""
+    t_stage = np.asarray(t_camera_s, float) - offset_s
+    if pauses.t_start_s.size == 0:  # a log that never stands still for a pause
+        return np.full(t_stage.shape, -1)
+    k = np.searchsorted(pauses.t_start_s + trim_s, t_stage, side="right") - 1
+    kc = np.clip(k, 0, None)
+    inside = (k >= 0) & (t_stage <= pauses.t_end_s[kc] - trim_s) & np.isfinite(t_stage)
+    return np.where(inside, k, -1)
+
+
+def pause_frames(t_camera_s, good, pauses: Pauses, offset_s: float) -> list[np.ndarray]:
+    """Indices of the ``good`` frames in each pause, :data:`PAUSE_TRIM_S` in from either end."""
+    idx = pause_index(t_camera_s, pauses, offset_s, PAUSE_TRIM_S)
+    order = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[order], np.arange(pauses.t_start_s.size + 1))
+    good = np.asarray(good, bool)
+    return [f[good[f]] for f in (order[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True))]
+
+
+def log_pause_medians(log: StageLog, values, pauses: Pauses) -> np.ndarray:
+    """Median of a log column (r_mm, dz_mm) over the samples of each pause; NaN without it."""
+    out = np.full(pauses.t_start_s.size, np.nan)
+    if values is None:
+        return out
+    for k, (a, b) in enumerate(zip(pauses.t_start_s, pauses.t_end_s, strict=True)):
+        out[k] = np.median(values[(log.t_s >= a) & (log.t_s <= b)])
+    return out
+
+
+def _explained(signal, pause_idx, n_pauses, x_frames, pause_x):
+    """Share of the signal's variance explained by the quasi-static model.
+
+    The model: the signal is a function of the stage position only, equal to
+    its pause mean at each pause position and linear in x between them (so the
+    frames of a step's ramp are predicted too). Frames outside the log are
+    unexplained. NaN-free result in [-inf, 1].
+    """
+    sel = (pause_idx >= 0) & np.isfinite(signal)
+    if sel.sum() < 2 * MIN_PAUSE_FRAMES:
+        return 0.0
+    count = np.bincount(pause_idx[sel], minlength=n_pauses)
+    level = np.bincount(pause_idx[sel], weights=signal[sel], minlength=n_pauses)
+    have = count > 0
+    level = level[have] / count[have]
+    xp = pause_x[have]
+    order = np.argsort(xp, kind="stable")
+    finite = np.isfinite(signal)
+    use = np.isfinite(x_frames) & finite
+    if use.sum() < 2 * MIN_PAUSE_FRAMES:
+        return 0.0
+    # Frames that the offset puts outside the log are not explained: they count
+    # with their full deviation, so an offset that slides most of the signal off
+    # the log cannot score high on the few frames left.
+    v_all = signal[finite]
+    mean = v_all.mean()
+    total = float(np.sum((v_all - mean) ** 2))
+    if total <= 0.0:
+        return 0.0
+    v = signal[use]
+    model = np.interp(x_frames[use], xp[order], level[order])
+    outside = float(np.sum((signal[finite & ~use] - mean) ** 2))
+    return 1.0 - (float(np.sum((v - model) ** 2)) + outside) / total
+
+
+def estimate_offset(log: StageLog, t_camera_s, phi_deg, dz_mm=None,
+                    search_s: tuple[float, float] = (-DEFAULT_OFFSET_RANGE_S,
+                                                     DEFAULT_OFFSET_RANGE_S)):
+    """Estimate ``offset_s`` (t_camera = t_stage + offset_s) from the signals alone.
+
+    The whisker is quasi-static, so phi and dz are functions of the stage
+    position alone. For a trial offset, every frame gets the stage position at
+    its time; the pause means give the signal at each pause position, linear
+    interpolation in x predicts every other frame (the ramps of the steps
+    included), and the score is the share of the variance of phi (and dz, the
+    two averaged) that this explains. A wrong offset puts steps where the
+    signal is still and vice versa. Pause lengths differ from step to step,
+    which makes the maximum unique. Coarse grid, then a fine grid around the best.
+
+    Returns
+    -------
+    offset_s : float
+        NaN if no offset in the range brings signal frames into the pauses.
+    score : float
+        The explained share at the estimate, in [0, 1]; near 0 means no contact
+        motion was seen and the offset is not determined.
+    """
+    pauses = detect_pauses(log)
+    t = np.asarray(t_camera_s, float)
+    signals = [np.asarray(phi_deg, float)]
+    if dz_mm is not None:
+        signals.append(np.asarray(dz_mm, float))
+
+    def score(offset):
+        idx = pause_index(t, pauses, offset, PAUSE_TRIM_S)
+        x = log.x_at(t - offset)
+        parts = [_explained(s, idx, pauses.t_start_s.size, x, pauses.x_mm) for s in signals]
+        return float(np.mean(parts))
+
+    if pauses.t_start_s.size < 2:
+        return math.nan, 0.0
+    return best_offset(score, search_s)
+
+
+def best_offset(score, search_s: tuple[float, float]) -> tuple[float, float]:
+    """The clock offset (s) in ``search_s`` that maximises ``score(offset)``, and its score.
+
+    Coarse grid, then a fine grid around the best few coarse local maxima: with the
+    coarse grid up to half a step off the truth, the true peak can score below a wrong
+    offset that shifts the pauses by whole steps (where phi(x) is a plain ramp). Near
+    the truth the score is flat up to noise: the middle of the offsets within
+    OFFSET_PLATEAU of the best is the estimate.
+    """
+    lo, hi = search_s
+    coarse = np.arange(lo, hi + OFFSET_COARSE_STEP_S / 2, OFFSET_COARSE_STEP_S)
+    scores = np.array([score(o) for o in coarse])
+    interior = np.r_[True, scores[1:] >= scores[:-1]] & np.r_[scores[:-1] >= scores[1:], True]
+    peaks = np.flatnonzero(interior)
+    peaks = peaks[np.argsort(scores[peaks])[::-1][:OFFSET_CANDIDATES]]
+    best_fine, best_scores = None, None
+    for b in coarse[peaks]:
+        fine = np.arange(b - 2 * OFFSET_COARSE_STEP_S, b + 2 * OFFSET_COARSE_STEP_S,
+                         OFFSET_FINE_STEP_S)
+        fs = np.array([score(o) for o in fine])
+        if best_scores is None or fs.max() > best_scores.max():
+            best_fine, best_scores = fine, fs
+    top = best_fine[best_scores >= best_scores.max() - OFFSET_PLATEAU]
+    return float(0.5 * (top.min() + top.max())), float(best_scores.max())
+
+
+@dataclass(frozen=True)
+class PauseTable:
+    """Per-pause medians (arrays shape (P,)); times on the camera clock."""
+
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+    x_mm: np.ndarray
+    phi_deg: np.ndarray
+    dz_mm: np.ndarray
+    r_mm: np.ndarray
+    n_frames: np.ndarray
+
+
+def pause_medians(log: StageLog, t_camera_s, phi_deg, dz_mm, ok, offset_s: float,
+                  pauses: Pauses | None = None) -> PauseTable:
+    """Median phi and dz of the trusted frames in each stage pause (the paper's data points).
+
+    Pauses with fewer than :data:`MIN_PAUSE_FRAMES` trusted frames get NaN.
+    ``r_mm`` is the median of the log's r_mm over the pause (NaN without it).
+    """
+    pauses = pauses or detect_pauses(log)
+    t = np.asarray(t_camera_s, float)
+    phi = np.asarray(phi_deg, float)
+    dz = np.asarray(dz_mm, float)
+    good = np.asarray(ok).astype(bool) & np.isfinite(phi) & np.isfinite(dz)
+    p = pauses.t_start_s.size
+    phi_med, dz_med = np.full(p, np.nan), np.full(p, np.nan)
+    n = np.zeros(p, int)
+    for k, frames in enumerate(pause_frames(t, good, pauses, offset_s)):
+        n[k] = frames.size
+        if frames.size >= MIN_PAUSE_FRAMES:
+            phi_med[k] = np.median(phi[frames])
+            dz_med[k] = np.median(dz[frames])
+    r_med = log_pause_medians(log, log.r_mm, pauses)
+    return PauseTable(
+        t_start_s=pauses.t_start_s + offset_s, t_end_s=pauses.t_end_s + offset_s,
+        x_mm=pauses.x_mm, phi_deg=phi_med, dz_mm=dz_med, r_mm=r_med, n_frames=n,
+    )
+
+
+# Contact onset: pauses with phi above this are in contact (about 20 times the
+# noise of a pause median, 0.22 deg * 1.25 / sqrt(30 frames) ~ 0.05 deg).
+CONTACT_PHI_DEG = 1.0
+# The onset line is fitted through the contact pauses while phi is still
+# linear in travel: below 5 deg the small-deflection beam is within 0.02 deg of
+# the elastica (mechanics.whisker.PHI_LINEAR_MAX_DEG).
+ONSET_PHI_MAX_DEG = 5.0
+# ... or through the first few contact pauses when fewer than two are that small.
+ONSET_FIT_PAUSES = 3
+# ... and only while phi still rises: a contact that starts to slip under 5 deg levels
+# phi off, and a line through that level puts x0 far too early. Two lines (rise, then
+# level) replace the one where they fit better by an F statistic over this (by chance
+# at p = 0.01 for 10 samples, 0.002 for 20) and the second rises at under this share of
+# the first's slope. A rise needs 3 samples to be fitted (2 always fit a line).
+ONSET_SPLIT_F = 10.0
+ONSET_LEVEL_RATIO = 0.5
+ONSET_RISE_MIN = 3
+
+
+def _line_rss(n, sx, sy, sxx, sxy, syy):
+    """Residual sum of squares and slope of the least-squares line, from its sums."""
+    vx = sxx - sx * sx / n
+    cxy = sxy - sx * sy / n
+    slope = np.divide(cxy, vx, out=np.zeros_like(cxy), where=vx > 0)
+    return np.maximum(syy - sy * sy / n - slope * cxy, 0.0), slope
+
+
+def _level_start(u, phi) -> int | None:
+    """Where phi (ordered by travel u) levels off: the number of samples in its rise, or
+    None where one line fits as well as a rise and a level (:data:`ONSET_SPLIT_F`)."""
+    n = u.size
+    if n < 5:  # two lines and a residual
+        return None
+    sums = np.cumsum(np.stack([np.ones(n), u, phi, u * u, u * phi, phi * phi]), axis=1)
+    k = np.arange(2, n - 1)  # samples in the rise; the level keeps two or more
+    left, total = sums[:, k - 1], sums[:, -1:]
+    rss_l, slope_l = _line_rss(*left)
+    rss_r, slope_r = _line_rss(*(total - left))
+    rss_1, _ = _line_rss(*total)
+    i = int(np.argmin(rss_l + rss_r))
+    two = rss_l[i] + rss_r[i]
+    f = (rss_1[0] - two) / 2.0 / (two / (n - 4)) if two > 0 else np.inf
+    levels = slope_l[i] > 0 and slope_r[i] < ONSET_LEVEL_RATIO * slope_l[i]
+    return int(k[i]) if f > ONSET_SPLIT_F and levels else None
+
+
+def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
+    """Stage position of first contact, from pause medians or from frames of a continuous sweep.
+
+    Fits phi = a (x - x0) through the pauses with :data:`CONTACT_PHI_DEG` <= phi <
+    :data:`ONSET_PHI_MAX_DEG` before phi first leaves that range, up to where phi
+    levels off (:func:`_level_start`), or through the first
+    :data:`ONSET_FIT_PAUSES` contact pauses if fewer than two, and returns x0
+    (where phi extrapolates to zero); a rise of fewer than :data:`ONSET_RISE_MIN`
+    pauses before the level gives the line through the first contact pause and the
+    pause before it. A single contact pause gives the midpoint between it and the
+    pause before. NaN if phi never reaches the threshold.
+    """
+    x = np.asarray(x_mm, float)
+    phi = np.asarray(phi_deg, float)
+    order = np.argsort(travel_sign * x, kind="stable")
+    x, phi = x[order], phi[order]
+    finite = np.isfinite(phi) & np.isfinite(x)
+    x, phi = x[finite], phi[finite]
+    hit = np.flatnonzero(phi >= CONTACT_PHI_DEG)
+    if hit.size == 0:
+        return math.nan
+    first = hit[0]
+    linear = phi[first:] < ONSET_PHI_MAX_DEG
+    n_linear = int(np.argmin(linear)) if not linear.all() else linear.size
+    use = np.arange(first, first + n_linear)
+    # Not the samples after contact is lost (a whisker that slides off under 5 deg).
+    touching = np.flatnonzero(phi[use] >= CONTACT_PHI_DEG)
+    use = use[:touching[-1] + 1] if touching.size else use
+    rise = _level_start(travel_sign * x[use], phi[use])
+    if rise is not None and rise < ONSET_RISE_MIN:
+        # The second sample may be on the level already: the first and the one before it
+        # (at rest, or in contact under CONTACT_PHI_DEG) bracket the onset.
+        use = np.arange(max(first - 1, 0), first + 1)
+    elif rise is not None:
+        use = use[:rise]
+    elif use.size < 2:
+        use = hit[:ONSET_FIT_PAUSES]
+    if use.size < 2 or np.ptp(x[use]) == 0:  # frames at one position carry no slope
+        return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))
+    slope, intercept = np.polyfit(x[use], phi[use], 1)
+    if slope * travel_sign <= 0:
+        return float(x[first])
+    x0 = -intercept / slope
+    # The onset lies between the log's first pause and the first contact pause.
+    a, b = sorted((x[0], x[first]))
+    return float(np.clip(x0, a, b))
