@@ -88,8 +88,9 @@ def _make_videos(d: Path) -> dict:
 
 def _make_tables(d: Path) -> None:
     """simulate-stage runs and their calibration, then broken copies of each file."""
-    assert main(["simulate-stage", "--kind", "eq8", "--out", str(d / "cal"), "--seed", "5"]) == 0
-    assert main(["simulate-stage", "--kind", "compliant", "--out", str(d / "run"),
+    assert main(["dev", "simulate-stage", "--kind", "eq8", "--out", str(d / "cal"),
+                 "--seed", "5"]) == 0
+    assert main(["dev", "simulate-stage", "--kind", "compliant", "--out", str(d / "run"),
                  "--seed", "6"]) == 0
     args = ["calibrate", "--out", str(d / "calib.toml")]
     for r in ("r22.5", "r60", "r90"):
@@ -158,13 +159,13 @@ def _cases(d: Path) -> dict:
                                               "--out", f"{out}/{stem}.toml", "--quiet", *s],
                                              2, f"{v}: {needle}")
         if name != "small.avi":  # describe needs no sensor: a small video is a video
-            cases[f"describe {name}"] = (["describe", v], 2, f"{v}: {needle}")
+            cases[f"describe {name}"] = (["dev", "describe", v], 2, f"{v}: {needle}")
     for name in ("truncated.avi", "garbage.mp4"):
         v = str(d / name)
         stem = Path(name).stem
         cases[f"batch {name}"] = (["batch", v, "--out", f"{out}/{stem}.csv", "--quiet", *s],
                                   1, f"problem: {v}: ")
-        cases[f"describe {name}"] = (["describe", v], 1, f"warning: {v}: ")
+        cases[f"describe {name}"] = (["dev", "describe", v], 1, f"warning: {v}: ")
     cases["live truncated.avi"] = (["live", str(d / "truncated.avi"), "--out",
                                     f"{out}/truncated.live.csv", "--no-keys", "--keep", "every",
                                     *s],

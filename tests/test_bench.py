@@ -1,4 +1,4 @@
-"""camwhisker bench: the machinery on a tiny clip, the Pareto front, the table.
+"""camwhisker dev bench: the machinery on a tiny clip, the Pareto front, the table.
 
 The clip is the nominal scene's first 6 frames (seed 2001): rest frames and
 the first hold. Bounds: the default front end's phi RMSE there is ~0.017 deg
@@ -96,7 +96,7 @@ def test_bench_tiny_clip(tmp_path):
     assert default.ok == 1.0
     assert default.phi_rmse_deg < DEFAULT_PHI_RMSE_MAX_DEG
     assert default.cpu_s > 0 and default.phi_bound_deg > 0
-    text = markdown(results, configs, "camwhisker bench --test", {"cpu": "x", "cores": 2,
+    text = markdown(results, configs, "camwhisker dev bench --test", {"cpu": "x", "cores": 2,
                     "load": (0.0, 0.0, 0.0)}, 1.0, 6)  # fmt: skip
     lines = text.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("| configuration |"))
@@ -110,24 +110,24 @@ def test_bench_tiny_clip(tmp_path):
 def test_cli_bench_rejects_unknown(tmp_path, capsys):
     from camwhisker.cli import main
 
-    assert main(["bench", "--out", str(tmp_path / "b.md"), "--configs", "nope"]) == 2
+    assert main(["dev", "bench", "--out", str(tmp_path / "b.md"), "--configs", "nope"]) == 2
     assert "unknown configuration" in capsys.readouterr().err
 
 
 def test_library_imports_no_benchmark_command_line_or_renderer():
-    # bench/ and the CLI sit on top of the library; the renderer (synth/) is for them and
-    # the tests, never for the per-frame path.
+    # bench/ and the CLI sit on top of the library; the simulators (sim/) are for them and
+    # the tests, never for the per-frame path (tests/test_layout.py holds the whole rule).
     import ast
     from pathlib import Path
 
     import camwhisker
 
     root = Path(camwhisker.__file__).parent
-    above = ("camwhisker.bench", "camwhisker.cli", "camwhisker.sim.render")
+    above = ("camwhisker.bench", "camwhisker.cli", "camwhisker.sim")
     found = []
     for path in sorted(root.rglob("*.py")):
         rel = path.relative_to(root)
-        if rel.parts[0] in ("bench", "cli", "synth"):
+        if rel.parts[0] in ("bench", "cli", "sim"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
             names = ([node.module or ""] if isinstance(node, ast.ImportFrom)

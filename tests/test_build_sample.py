@@ -87,8 +87,9 @@ def test_the_sample_is_a_held_out_build_and_small():
 
 def test_readme_command_is_the_workflow_with_the_caliper_reading():
     cmds = readme_commands()
-    steps = ["calibrate-sensor", "batch", "overlay", "describe"]
-    assert [c[:2] for c in cmds] == [["camwhisker", step] for step in steps]
+    steps = ["calibrate-sensor", "batch", "overlay", "dev describe"]
+    assert [c[0] for c in cmds] == ["camwhisker"] * len(steps)
+    assert [" ".join(c[1:3]) if c[1] == "dev" else c[1] for c in cmds] == steps
     side = float(cmds[0][cmds[0].index("--square-side-mm") + 1])
     assert side == caliper_side_mm(BUILD / CALIPER_FILE)
     true_side = load_sensor(BUILD / TRUE_SENSOR_FILE).plate.square_side_mm
@@ -169,7 +170,7 @@ def test_overlay_has_every_frame_of_the_clip(workflow):
 def test_describe_prints_the_errors_of_the_signal_table(workflow, capsys):
     out, _ = workflow
     capsys.readouterr()
-    assert main(["describe", str(CLIP), "--signals", str(out / "clip.csv")]) == 0
+    assert main(["dev", "describe", str(CLIP), "--signals", str(out / "clip.csv")]) == 0
     lines = (line.split(": ", 1) for line in capsys.readouterr().out.splitlines())
     printed = {key.strip(): value for key, value in lines}
     expected = truth_errors(out / "clip.csv", BUILD / "clip.truth.csv")
@@ -213,7 +214,7 @@ def test_truth_errors_name_a_frame_beyond_the_truth(tmp_path):
 def test_describe_signals_without_truth_is_a_named_error(tmp_path, capsys):
     video = tmp_path / "bare.mp4"
     video.write_bytes(CLIP.read_bytes())  # a real video with no truth beside it
-    assert main(["describe", str(video), "--signals", str(tmp_path / "s.csv")]) == 2
+    assert main(["dev", "describe", str(video), "--signals", str(tmp_path / "s.csv")]) == 2
     assert "bare.mp4: no truth beside it" in capsys.readouterr().err
 
 

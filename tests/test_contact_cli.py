@@ -14,9 +14,9 @@ from camwhisker.contact.pipeline import CONTACT_COLUMNS, estimate
 @functools.cache
 def simulated(tmp_root):
     """Calibration (eq.-8 runs) and compliant runs written by simulate-stage."""
-    assert main(["simulate-stage", "--kind", "eq8", "--out", f"{tmp_root}/cal", "--seed",
+    assert main(["dev", "simulate-stage", "--kind", "eq8", "--out", f"{tmp_root}/cal", "--seed",
                  "21"]) == 0
-    assert main(["simulate-stage", "--kind", "compliant", "--out", f"{tmp_root}/comp",
+    assert main(["dev", "simulate-stage", "--kind", "compliant", "--out", f"{tmp_root}/comp",
                  "--seed", "22"]) == 0
     return tmp_root
 
@@ -103,7 +103,7 @@ def test_estimate_degenerate_inputs_defined(root):
 
 
 def test_bench_command(capsys):
-    assert main(["contact-bench", "--seed", "3", "--samples", "20000", "--speeds", "5"]) == 0
+    assert main(["dev", "contact-bench", "--seed", "3", "--samples", "20000", "--speeds", "5"]) == 0
     out = capsys.readouterr().out
     assert "samples/s" in out
     # Every scene at both noise levels (issue #4: the paper's and the front end's).

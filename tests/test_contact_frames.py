@@ -100,7 +100,7 @@ def test_simulate_continuous_then_contact_cli(tmp_path, capsys):
     from camwhisker.files.tables import read_columns
 
     out = tmp_path / "sim"
-    assert main(["simulate-stage", "--kind", "compliant", "--seed", "35", "--out", str(out),
+    assert main(["dev", "simulate-stage", "--kind", "compliant", "--seed", "35", "--out", str(out),
                  "--speed-mm-s", "5"]) == 0
     stage = out / "c55_stage.csv"
     # A sweep without pauses: only the rests before and after are >= 1 s still.
@@ -115,5 +115,5 @@ def test_simulate_continuous_then_contact_cli(tmp_path, capsys):
     moving = cols["speed_mm_s"] > 4.9
     # Rows while the base moves carry estimates (about 40 mm at 5 mm/s: ~240 frames).
     assert np.isfinite(cols["r_gm_mm"][moving]).sum() > 150
-    assert main(["simulate-stage", "--kind", "test2", "--out", str(tmp_path / "t2"),
+    assert main(["dev", "simulate-stage", "--kind", "test2", "--out", str(tmp_path / "t2"),
                  "--speed-mm-s", "5"]) == 2

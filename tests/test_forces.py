@@ -93,7 +93,7 @@ def test_force_rmse_per_frame_is_the_noise():
 
 def _simulate(tmp_path, kind="test2"):
     out = tmp_path / kind
-    assert main(["simulate-stage", "--kind", kind, "--out", str(out), "--seed", "1"]) == 0
+    assert main(["dev", "simulate-stage", "--kind", kind, "--out", str(out), "--seed", "1"]) == 0
     return out
 
 

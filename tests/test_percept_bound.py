@@ -75,7 +75,7 @@ def test_percept_bench_plots_each_wall_against_its_bound(tmp_path, capsys):
 
     # Tuning seeds 0 (a wall) and 1 (a cylinder): one wall on the plot.
     png = tmp_path / "w.png"
-    assert main(["percept-bench", "--seeds", "0-1", "--calib-pegs", "15", "--plot", str(png),
+    assert main(["dev", "percept-bench", "--seeds", "0-1", "--calib-pegs", "15", "--plot", str(png),
                  "--out", str(tmp_path / "r.json")]) == 0
     assert "walls within 1 deg at the pauses' Cramer-Rao bound" in capsys.readouterr().out
     with Image.open(png) as im:

@@ -305,9 +305,9 @@ def test_bad_pose_is_refused(tmp_path, capsys):
 ])
 def test_percept_bench_refuses_bad_arguments(tmp_path, capsys, args, message):
     out = tmp_path / "r.json"
-    assert main(["percept-bench", *args, "--out", str(out)]) == 2
+    assert main(["dev", "percept-bench", *args, "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("camwhisker percept-bench: error: ") and message in err
+    assert err.startswith("camwhisker dev percept-bench: error: ") and message in err
     assert not out.exists()
 
 

@@ -131,7 +131,7 @@ def test_estimator_rejects_bad_speed_and_no_contact():
 
 def test_cli_simulates_estimates_and_names_bad_input(tmp_path, capsys):
     sim = tmp_path / "sim"
-    assert main(["simulate-texture", "--out", str(sim), "--fps", "30"]) == 0
+    assert main(["dev", "simulate-texture", "--out", str(sim), "--fps", "30"]) == 0
     out = tmp_path / "t.json"
     assert main(["texture", "--signals", str(sim / "signals.csv"), "--speed-mm-s", "2",
                  "--stage", str(sim / "stage.csv"), "--out", str(out)]) == 0
@@ -154,7 +154,7 @@ def test_bundled_sample_regenerates_and_resolves(tmp_path):
     from pathlib import Path
 
     bundled = Path(__file__).resolve().parents[1] / "sample_frames" / "texture"
-    assert main(["simulate-texture", "--out", str(tmp_path)]) == 0  # the defaults make it
+    assert main(["dev", "simulate-texture", "--out", str(tmp_path)]) == 0  # the defaults make it
     for name in ("signals.csv", "stage.csv", "truth.csv"):
         made, kept = ((folder / name).read_text().splitlines() for folder in (tmp_path, bundled))
         assert made[0] == kept[0] and len(made) == len(kept), name

@@ -150,7 +150,7 @@ def test_stage_log_reads_applied_dz(tmp_path):
 
 def test_cli_writes_table_summary_and_plot(tmp_path, capsys):
     sim = tmp_path / "sim"
-    assert main(["simulate-stage", "--kind", "test2", "--out", str(sim), "--seed", "7"]) == 0
+    assert main(["dev", "simulate-stage", "--kind", "test2", "--out", str(sim), "--seed", "7"]) == 0
     out = tmp_path / "v"
     assert main(["validate", "--signals", str(sim / "trial1_signals.csv"), "--stage",
                  str(sim / "trial1_stage.csv"), "--test", "2", "--out", str(out)]) == 0
@@ -171,7 +171,7 @@ def test_trials_pool_their_frames(tmp_path, capsys):
     rounding), each trial keeps its own clock offset (the simulator's, -5.7 and +3.4 s),
     the table numbers the trials."""
     sim = tmp_path / "sim"
-    assert main(["simulate-stage", "--kind", "test2", "--out", str(sim), "--seed", "7"]) == 0
+    assert main(["dev", "simulate-stage", "--kind", "test2", "--out", str(sim), "--seed", "7"]) == 0
     runs = [(sim / f"trial{k}_signals.csv", sim / f"trial{k}_stage.csv") for k in (1, 2)]
     out = tmp_path / "v"
     argv = ["validate", "--test", "2", "--out", str(out)]

@@ -3,7 +3,7 @@
 Seeds here are not the ones the front end was tuned on (101-103). Frames go
 through the webcam artefacts and an in-memory JPEG round trip at the
 scenario's quality, as an MJPG video would. Few frames keep the module under
-a minute; the benchmark (python -m camwhisker.bench.vision) runs more.
+a minute; the benchmark (camwhisker dev vision-bench) runs more.
 
 | check | tolerance | reason |
 |---|---|---|
@@ -91,7 +91,7 @@ def test_distortion_within_one_and_a_half_nominal(distortion):
     # Held against 1.5x the nominal targets (0.05 deg, 0.02 mm, 1 deg): on 16-frame
     # clips the ratio of two measured RMSEs swings by more than 1.5x from seed to
     # seed, so the ratio itself is measured by the benchmark on 150 frames
-    # (python -m camwhisker.bench.vision --frames 150; BENCHMARKS.md).
+    # (camwhisker dev vision-bench --frames 150; BENCHMARKS.md).
     sc, results = distortion
     phi_rmse, dz_rmse, theta_mae, ok = _errors(sc, results)
     assert ok == 1.0

@@ -19,7 +19,7 @@ with eta from the stream's own rest frames.
   the artefacts drawn anew per frame: noise, flicker, the colour cast's 20 s drift),
   streamed without holding them in memory.
 
-``python -m camwhisker.bench.belief [--frames N --seed S]``
+``camwhisker dev belief-bench [--frames N --seed S]``
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def _fmt(v) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.belief", description=__doc__)
+    p = argparse.ArgumentParser(prog="camwhisker dev belief-bench", description=__doc__)
     p.add_argument(
         "--frames",
         type=int,

@@ -9,7 +9,7 @@ ratios, the share of fitted parameters within 3 SE of the truth, the fitted
 geometry's phi error at 20 deg against the report's SE, the calibration's
 seconds) and a summary against the acceptance limits.
 
-    python -m camwhisker.bench.calibration [--seeds 100-104] [--sweep-s 12] [--clip-frames 120]
+    camwhisker dev calibration-bench [--seeds 100-104] [--sweep-s 12] [--clip-frames 120]
 """
 
 from __future__ import annotations
@@ -187,7 +187,7 @@ def sweep_frames_of(p: argparse.ArgumentParser, args: argparse.Namespace) -> int
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.calibration", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev calibration-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
     p.add_argument("--seeds", type=seed_list, default=f"{held[0]}-{held[4]}",

@@ -174,7 +174,7 @@ def _calibrate(experiment: Path, runs, sensor, tables: dict, signals: dict, logs
         ],
         sensor.whisker.length_mm,
         sensor.source,
-        f"camwhisker chain {experiment}",
+        f"camwhisker dev chain {experiment}",
     )
     return calib, cal_data
 
@@ -287,7 +287,7 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
 def _plots(out: Path, calib, cal_data: dict, ev: dict, runs) -> None:
     from camwhisker.contact.plots import plot_error_boxes, plot_gm_model, plot_shapes
 
-    how = f"camwhisker chain, {len(runs)} filmed runs"  # the figure adds the version
+    how = f"camwhisker dev chain, {len(runs)} filmed runs"  # the figure adds the version
     plot_gm_model(calib, cal_data, out / "fig7a_gm_model.png", "Fig. 7A: " + how)
     # Rigid contact held out of the calibration (the MF table holds the calibration
     # samples themselves, so their MF error would be zero): box and bottle before they slide.

@@ -12,7 +12,7 @@ front end's noise target (:data:`~camwhisker.sim.mechanics.experiment.FRONT_END_
 as in ``contact-bench``: MF's phi floor is the one a user's calibration at that
 noise would set.
 
-    python -m camwhisker.bench.filmed_frames [--builds 100] [--speeds 1,5] [--cache DIR]
+    camwhisker dev filmed-frames-bench [--builds 100] [--speeds 1,5] [--cache DIR]
 
 Builds are those of :data:`~camwhisker.sim.render.builds.REALITY_SUITE`; none of this
 bench's numbers were used to choose a constant.
@@ -101,7 +101,7 @@ def _speeds(text: str) -> list[float | None]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.filmed_frames",
+    p = argparse.ArgumentParser(prog="camwhisker dev filmed-frames-bench",
                                 description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--builds", type=seed_list, default=str(REALITY_SUITE.held_out_seeds[0]),

@@ -8,11 +8,11 @@ azimuth's direction (``mx``, ``my``) and the axial force ``delta * h / r**3``, w
 ``delta`` the push; one instant holds three unknowns (delta, r, h) in two magnitudes, and
 the moment's rate (speed / r**2) gives r: the estimate needs the window's history.
 
-``python -m camwhisker.bench.learn compare [--rows N]``: a GRU, a 1-D convolution and a
+``camwhisker dev learn-bench compare [--rows N]``: a GRU, a 1-D convolution and a
 ridge on random window features, trained on the same tables, scored on other seeds' tables.
-``python -m camwhisker.bench.learn scale [--rows 1500000]``: ``learn``'s defaults on 1.5 M
+``camwhisker dev learn-bench scale [--rows 1500000]``: ``learn``'s defaults on 1.5 M
 rows of 3 channels, window 40: training time, inference per sample at batch 1 and batched.
-``python -m camwhisker.bench.learn sensor [--seed 0] [--out DIR]``: on our sensor's simulated
+``camwhisker dev learn-bench sensor [--seed 0] [--out DIR]``: on our sensor's simulated
 runs, trained on the calibration runs of a seed, against GM, MF and fused on runs of seed + 1
 (:mod:`camwhisker.bench.learn_sensor`).
 """
@@ -232,7 +232,7 @@ def scale(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.learn", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev learn-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
     c = sub.add_parser("compare", help="GRU, convolution and ridge on one task")
@@ -266,7 +266,7 @@ def sensor(args) -> int:
             sensor_columns(v)
         result = run_sensor(args.seed, opts, args.out)
     except LearnError as exc:
-        print(f"python -m camwhisker.bench.learn sensor: {exc}", file=sys.stderr)
+        print(f"camwhisker dev learn-bench sensor: {exc}", file=sys.stderr)
         return 2
     print(format_sensor(result, args.seed, opts))
     return 0

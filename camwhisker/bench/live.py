@@ -22,7 +22,7 @@ message's values) over the signal rows of simulated mapping runs (every rigid
 peg swept at 5 mm/s without pauses, the base streamed at 20 Hz), with a
 calibration from simulated rigid runs.
 
-    python -m camwhisker.bench.live [--frames 150] [--passes N] [--video FILE --sensor FILE]
+    camwhisker dev live-bench [--frames 150] [--passes N] [--video FILE --sensor FILE]
                                     [--contact]
     camwhisker live --bench
 """
@@ -271,7 +271,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.live", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev live-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     add_arguments(p)
     p.add_argument("--sensor", help="sensor file for --video")

@@ -18,7 +18,7 @@ real-build issue's limits:
 - the mismatch check warns with the nominal file where the build's deviation
   moves phi at 20 deg by more than 0.05 deg, and never on a nominal render.
 
-    python -m camwhisker.bench.reality [--seeds 100-119] [--frames 150] [--cache DIR]
+    camwhisker dev reality-bench [--seeds 100-119] [--frames 150] [--cache DIR]
 """
 
 from __future__ import annotations
@@ -233,7 +233,7 @@ def seed_list(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.reality", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev reality-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     held = REALITY_SUITE.held_out_seeds
     p.add_argument("--seeds", type=seed_list, default=f"{held[0]}-{held[19]}",

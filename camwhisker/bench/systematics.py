@@ -21,7 +21,7 @@ which the calibration measures apart), it prints:
   one's error against another's), so the rows do not add up. The noise is drawn
   ``--draws`` times: the mean ratio, and the smallest and largest.
 
-    python -m camwhisker.bench.systematics --seeds 169,179 [--draws 3] [--sweep-s 20] [--cache DIR]
+    camwhisker dev systematics-bench --seeds 169,179 [--draws 3] [--sweep-s 20] [--cache DIR]
 """
 
 from __future__ import annotations
@@ -198,7 +198,7 @@ def table(rows: list[GroupRow]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.systematics", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev systematics-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--seeds", type=seed_list, required=True, help="e.g. 169,179 or 0-4")
     p.add_argument("--draws", type=int, default=3, help="draws of the true points' noise")

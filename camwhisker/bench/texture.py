@@ -1,5 +1,5 @@
 """Texture resolution: the smallest gap and amplitude resolved to within 10 %, per frame rate
-and sliding speed, on simulated runs (``python -m camwhisker.bench.texture``).
+and sliding speed, on simulated runs (``camwhisker dev texture-bench``).
 
 Each cell simulates (:func:`camwhisker.sim.mechanics.texture.simulate_texture`, the front end's
 noise) and estimates (:func:`camwhisker.percept.texture.estimate_texture`) one texture per
@@ -158,7 +158,7 @@ def format_table(table, seeds) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.texture", description=__doc__)
+    p = argparse.ArgumentParser(prog="camwhisker dev texture-bench", description=__doc__)
     p.add_argument("--seeds", default=f"{SEEDS[0]}-{SEEDS[-1]}", metavar="A-B",
                    help="seeds per cell, inclusive (0-9 were used for tuning)")
     p.add_argument("--out", metavar="R.json", help="also write the table and every run here")

@@ -1,6 +1,6 @@
 """Batch throughput: frames/s of a campaign with 1 worker against 2, one Markdown table.
 
-    python -m camwhisker.bench.throughput VIDEO... [--copies N] [--jobs 1 2]
+    camwhisker dev throughput-bench VIDEO... [--copies N] [--jobs 1 2]
 
 Beside it, the machine's own 2-process speed-up on pure-Python work: the
 ceiling that independent CPU-bound processes can reach on these cores.
@@ -57,11 +57,11 @@ def two_process_ceiling(n: int = 20_000_000) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m camwhisker.bench.throughput VIDEO... [--copies N]``: 1 worker against 2."""
+    """``camwhisker dev throughput-bench VIDEO... [--copies N]``: 1 worker against 2."""
     import argparse
     import tempfile
 
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.throughput",
+    p = argparse.ArgumentParser(prog="camwhisker dev throughput-bench",
                                 description=main.__doc__)
     p.add_argument("videos", nargs="+")
     p.add_argument("--copies", type=int, default=4, help="each video this many times")

@@ -18,7 +18,7 @@ the end-to-end latency (frame read -> row written) pooled over the arm's
 sessions: p50, p99, max; the p99 of each session; the pictures the view drew;
 and the rise of p99 with the view open.
 
-    python -m camwhisker.bench.view [--blocks 8 --rows 450]
+    camwhisker dev view-bench [--blocks 8 --rows 450]
 """
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def text(result: dict, blocks: int, rows: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.view", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev view-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--blocks", type=int, default=8, help="sessions, alternating closed / open")
     p.add_argument("--rows", type=int, default=450, help="rows per session")

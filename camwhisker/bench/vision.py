@@ -5,7 +5,7 @@ temporary folder, decodes every frame into memory, then times the front end
 on one core (``cv2.setNumThreads(1)``), decode excluded, and compares its
 output with the renderer's truth. Prints one Markdown table.
 
-    python -m camwhisker.bench.vision [--frames 60] [--scenes nominal,distortion,hard]
+    camwhisker dev vision-bench [--frames 60] [--scenes nominal,distortion,hard]
 
 Columns: frames/s of the whole front end (white balance to pose, the first
 frame's detection excluded) by wall clock and by this process's CPU time (the
@@ -143,7 +143,7 @@ def table(rows: list[BenchRow]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m camwhisker.bench.vision", description=__doc__,
+    p = argparse.ArgumentParser(prog="camwhisker dev vision-bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     p.add_argument("--frames", type=int, default=60, help="frames per scene")
     p.add_argument("--scenes", default=",".join(SCENES), help="comma-separated scene names")

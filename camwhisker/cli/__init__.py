@@ -1,15 +1,18 @@
 """The ``camwhisker`` command line: wiring only, every computation lives in the library.
 
-One module per part of the data flow, each registering its commands:
+One module per part of the data flow, each registering its commands. The commands a
+researcher runs sit at the top, in the order of the work; the simulators and benchmarks
+sit under ``camwhisker dev``:
 
-- :mod:`~camwhisker.cli.synth`   render, bound, make-samples, describe, make-experiment
+- :mod:`~camwhisker.cli.synth`   dev render, bound, make-samples, describe, make-experiment
 - :mod:`~camwhisker.cli.batch`   batch: video(s) -> signal table(s)
 - :mod:`~camwhisker.cli.overlay` overlay: video -> annotated video
 - :mod:`~camwhisker.cli.live`    list-cameras, live, replay
-- :mod:`~camwhisker.cli.contact` simulate-stage, calibrate, contact
-- :mod:`~camwhisker.cli.texture` simulate-texture, texture: texture from sliding
+- :mod:`~camwhisker.cli.contact` calibrate, contact; dev simulate-stage
+- :mod:`~camwhisker.cli.texture` texture: texture from sliding; dev simulate-texture
 - :mod:`~camwhisker.cli.validate` validate: the paper's accuracy tests (Fig. 6 A/B)
-- :mod:`~camwhisker.cli.bench`   chain, contact-bench, bench
+- :mod:`~camwhisker.cli.bench`   dev chain, contact-bench, bench
+- :mod:`~camwhisker.cli.dev`     dev NAME-bench: the benchmark scripts
 - :mod:`~camwhisker.cli.common`  the error every command reports, shared options
 - :mod:`~camwhisker.cli.parser`  the parser and ``main``
 """

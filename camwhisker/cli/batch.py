@@ -63,7 +63,7 @@ def add_batch(sub) -> None:
 
 
 def tracker_args(p) -> None:
-    """The front end's tuning knobs (FrontEndOptions; `camwhisker bench` compares them)."""
+    """The front end's tuning knobs (FrontEndOptions; `camwhisker dev bench` compares them)."""
     from camwhisker.vision import FrontEndOptions
 
     d = FrontEndOptions()

@@ -12,6 +12,7 @@ from camwhisker.cli import (
     bench,
     calibrate_sensor,
     contact,
+    dev,
     learn,
     live,
     overlay,
@@ -25,34 +26,39 @@ from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
 
 __all__ = ["build_parser", "main"]
 
-# In the order `camwhisker --help` lists them.
+# The commands a researcher runs, in the order of the work (`camwhisker --help`).
 _COMMANDS = [
+    batch.add_batch,
+    overlay.add_overlay,
+    live.add_live,
+    live.add_replay,
+    live.add_list_cameras,
+    calibrate_sensor.add_calibrate_sensor,
+    contact.add_calibrate,
+    springs.add_calibrate_springs,
+    validate.add_validate,
+    contact.add_contact,
+    belief.add_belief,
+    percept.add_percept,
+    texture.add_texture,
+    learn.add_learn,
+    learn.add_predict,
+]
+
+# `camwhisker dev ...`: the simulators and the benchmarks against their truth.
+_DEV_COMMANDS = [
     synth.add_render,
     synth.add_bound,
     synth.add_samples,
     synth.add_describe,
     synth.add_experiment,
-    bench.add_chain,
     contact.add_simulate_stage,
     texture.add_simulate_texture,
-    contact.add_calibrate,
-    calibrate_sensor.add_calibrate_sensor,
-    contact.add_contact,
-    belief.add_belief,
-    springs.add_calibrate_springs,
-    percept.add_percept,
-    texture.add_texture,
-    validate.add_validate,
-    learn.add_learn,
-    learn.add_predict,
+    bench.add_chain,
+    bench.add_bench,
     bench.add_contact_bench,
     percept.add_percept_bench,
-    batch.add_batch,
-    overlay.add_overlay,
-    live.add_list_cameras,
-    live.add_live,
-    live.add_replay,
-    bench.add_bench,
+    dev.add_bench_scripts,
 ]
 
 
@@ -70,14 +76,28 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in _COMMANDS:
         add(sub)
-    for command in sub.choices.values():
+    dev_parser = sub.add_parser(
+        "dev", help="simulators and benchmarks: `camwhisker dev --help` lists them",
+        description="Simulators with known truth, and the benchmarks that check the "
+        "package against it. None of them is needed to process a real sensor's recordings.")
+    dev_sub = dev_parser.add_subparsers(dest="dev_command", required=True, metavar="COMMAND")
+    for add in _DEV_COMMANDS:
+        add(dev_sub)
+    for command in [*sub.choices.values(), *dev_sub.choices.values()]:
         command.formatter_class = HelpFormatter
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; bad input prints ``camwhisker CMD: error: ...`` and returns 2."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, rest = parser.parse_known_args(argv)
+    if getattr(args, "passes_options", False):  # a benchmark script parses its own (cli.dev)
+        args.argv = rest
+    elif rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    if args.command == "dev":
+        args.command = f"dev {args.dev_command}"
     try:
         return int(args.func(args) or 0)
     except INPUT_ERRORS as exc:

@@ -121,7 +121,7 @@ def _run_describe(args) -> int:
         if key != "warning":
             print(f"{key:>19}: {_plain(value)}")
     if "warning" in info:
-        print(f"camwhisker describe: warning: {info['warning']}", file=sys.stderr)
+        print(f"camwhisker dev describe: warning: {info['warning']}", file=sys.stderr)
         return 1
     return 0
 

@@ -2,7 +2,7 @@
 
 It reads a window shape (B, window, n_inputs) of normalised inputs and gives the encoded
 target shape (B, n_encoded) at the window's last row: causal dilated 1-D convolutions,
-chosen over a GRU and a ridge model by ``python -m camwhisker.bench.learn compare``.
+chosen over a GRU and a ridge model by ``camwhisker dev learn-bench compare``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The bundled sample videos in ``sample_frames/``: what they are and how to make them again.
 
-``camwhisker make-samples`` (or :func:`make_samples`) regenerates every file
+``camwhisker dev make-samples`` (or :func:`make_samples`) regenerates every file
 bit for bit from the names, frame counts and seeds below, and the hand-made
 build of ``sample_frames/build/`` (:data:`BUILD_SEED`): a calibration sweep, a
 separate clip, the build's true sensor file and its square's side as measured

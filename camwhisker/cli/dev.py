@@ -1,0 +1,35 @@
+"""The benchmark scripts as ``camwhisker dev NAME-bench``: each parses its own options."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+__all__ = ["BENCH_SCRIPTS", "add_bench_scripts"]
+
+#: ``camwhisker dev NAME-bench`` -> (module under camwhisker.bench, what it measures).
+BENCH_SCRIPTS = {
+    "vision-bench": ("vision", "front end: speed and accuracy, exact model beside paper mode"),
+    "reality-bench": ("reality", "front end on hand-made builds, true and nominal sensor file"),
+    "systematics-bench": ("systematics", "where a calibration's error comes from"),
+    "calibration-bench": ("calibration", "calibrate-sensor on held-out builds"),
+    "throughput-bench": ("throughput", "batch frames/s with 1 worker against 2"),
+    "live-bench": ("live", "the front end's time per 720p frame on one core"),
+    "view-bench": ("view", "the live loop's latency with the browser view open and without"),
+    "belief-bench": ("belief", "contact belief on rendered video: onset error, false contacts"),
+    "filmed-frames-bench": ("filmed_frames", "per-frame contact on filmed sweeps"),
+    "texture-bench": ("texture", "smallest gap and amplitude resolved, per frame rate"),
+    "learn-bench": ("learn", "the learned estimator: architecture, training, inference"),
+}
+
+
+def add_bench_scripts(sub) -> None:
+    for name, (module, what) in BENCH_SCRIPTS.items():
+        p = sub.add_parser(name, help=what, add_help=False,
+                           description=f"{what}. Options: `camwhisker dev {name} -h`.")
+        p.set_defaults(func=_run_script, passes_options=True, module=module)
+
+
+def _run_script(args: argparse.Namespace) -> int:
+    script = importlib.import_module(f"camwhisker.bench.{args.module}")
+    return int(script.main(args.argv) or 0)
