@@ -39,8 +39,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "SIGNAL_COLUMNS", "REQUIRED_COLUMNS", "FORCE_COLUMNS", "table_columns", "SignalTableError",
-    "signal_row", "SignalWriter", "write_signals", "read_signal_table", "sidecar_path",
-    "provenance", "sidecar", "write_sidecar",
+    "signal_row", "SignalWriter", "write_signals", "read_signal_table", "signal_columns",
+    "sidecar_path", "provenance", "sidecar", "write_sidecar",
 ]  # fmt: skip
 
 #: Required columns first (docs/sensor.md section 6), then diagnostics.
@@ -163,18 +163,26 @@ def read_signal_table(path: str | Path) -> dict:
         Missing file or column, a non-numeric cell, or t_s missing or not increasing
         (:class:`SignalTableError` for the last two).
     """
-    out = read_columns(path, REQUIRED_COLUMNS)
+    return signal_columns(read_columns(path, REQUIRED_COLUMNS), str(path))
+
+
+def signal_columns(out: dict, source: str) -> dict:
+    """A signal table's columns (float arrays, as :func:`read_signal_table` reads them)
+    checked; rows are numbered as in a file (the header is row 1)."""
+    missing = [c for c in REQUIRED_COLUMNS if c not in out]
+    if missing:
+        raise SignalTableError(f"{source}: no column {missing[0]}")
     t = out["t_s"]
     if t.size == 0:
-        raise SignalTableError(f"{path}: no rows")
+        raise SignalTableError(f"{source}: no rows")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise SignalTableError(f"{path}: row {bad[0] + 2}, column t_s: empty")
+        raise SignalTableError(f"{source}: row {bad[0] + 2}, column t_s: empty")
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
-        raise SignalTableError(f"{path}: row {back[0] + 3}, column t_s: not increasing")
+        raise SignalTableError(f"{source}: row {back[0] + 3}, column t_s: not increasing")
     out["ok"] = np.nan_to_num(out["ok"], nan=0.0) == 1.0
-    out["source"] = str(path)
+    out["source"] = source
     return out
 
 

@@ -1,0 +1,265 @@
+"""The Python API: ``import camwhisker as cw``; tables as pandas DataFrames.
+
+A session, as a notebook runs it (docs/api.md walks through it)::
+
+    import camwhisker as cw
+
+    signals = cw.track("run.mp4", sensor="sensor.toml")        # the table batch writes
+    calib = cw.calibrate([("cal1.csv", "cal1.stage.csv"), ...], sensor="sensor.toml")
+    table = cw.contacts(signals, cw.read_stage_log("run.stage.csv"), calib)
+    obj = cw.perceive([table])
+
+Every function takes its data first and its options by keyword. ``contacts`` and
+``perceive`` are named apart from the packages :mod:`camwhisker.contact` and
+:mod:`camwhisker.percept`, which take those attribute names once imported. Paths and
+DataFrames are interchangeable as inputs; a DataFrame is checked as the file would be.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from camwhisker.contact.calibrate import CalibrationRun, read_calibration, write_calibration
+from camwhisker.contact.pipeline import Calibration
+from camwhisker.contact.stage import StageLog, stage_log_from_arrays
+from camwhisker.contact.stage import read_stage_log as _read_stage_log
+from camwhisker.files.tables import read_columns
+from camwhisker.io.forcelog import read_force_log as _read_force_log
+from camwhisker.io.signals import REQUIRED_COLUMNS, read_signal_table, signal_columns
+from camwhisker.sensor.file import Sensor, load_sensor
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from camwhisker.percept.percepts import Percept
+
+__all__ = ["Sensor", "load_sensor", "Calibration", "read_calibration", "write_calibration",
+           "track", "read_signals", "read_stage_log", "read_force_log", "read_contacts",
+           "calibrate", "contacts", "perceive"]  # fmt: skip
+
+def _pandas():
+    import pandas as pd  # the core imports without pandas; the API needs it
+
+    return pd
+
+
+def _sensor(sensor: str | Path | Sensor | None) -> Sensor:
+    return sensor if isinstance(sensor, Sensor) else load_sensor(sensor)
+
+
+def track(video: str | Path, *, sensor: str | Path | Sensor | None = None, rest_frame: int = 0,
+          fps: float | None = None, mode: str = "model", progress: bool = False
+          ) -> pd.DataFrame:  # fmt: skip
+    """The signal table of a video, as ``camwhisker batch`` writes it (docs/sensor.md section 6).
+
+    Parameters
+    ----------
+    video : path
+        A video file OpenCV can read, a folder of images (give ``fps``) or a recorded live
+        session.
+    sensor : path or Sensor, optional
+        The build's sensor file; default: the nominal values (Table I).
+    rest_frame : int
+        The rest (reference) frame; earlier rows are untrusted (``ok`` = 0).
+    fps : float, optional
+        Frame rate of an image folder or of a video that states none.
+    mode : {"model", "paper"}
+        The exact camera model or the paper's eqs. 2-7.
+    progress : bool
+        A progress bar.
+
+    Returns
+    -------
+    DataFrame, shape (frames, 12)
+        One row per frame: frame, t_s, dz_mm, phi_deg, theta_deg, ok, sx_mm, sy_mm,
+        phi_sigma_deg, n_corners, rms_px, note; the numbers batch prints, to its digits.
+        Untrusted estimates are NaN.
+    """
+    from tqdm import tqdm
+
+    from camwhisker.io.signals import signal_row, table_columns
+    from camwhisker.io.sources import SessionSource, check_frame_size, open_source
+    from camwhisker.vision import FrontEndOptions
+    from camwhisker.vision.stream import stream
+
+    sensor = _sensor(sensor)
+    source = open_source(video, fps, None)
+    check_frame_size(source, sensor)
+    session = isinstance(source, SessionSource)
+    rows = stream(source, sensor, FrontEndOptions(mode=mode), rest_frame, strict=not session)
+    # Through CSV text, so the numbers are batch's to the digit.
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(table_columns())
+    for frame, r in tqdm(rows, total=len(source) or None, unit="frame", disable=not progress):
+        writer.writerow(signal_row(frame.t_s, r))
+    buf.seek(0)
+    return _pandas().read_csv(buf)
+
+
+def read_signals(path: str | Path) -> pd.DataFrame:
+    """A signal table (batch, live or replay), checked, as a DataFrame (empty cells NaN).
+
+    Raises
+    ------
+    camwhisker.files.tables.TableError
+        Missing file or column, a bad cell, t_s missing or not increasing; names file and row.
+    """
+    read_signal_table(path)
+    return _pandas().read_csv(path)
+
+
+def read_stage_log(path: str | Path) -> pd.DataFrame:
+    """A stage log (docs/sensor.md section 7), checked, as a DataFrame.
+
+    Raises
+    ------
+    camwhisker.contact.stage.StageLogError
+        Names the file, row and column of what is wrong.
+    """
+    _read_stage_log(path)
+    return _pandas().read_csv(path)
+
+
+def read_force_log(path: str | Path) -> pd.DataFrame:
+    """A force-torque log (docs/sensor.md section 7.1), checked, as a DataFrame."""
+    _read_force_log(path)
+    return _pandas().read_csv(path)
+
+
+def read_contacts(path: str | Path) -> pd.DataFrame:
+    """A contact table (``camwhisker contact``, docs/sensor.md section 7) as a DataFrame."""
+    from camwhisker.contact.pipeline import CONTACT_COLUMNS
+
+    read_columns(path, CONTACT_COLUMNS)  # a missing column or bad cell, named
+    return _pandas().read_csv(path)
+
+
+def _signals(table, what: str) -> dict:
+    if isinstance(table, (str, Path)):
+        return read_signal_table(table)
+    cols = {c: np.asarray(table[c], float) for c in REQUIRED_COLUMNS if c in table}
+    return signal_columns(cols, what)
+
+
+def _stage(table, what: str) -> StageLog:
+    if isinstance(table, StageLog):
+        return table
+    if isinstance(table, (str, Path)):
+        return _read_stage_log(table)
+    missing = [c for c in ("t_s", "x_mm") if c not in table]
+    if missing:
+        raise ValueError(f"{what}: no column {missing[0]}")
+    opt = {c: np.asarray(table[c], float) if c in table else None for c in ("r_mm", "dz_mm")}
+    return stage_log_from_arrays(table["t_s"], table["x_mm"], opt["r_mm"], source=what,
+                                 dz_mm=opt["dz_mm"])  # fmt: skip
+
+
+def calibrate(runs: Sequence[tuple], *, sensor: str | Path | Sensor | None = None,
+              offsets_s: Sequence[float | None] | None = None) -> Calibration:
+    """GM (eq. 8), sigma_GM and the MF table (eqs. 9-10) from calibration runs.
+
+    Parameters
+    ----------
+    runs : sequence of (signals, stage)
+        Each run's signal table and stage log (with ``r_mm``), as paths or DataFrames.
+    sensor : path or Sensor, optional
+        For the whisker's length; default: the nominal values.
+    offsets_s : sequence of float or None, optional
+        Known clock offsets (t_camera = t_stage + offset), one per run; default: estimated.
+
+    Returns
+    -------
+    Calibration
+        :func:`write_calibration` writes it as ``camwhisker calibrate`` does.
+    """
+    from camwhisker.contact.calibrate import calibrate as _calibrate
+
+    sensor = _sensor(sensor)
+    offsets_s = list(offsets_s) if offsets_s is not None else [None] * len(runs)
+    if len(offsets_s) != len(runs):
+        raise ValueError(f"give an offset per run or none ({len(runs)} runs, "
+                         f"{len(offsets_s)} offsets)")  # fmt: skip
+    cal_runs = []
+    for k, ((signals, stage), offset) in enumerate(zip(runs, offsets_s, strict=True)):
+        name = str(signals) if isinstance(signals, (str, Path)) else f"<run {k}>"
+        cal_runs.append(CalibrationRun(_signals(signals, name), _stage(stage, f"{name} stage"),
+                                       name, offset))  # fmt: skip
+    return _calibrate(cal_runs, sensor.whisker.length_mm, sensor.source, "camwhisker.calibrate")[0]
+
+
+def contacts(signals, stage, calib: str | Path | Calibration, *, offset_s: float | None = None,
+            per: str = "frame") -> pd.DataFrame:  # fmt: skip
+    """Contact distance and shape per signal row (eqs. 8-12), as ``camwhisker contact``.
+
+    Parameters
+    ----------
+    signals, stage : path or DataFrame
+        The run's signal table and stage log.
+    calib : path or Calibration
+    offset_s : float, optional
+        Known clock offset; default: estimated.
+    per : {"frame", "pause"}
+        Estimates from each frame or from the medians of the frame's stage pause.
+
+    Returns
+    -------
+    DataFrame, shape (rows, columns of docs/sensor.md section 7)
+    """
+    from camwhisker.contact.pipeline import contact_rows
+
+    calib = calib if isinstance(calib, Calibration) else read_calibration(calib)
+    cols, _ = contact_rows(_signals(signals, "<signals>"), _stage(stage, "<stage>"), calib,
+                           offset_s, mode=per)  # fmt: skip
+    return _pandas().DataFrame(cols)
+
+
+def perceive(contacts: Sequence, *, poses: Sequence | None = None) -> Percept:
+    """The object behind contact tables: wall, cylinder, box corner or nothing.
+
+    Parameters
+    ----------
+    contacts : sequence of path or DataFrame
+        Contact tables, of one run or several.
+    poses : sequence of camwhisker.percept.surfels.Pose, optional
+        Each table's stage pose in the object's frame; default: identity.
+
+    Returns
+    -------
+    Percept
+        ``best`` with ``params`` and ``intervals`` (95 %), ``runner_up``, ``evidence_ratio``.
+    """
+    from camwhisker.percept.percepts import perceive as _perceive
+    from camwhisker.percept.surfels import (
+        OPTIONAL_COLUMNS,
+        Pose,
+        merge,
+        surfels_from_columns,
+    )
+    from camwhisker.percept.surfels import (
+        REQUIRED_COLUMNS as SURFEL_COLUMNS,
+    )
+
+    poses = list(poses) if poses is not None else [Pose()] * len(contacts)
+    if len(poses) != len(contacts):
+        raise ValueError(f"give one pose per contact table ({len(contacts)} tables, "
+                         f"{len(poses)} poses)")  # fmt: skip
+    parts = []
+    for i, (table, pose) in enumerate(zip(contacts, poses, strict=True)):
+        if isinstance(table, (str, Path)):
+            cols, name = read_columns(table, SURFEL_COLUMNS, OPTIONAL_COLUMNS), str(table)
+        else:
+            missing = [c for c in SURFEL_COLUMNS if c not in table]
+            if missing:
+                raise ValueError(f"<contacts {i}>: no column {missing[0]}")
+            cols = {c: np.asarray(table[c], float) for c in (*SURFEL_COLUMNS, *OPTIONAL_COLUMNS)
+                    if c in table}  # fmt: skip
+            name = f"<contacts {i}>"
+        parts.append(surfels_from_columns(cols, pose, i, name))
+    return _perceive(merge(parts))
