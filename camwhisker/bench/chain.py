@@ -16,7 +16,6 @@ and PNGs that produced it.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
-from camwhisker.contact.calibrate import CalibrationRun, calibrate, write_calibration
+from camwhisker.contact.calibrate import write_calibration
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.stage import read_stage_log
 from camwhisker.contact.zscore import flag_rates, roc_auc
@@ -33,13 +32,12 @@ from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_path
 from camwhisker.files.tables import read_columns, write_csv
 from camwhisker.io.signals import read_signal_table
-from camwhisker.run.campaign import BatchTask, run_many, sidecar_path
+from camwhisker.run.experiment import ExperimentError, Recording, batch_runs, calibrate_runs
 from camwhisker.sensor.file import load_sensor
 from camwhisker.sim.mechanics.experiment import scene_by_name
 from camwhisker.sim.render.experiment import read_experiment
 from camwhisker.sim.render.scenarios import PoseTrack
 from camwhisker.sim.render.video import sidecar_paths
-from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "FLAG_Z", "SHAPE_TOL_MM",
            "TERMS"]
@@ -75,7 +73,7 @@ TERMS = {
 }
 
 
-class ChainError(RuntimeError):
+class ChainError(ExperimentError):
     """A stage of the chain failed; the message names the stage and the inputs."""
 
 
@@ -103,12 +101,18 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     sensor_file = sidecar_paths(runs[0].video)["sensor"]
     sensor = load_sensor(sensor_file if sensor_file.is_file() else None)
     timings = {}
-    tables, timings["batch"] = _front_end(runs, sensor, out, jobs, progress)
+    # The user's pipeline (run.experiment) on the filmed runs, named by their videos.
+    recordings = [Recording(r.video.stem, r.video, r.stage, r.role == "calibration")
+                  for r in runs]  # fmt: skip
+    if not any(r.calibration for r in recordings):
+        raise ChainError(f"{experiment}: no calibration runs")
+    tables, timings["batch"] = batch_runs(recordings, sensor, out, jobs, progress)
     signals = {key: read_signal_table(path) for key, path in tables.items()}
     logs = {r.video.stem: read_stage_log(r.stage) for r in runs}
 
     t0 = time.perf_counter()
-    calib, cal_data = _calibrate(experiment, runs, sensor, tables, signals, logs)
+    calib, cal_data = calibrate_runs(recordings, sensor, tables, signals, logs,
+                                     f"camwhisker dev chain {experiment}")  # fmt: skip
     write_calibration(out / "calib.toml", calib)
     timings["calibrate"] = {"seconds": time.perf_counter() - t0}
 
@@ -132,51 +136,6 @@ def run_chain(experiment: Path, out: Path, jobs: int = 2, progress: bool = True)
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(jsonfile.dumps(result, indent=2) + "\n")
     return result
-
-
-def _front_end(runs, sensor, out: Path, jobs: int, progress: bool) -> tuple[dict, dict]:
-    """Step 1: the front end on every video; the signal tables by run and the step's timing."""
-    t0 = time.perf_counter()
-    tables = {r.video.stem: out / "signals" / f"{r.video.stem}.csv" for r in runs}
-    batch = run_many(
-        [(r.video, tables[r.video.stem]) for r in runs],
-        BatchTask(sensor, FrontEndOptions()),
-        jobs=jobs,
-        progress=progress,
-    )
-    if batch.failed:
-        raise ChainError(
-            "batch failed:\n" + "\n".join(f"  {f.video}: {f.reason}" for f in batch.failed)
-        )
-    # Per-core speed from each table's own timing (also for tables reused from a previous run).
-    frames = work_s = 0.0
-    for path in tables.values():
-        timing = json.loads(sidecar_path(path).read_text())
-        frames += timing["frames_decoded"]
-        work_s += timing["timings"]["seconds"]
-    return tables, {
-        "seconds": time.perf_counter() - t0,
-        "frames": int(frames),
-        "reused": batch.count("skipped"),
-        "frames_per_s_per_core": frames / work_s if work_s else math.nan,
-    }
-
-
-def _calibrate(experiment: Path, runs, sensor, tables: dict, signals: dict, logs: dict):
-    """Step 2: calibrate on the calibration runs; the calibration and its data."""
-    cal = [r for r in runs if r.role == "calibration"]
-    if not cal:
-        raise ChainError(f"{experiment}: no calibration runs")
-    calib, _, cal_data = calibrate(
-        [
-            CalibrationRun(signals[r.video.stem], logs[r.video.stem], str(tables[r.video.stem]))
-            for r in cal
-        ],
-        sensor.whisker.length_mm,
-        sensor.source,
-        f"camwhisker dev chain {experiment}",
-    )
-    return calib, cal_data
 
 
 def _contact(out: Path, runs, calib, signals: dict, logs: dict) -> tuple[dict, list]:

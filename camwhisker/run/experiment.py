@@ -1,0 +1,279 @@
+"""The user's own pipeline: a folder of recordings -> signals, calibration, contacts, objects.
+
+A folder holds, per run, ``NAME.mp4`` or ``NAME.avi`` with ``NAME.stage.csv`` (its stage
+log, docs/sensor.md section 7), and one sensor file ``sensor.toml`` (or give ``sensor``).
+The calibration runs are those whose stage log has an ``r_mm`` column. :func:`run_experiment`
+runs, in order:
+
+1. ``batch``: the front end on every video (parallel processes; finished tables reused);
+2. ``calibrate``: GM (eq. 8), sigma_GM and the MF table from the calibration runs;
+3. ``contact``: a contact table per run (docs/sensor.md section 7);
+4. ``percept``: the object behind each other run's contacts, and the plots (Fig. 7A; the
+   contacts with the fitted object per run).
+
+Everything lands under the output folder with ``summary.json`` saying how it was made.
+No truth is read: :mod:`camwhisker.bench.chain` adds the check against a simulator's.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker import __version__
+from camwhisker.contact.calibrate import CalibrationRun, calibrate, write_calibration
+from camwhisker.contact.pipeline import Calibration, contact_rows
+from camwhisker.contact.stage import read_stage_log
+from camwhisker.files import jsonfile
+from camwhisker.files.atomic import atomic_write_text
+from camwhisker.files.tables import write_csv
+from camwhisker.io.signals import read_signal_table, sidecar_path
+from camwhisker.run.campaign import BatchTask, run_many
+from camwhisker.sensor.file import Sensor, load_sensor
+from camwhisker.vision.tracker import FrontEndOptions
+
+__all__ = ["ExperimentError", "Recording", "find_recordings", "run_experiment",
+           "format_experiment", "VIDEO_SUFFIXES", "SENSOR_NAME"]  # fmt: skip
+
+#: A run's video, by suffix, in the order looked for.
+VIDEO_SUFFIXES = (".mp4", ".avi")
+STAGE_SUFFIX = ".stage.csv"
+#: The folder's sensor file, where none is given.
+SENSOR_NAME = "sensor.toml"
+
+
+class ExperimentError(ValueError):
+    """A folder that cannot be run; the message names the file or run."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One run of a folder: its video, its stage log, and whether it calibrates."""
+
+    name: str
+    video: Path
+    stage: Path
+    calibration: bool
+
+
+def _has_r_mm(stage: Path) -> bool:
+    with open(stage, encoding="utf-8") as fh:
+        header = fh.readline()
+    return "r_mm" in (c.strip() for c in header.split(","))
+
+
+def find_recordings(folder: str | Path) -> list[Recording]:
+    """The runs of ``folder``, sorted by name.
+
+    Raises
+    ------
+    ExperimentError
+        No such folder, a video without its stage log, a stage log without its video, a
+        run with two videos, no run at all, or no calibration run.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ExperimentError(f"{folder}: no such folder")
+    videos: dict[str, Path] = {}
+    for suffix in VIDEO_SUFFIXES:
+        for video in sorted(folder.glob(f"*{suffix}")):
+            if video.stem in videos:
+                raise ExperimentError(f"{video}: run {video.stem} has two videos "
+                                      f"({videos[video.stem].name} too)")  # fmt: skip
+            videos[video.stem] = video
+    logs = {p.name[: -len(STAGE_SUFFIX)]: p for p in sorted(folder.glob(f"*{STAGE_SUFFIX}"))}
+    for name, video in videos.items():
+        if name not in logs:
+            raise ExperimentError(f"{video}: no stage log {name}{STAGE_SUFFIX} beside it")
+    for name, log in logs.items():
+        if name not in videos:
+            raise ExperimentError(f"{log}: no video {name}.mp4 or {name}.avi beside it")
+    if not videos:
+        raise ExperimentError(f"{folder}: no run (NAME.mp4 or NAME.avi with "
+                              f"NAME{STAGE_SUFFIX})")  # fmt: skip
+    runs = [Recording(n, videos[n], logs[n], _has_r_mm(logs[n])) for n in sorted(videos)]
+    if not any(r.calibration for r in runs):
+        raise ExperimentError(f"{folder}: no calibration run (a stage log with an r_mm "
+                              "column, docs/sensor.md section 7)")  # fmt: skip
+    return runs
+
+
+def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
+    if isinstance(sensor, Sensor):
+        return sensor
+    if sensor is None:
+        sensor = folder / SENSOR_NAME
+        if not sensor.is_file():
+            raise ExperimentError(f"{folder}: no {SENSOR_NAME} (or give the sensor file)")
+    return load_sensor(sensor)
+
+
+def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | Sensor | None
+                   = None, jobs: int = 2, per: str = "pause", progress: bool = True,
+                   command: str = "", plots: bool = True) -> dict:  # fmt: skip
+    """Batch, calibrate, contact and percepts over a folder of recordings.
+
+    Parameters
+    ----------
+    folder : path
+        The recordings (module docstring).
+    out : path
+        Written: ``signals/NAME.csv`` (with sidecars), ``calib.toml`` and ``calib.mf.csv``,
+        ``contact/NAME.csv``, ``percept/NAME.json``, the figures and ``summary.json``.
+    sensor : path or Sensor, optional
+        Default: the folder's ``sensor.toml``.
+    jobs : int
+        Videos processed in parallel.
+    per : {"pause", "frame"}
+        Contact from the medians of each stage pause (the paper's) or from every frame.
+    command : str
+        How it was called, for the summary and the calibration's provenance.
+
+    Returns
+    -------
+    dict
+        The summary, also in ``out/summary.json`` (strict JSON).
+    """
+    folder, out = Path(folder), Path(out)
+    runs = find_recordings(folder)
+    sensor = _sensor(folder, sensor)
+    timings: dict = {}
+    tables, timings["batch"] = batch_runs(runs, sensor, out, jobs, progress)
+    signals = {r.name: read_signal_table(tables[r.name]) for r in runs}
+    logs = {r.name: read_stage_log(r.stage) for r in runs}
+
+    t0 = time.perf_counter()
+    calib, cal_data = calibrate_runs(runs, sensor, tables, signals, logs,
+                                     command or f"camwhisker experiment {folder}")  # fmt: skip
+    write_calibration(out / "calib.toml", calib)
+    timings["calibrate"] = {"seconds": time.perf_counter() - t0}
+
+    t0 = time.perf_counter()
+    contacts = {}
+    for r in runs:
+        cols, run = contact_rows(signals[r.name], logs[r.name], calib, mode=per)
+        write_csv(out / "contact" / f"{r.name}.csv", cols)
+        contacts[r.name] = (cols, run)
+    timings["contact"] = {"seconds": time.perf_counter() - t0}
+
+    t0 = time.perf_counter()
+    percepts = _percepts(out, [r for r in runs if not r.calibration], plots)
+    if plots:
+        from camwhisker.contact.plots import plot_gm_model
+
+        plot_gm_model(calib, cal_data, out / "fig7a_gm_model.png",
+                      f"Fig. 7A: {command or 'camwhisker experiment'}")  # fmt: skip
+    timings["percept"] = {"seconds": time.perf_counter() - t0}
+    summary = _summary(runs, signals, contacts, percepts, calib, timings)
+    summary["provenance"] = {"camwhisker_version": __version__, "command": command,
+                             "folder": str(folder), "sensor": sensor.source,
+                             "calibration": str(out / "calib.toml"), "per": per}  # fmt: skip
+    atomic_write_text(out / "summary.json", jsonfile.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def batch_runs(runs: list, sensor: Sensor, out: Path, jobs: int, progress: bool
+              ) -> tuple[dict, dict]:  # fmt: skip
+    """Step 1: batch on every run's video; its tables by name and the step's timing.
+
+    ``runs`` need ``name`` and ``video``. Tables already complete are reused.
+    """
+    t0 = time.perf_counter()
+    tables = {r.name: out / "signals" / f"{r.name}.csv" for r in runs}
+    batch = run_many([(r.video, tables[r.name]) for r in runs],
+                     BatchTask(sensor, FrontEndOptions()), jobs=jobs, progress=progress)
+    if batch.interrupted:
+        raise KeyboardInterrupt
+    if batch.failed:
+        raise ExperimentError("batch failed:\n" + "\n".join(f"  {f.video}: {f.reason}"
+                                                           for f in batch.failed))  # fmt: skip
+    # Per-core speed from each table's own timing (also for tables reused from a previous run).
+    frames = work_s = 0.0
+    for path in tables.values():
+        timing = json.loads(sidecar_path(path).read_text())
+        frames += timing["frames_decoded"]
+        work_s += timing["timings"]["seconds"]
+    return tables, {"seconds": time.perf_counter() - t0, "frames": int(frames),
+                    "reused": batch.count("skipped"),
+                    "frames_per_s_per_core": frames / work_s if work_s else math.nan}  # fmt: skip
+
+
+def calibrate_runs(runs: list, sensor: Sensor, tables: dict, signals: dict, logs: dict,
+                   command: str) -> tuple[Calibration, dict]:  # fmt: skip
+    """Step 2: the contact calibration from the runs that calibrate; it and its data."""
+    cal = [r for r in runs if r.calibration]
+    if not cal:
+        raise ExperimentError("no calibration run")
+    calib, _, cal_data = calibrate(
+        [CalibrationRun(signals[r.name], logs[r.name], str(tables[r.name])) for r in cal],
+        sensor.whisker.length_mm, sensor.source, command)
+    return calib, cal_data
+
+
+def _percepts(out: Path, runs: list[Recording], plots: bool) -> dict:
+    """Step 4: each object run's percept (JSON, and its picture)."""
+    from camwhisker.percept.percepts import object_of, outline, perceive, percept_record
+    from camwhisker.percept.surfels import read_surfels
+
+    found = {}
+    for r in runs:
+        table = out / "contact" / f"{r.name}.csv"
+        surfels = read_surfels([table])
+        if surfels.n == 0:
+            found[r.name] = {"object": "no contact", "contacts": 0}
+            continue
+        p = perceive(surfels)
+        record = {"camwhisker": __version__, "contacts": str(table), **percept_record(p)}
+        atomic_write_text(out / "percept" / f"{r.name}.json", jsonfile.dumps(record, indent=1)
+                          + "\n")  # fmt: skip
+        found[r.name] = {"object": object_of(p), "model": p.best.model, "contacts": surfels.n,
+                         "params": p.best.params, "intervals_95": p.best.intervals}  # fmt: skip
+        if plots:
+            from camwhisker.contact.plots import plot_percept
+
+            plot_percept(surfels.xy_mm, surfels.dir, surfels.free_xy_mm,
+                         outline(p.best, surfels.xy_mm), f"{r.name}: {object_of(p)}",
+                         out / "percept" / f"{r.name}.png", "camwhisker experiment")  # fmt: skip
+    return found
+
+
+def _summary(runs, signals, contacts, percepts, calib: Calibration, timings) -> dict:
+    per_run = []
+    for r in runs:
+        cols, run = contacts[r.name]
+        per_run.append({
+            "name": r.name, "role": "calibration" if r.calibration else "object",
+            "frames": int(signals[r.name]["ok"].size), "ok": int(signals[r.name]["ok"].sum()),
+            "offset_s": run.offset_s, "x_contact_mm": run.x_contact_mm,
+            "rows_with_estimate": int(np.isfinite(cols["r_hat_mm"]).sum()),
+            **({"percept": percepts[r.name]} if r.name in percepts else {}),
+        })  # fmt: skip
+    return {"runs": per_run,
+            "calibration": {"gm_model": calib.gm.kind, "gm_params": calib.gm.params,
+                            "gm_ci95": calib.gm.ci, "calibration_runs":
+                            sum(r.calibration for r in runs)},
+            "timings": timings}  # fmt: skip
+
+
+def format_experiment(s: dict) -> str:
+    """What a person reads after the run: one line per run, then the times."""
+    c = s["calibration"]
+    params = ", ".join(f"{k} {v:.4g}" for k, v in c["gm_params"].items())
+    lines = [f"calibration: {c['calibration_runs']} runs; GM model {c['gm_model']} ({params})",
+             f"  {'run':<24}{'role':<13}{'frames ok':>11}{'offset s':>10}{'estimates':>11}"
+             "  object"]  # fmt: skip
+    for r in s["runs"]:
+        obj = r.get("percept", {}).get("object", "")
+        lines.append(f"  {r['name']:<24}{r['role']:<13}{r['ok']:>5} of {r['frames']:<3}"
+                     f"{r['offset_s']:>+10.3f}{r['rows_with_estimate']:>11}  {obj}")  # fmt: skip
+    t = s["timings"]
+    lines.append(f"time: batch {t['batch']['seconds']:.1f} s ({t['batch']['frames']} frames, "
+                 f"{t['batch']['reused']} tables reused), calibrate "
+                 f"{t['calibrate']['seconds']:.1f} s, contact {t['contact']['seconds']:.1f} s, "
+                 f"percepts and plots {t['percept']['seconds']:.1f} s")  # fmt: skip
+    return "\n".join(lines)

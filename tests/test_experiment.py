@@ -1,0 +1,97 @@
+"""The user's pipeline (``camwhisker experiment``) on a folder of recordings alone.
+
+The folder holds only the bundled experiment's videos, their stage logs and one sensor
+file: no experiment.toml, no truth. Its contact tables must be chain's, byte for byte
+(chain is this pipeline plus the check against the truth).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from camwhisker.bench.chain import run_chain
+from camwhisker.cli import main
+from camwhisker.run.experiment import ExperimentError, find_recordings
+
+EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
+
+
+def _user_folder(dest: Path) -> Path:
+    """Videos and stage logs of the bundled experiment, and one sensor file."""
+    dest.mkdir()
+    for f in [*EXPERIMENT.glob("*.mp4"), *EXPERIMENT.glob("*.stage.csv")]:
+        (dest / f.name).symlink_to(f)
+    shutil.copy(EXPERIMENT / "bottle_left.sensor.toml", dest / "sensor.toml")
+    return dest
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    root = tmp_path_factory.mktemp("experiment")
+    folder = _user_folder(root / "recordings")
+    assert main(["experiment", str(folder), "--out", str(root / "out"), "--quiet"]) == 0
+    return root
+
+
+def _strict(path: Path):
+    def refuse(name):
+        raise AssertionError(f"{path}: {name} is not strict JSON")
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_contact_tables_are_chains_byte_for_byte(ran):
+    # chain reuses the experiment's signal tables (complete outputs are skipped), so
+    # the comparison is of calibrate and contact alone, without a second batch.
+    shutil.copytree(ran / "out" / "signals", ran / "chain" / "signals")
+    run_chain(EXPERIMENT, ran / "chain", jobs=2, progress=False)
+    ours = sorted((ran / "out" / "contact").glob("*.csv"))
+    assert len(ours) == 14
+    for table in ours:
+        assert table.read_bytes() == (ran / "chain" / "contact" / table.name).read_bytes(), table
+
+
+def test_summary_is_strict_json_and_says_how_it_was_made(ran):
+    s = _strict(ran / "out" / "summary.json")
+    assert len(s["runs"]) == 14
+    assert sum(r["role"] == "calibration" for r in s["runs"]) == 8  # the logs with r_mm
+    assert all(r["ok"] == r["frames"] for r in s["runs"])  # every frame tracked
+    assert s["provenance"]["command"].startswith("camwhisker experiment")
+    assert s["provenance"]["sensor"].endswith("sensor.toml")
+    bottle = next(r for r in s["runs"] if r["name"] == "bottle_left")
+    # One sweep of the 45 mm bottle at (0, 55): a cylinder, its radius within 3 mm.
+    assert bottle["percept"]["model"] == "circle"
+    assert abs(bottle["percept"]["params"]["radius_mm"] - 45.0) < 3.0
+
+
+def test_a_second_run_reuses_every_table(ran, capsys):
+    out = ran / "out"
+    before = (out / "contact" / "box_box.csv").read_bytes()
+    assert main(["experiment", str(ran / "recordings"), "--out", str(out), "--quiet"]) == 0
+    assert "14 tables reused" in capsys.readouterr().out
+    assert (out / "contact" / "box_box.csv").read_bytes() == before
+
+
+@pytest.mark.parametrize("files, message", [
+    (["a.mp4", "a.stage.csv", "b.mp4"], r"b.mp4: no stage log b.stage.csv beside it"),
+    (["a.mp4", "a.stage.csv", "c.stage.csv"], r"c.stage.csv: no video c.mp4 or c.avi"),
+    (["a.mp4", "a.avi", "a.stage.csv"], r"a.avi: run a has two videos"),
+    (["a.mp4", "a.stage.csv"], r"no calibration run"),
+    ([], r"no run"),
+])
+def test_a_folder_that_cannot_be_run_is_named(tmp_path, files, message):
+    for name in files:
+        (tmp_path / name).write_text("t_s,x_mm\n0,0\n1,1\n" if name.endswith(".csv") else "")
+    with pytest.raises(ExperimentError, match=message):
+        find_recordings(tmp_path)
+
+
+def test_the_command_names_a_missing_sensor_file(tmp_path, capsys):
+    (tmp_path / "a.mp4").write_text("")
+    (tmp_path / "a.stage.csv").write_text("t_s,x_mm,r_mm\n0,0,30\n1,1,30\n")
+    assert main(["experiment", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    assert f"{tmp_path}: no sensor.toml" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing written
