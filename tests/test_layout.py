@@ -162,3 +162,16 @@ def test_a_seventh_top_level_module_is_counted(planted):
     finally:
         for p in planted.glob("planted_*.py"):
             p.unlink()
+
+
+def test_importing_the_plots_leaves_the_callers_backend_alone():
+    # A notebook's backend must survive `import camwhisker.contact.plots` and a saved figure.
+    import subprocess
+    import sys
+
+    code = ("import matplotlib; matplotlib.use('svg'); "
+            "import camwhisker.contact.plots, camwhisker.calibration.validate, "
+            "camwhisker.calibration.report; print(matplotlib.get_backend())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    assert out.stdout.strip() == "svg"

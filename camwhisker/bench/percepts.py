@@ -294,14 +294,14 @@ def plot_wall_bounds(rows: list[dict], path, how: str) -> int:
     """Each wall's angle error against its bound's sd (:mod:`camwhisker.bench.percept_bound`),
     the 1 deg target across: a miss left of 0.5 deg is the fit's, one right of 1 deg the
     pauses' noise. Returns the number of walls drawn."""
-    from camwhisker.contact.plots import plt, save_figure
+    from camwhisker.files.figures import new_figure, save_figure
 
     walls = [r for r in rows if r["kind"] == "wall"
              and _finite(r.get("angle_err_deg")) and _finite(r.get("angle_bound_deg"))]
     bound = np.array([r["angle_bound_deg"] for r in walls])
     err = np.maximum([r["angle_err_deg"] for r in walls], 1e-3)  # log axes
     miss = err > TARGETS["angle_err_deg"]
-    fig, ax = plt.subplots(figsize=(6, 4.8), layout="constrained")
+    fig, ax = new_figure((6, 4.8))
     ax.loglog(bound[~miss], err[~miss], "o", ms=4, mfc="none", mec="k", mew=0.7,
               label=f"within {TARGETS['angle_err_deg']:g} deg: {int((~miss).sum())}")
     ax.loglog(bound[miss], err[miss], "o", ms=5, color="tab:red",

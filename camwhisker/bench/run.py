@@ -483,10 +483,7 @@ def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
     key beside the plot names them. The rows on the Pareto front (of all three
     axes) are red.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     summ = summarise(results, configs)
     axis = error_scene(results)
@@ -494,7 +491,8 @@ def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
     number = {s.config: k + 1 for k, s in enumerate(summ)}
     own = [s for s in summ if by_name[s.config].peer is None
            and by_name[s.config].options.mode == "model"]  # fmt: skip
-    fig, axes = plt.subplots(2, 2, figsize=(15, 10), sharey="row")
+    fig = Figure(figsize=(15, 10))
+    axes = fig.subplots(2, 2, sharey="row")
     errors = (("phi_rmse_deg", "phi RMSE (deg)"), ("dz_rmse_mm", "dz RMSE (mm)"))
     for row, (rows, log) in enumerate(((summ, True), (own, False))):
         for ax, (key, label) in zip(axes[row], errors, strict=True):
@@ -520,7 +518,6 @@ def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 

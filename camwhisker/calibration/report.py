@@ -114,12 +114,10 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
 
 def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: str) -> None:
     """Residual RMS per point and per frame; each fitted parameter's shift in SE."""
-    import matplotlib.pyplot as plt
-
-    from camwhisker.contact.plots import save_figure  # selects the Agg backend
+    from camwhisker.files.figures import new_figure, save_figure
 
     adj = cal.adjustment
-    fig, axes = plt.subplots(3, 1, figsize=(7.5, 8.5), layout="constrained")
+    fig, axes = new_figure((7.5, 8.5), nrows=3, ncols=1)
     ax = axes[0]
     ax.bar(range(len(POINT_NAMES)), adj.rms_per_point_px(), color="C0")
     ax.set_xticks(range(len(POINT_NAMES)), POINT_NAMES, rotation=45, ha="right", fontsize=7)

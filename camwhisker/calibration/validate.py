@@ -411,12 +411,11 @@ def write_validation(results: list[Validation], out_dir: str | Path,
 def plot_validation(results: list[Validation], path: str | Path, how: str = "") -> None:
     """Fig. 6 A/B: measured against applied per pause, sd error bars, one colour per
     trial, identity line, the pooled RMSE."""
-    import matplotlib.pyplot as plt
 
-    from camwhisker.contact.plots import save_figure  # selects the Agg backend
+    from camwhisker.files.figures import new_figure, save_figure
 
     spec, stats = results[0].spec, pooled(results)
-    fig, ax = plt.subplots(figsize=(5.2, 5.0), layout="constrained")
+    fig, ax = new_figure((5.2, 5.0))
     used = [r.pauses["used"] for r in results]
     values = np.concatenate([np.r_[r.pauses["applied"][u], r.pauses["measured"][u]]
                              for r, u in zip(results, used, strict=True)])  # fmt: skip

@@ -1,4 +1,4 @@
-"""Figures of the contact back end (matplotlib, Agg, PNG), written atomically.
+"""Figures of the contact back end (PNG, written atomically; no pyplot, no backend chosen).
 
 - :func:`plot_gm_model`: eq.-(8) and beam GM models against calibration data
   (r against dx / phi, one point per stage pause), like the paper's Fig. 7A.
@@ -14,44 +14,18 @@ Every figure carries a footer and PNG metadata saying how it was made.
 
 from __future__ import annotations
 
-import io
+import numpy as np
 
-import matplotlib
+from camwhisker.contact.gm import r_gm_eq8
+from camwhisker.files.figures import new_figure, save_figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from camwhisker import __version__  # noqa: E402
-from camwhisker.contact.gm import r_gm_eq8  # noqa: E402
-from camwhisker.files.atomic import atomic_write_bytes
-
-__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "plot_texture",
-           "save_figure"]
-
-
-#: Share of the figure's height kept above the axes for the provenance line.
-HEADER_HEIGHT = 0.035
-
-
-def save_figure(fig, path, how: str) -> None:
-    """Write ``fig`` as a PNG at ``path`` (atomically) under a line saying ``how`` it was made."""
-    # The panels (constrained layout, legends below them included) end under a strip
-    # that says how the figure was made.
-    fig.get_layout_engine().set(rect=(0, 0, 1, 1 - HEADER_HEIGHT))
-    fig.text(0.01, 0.995, f"camwhisker {__version__}: {how}", fontsize=6, color="0.4",
-             va="top")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120,
-                metadata={"Software": f"camwhisker {__version__}", "Description": how})
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+__all__ = ["plot_gm_model", "plot_error_boxes", "plot_shapes", "plot_percept", "plot_texture"]
 
 
 def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
     """Known r against measured dx / phi, one point per calibration pause, with the
     fitted GM models."""
-    fig, ax = plt.subplots(figsize=(6, 4.8), layout="constrained")
+    fig, ax = new_figure((6, 4.8))
     ok = np.isfinite(data["dx_mm"]) & (data["phi_deg"] >= 1.0)
     q = data["dx_mm"][ok] / data["phi_deg"][ok]
     r = data["r_mm"][ok]
@@ -78,7 +52,7 @@ def plot_gm_model(calib, data: dict, path, how: str = "") -> None:
 
 def plot_error_boxes(evaluations: dict, path, how: str = "") -> None:
     """Boxes of r - r_hat for GM, MF and fused, per contact kind (e.g. rigid, compliant)."""
-    fig, ax = plt.subplots(figsize=(7, 4.8), layout="constrained")
+    fig, ax = new_figure((7, 4.8))
     data, labels = [], []
     for kind, ev in evaluations.items():
         for name, key in (("GM", "r_gm_mm"), ("MF", "r_mf_mm"), ("fused", "r_fused_mm")):
@@ -105,7 +79,7 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "",
     cmap = ListedColormap(["#2c7bb6", "#fdae61", "#d7191c"])
     norm = BoundaryNorm([-1e9, 0.5, 1.0, 1e9], cmap.N)
     n = len(evaluations)
-    fig, axes = plt.subplots(1, n, figsize=(5.5 * n, 5.2), squeeze=False, layout="constrained")
+    fig, axes = new_figure((5.5 * n, 5.2), nrows=1, ncols=n, squeeze=False)
     for ax, (kind, ev) in zip(axes[0], evaluations.items(), strict=True):
         ox, oy = outlines[kind]
         ax.plot(ox, oy, "k-", lw=1, label="true outline")
@@ -142,7 +116,7 @@ def plot_shapes(evaluations: dict, outlines: dict, path, how: str = "",
 
 def plot_percept(xy_mm, dirs, free_xy_mm, fit_xy, label: str, path, how: str = "") -> None:
     """Surfels (points with their directions), free space (the base) and the fitted outline."""
-    fig, ax = plt.subplots(figsize=(6, 5.6), layout="constrained")
+    fig, ax = new_figure((6, 5.6))
     xy = np.asarray(xy_mm, float).reshape(-1, 2)
     ax.scatter(xy[:, 0], xy[:, 1], s=14, c="k", marker="x", lw=0.7, label="contacts (eq. 12)")
     d = np.asarray(dirs, float).reshape(-1, 2)
@@ -168,7 +142,7 @@ def plot_texture(est, path, how: str = "") -> None:
     analysed stretch, and the free ringing the natural frequency comes from."""
     tr = est.trace
     t, u, y, win = tr["t_s"], tr["u_mm"], tr["filtered_mm"], tr["window"]
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 6), layout="constrained")
+    fig, (ax, ax2) = new_figure((8, 6), nrows=2, ncols=1)
     ax.plot(t, u, "-", color="0.7", lw=0.7, label="tip's push u (signals)")
     ax.plot(t, y, "-", color="C0", lw=1.0, label=f"low-passed ({est.limits['cutoff_hz']:.2f} Hz)")
     if win.any():
