@@ -5,12 +5,19 @@ import argparse
 
 from camwhisker.cli import build_parser
 from camwhisker.cli.common import EXIT_CODES
+from camwhisker.cli.dev import BENCH_SCRIPTS
 
 
 def _commands():
+    """The parser and every command it parses itself: the top level's and dev's (the
+    benchmark scripts under dev parse their own options)."""
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return parser, sub.choices
+    dev = next(a for a in sub.choices["dev"]._actions
+               if isinstance(a, argparse._SubParsersAction))  # fmt: skip
+    commands = {n: p for n, p in sub.choices.items() if n != "dev"}
+    commands.update({n: p for n, p in dev.choices.items() if n not in BENCH_SCRIPTS})
+    return parser, commands
 
 
 def test_every_option_has_help_and_its_default_shown():
@@ -27,8 +34,8 @@ def test_every_option_has_help_and_its_default_shown():
             shown = any(a.default is v for v in (None, False)) or "default" in (a.help or "")
             if not shown and f"(default: {a.default})" not in text:
                 no_default.append(f"{name} {flag}")
-    assert len(commands) == 26  # with calibrate-springs, percept, percept-bench, belief,
-    # simulate-texture, texture, learn, predict
+    assert len(commands) == 27  # with calibrate-springs, percept, percept-bench, belief,
+    # simulate-texture, texture, learn, predict, experiment
     assert missing == [] and no_default == []
 
 

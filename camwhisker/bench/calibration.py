@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip, seed_list
+from camwhisker.bench.reality import RealityRow, clip_row, render_build_clip
+from camwhisker.bench.seeds import seed_list
 from camwhisker.calibration.sweep import calibrate_sensor
 from camwhisker.io.sources import VideoSource
 from camwhisker.sensor.file import Sensor

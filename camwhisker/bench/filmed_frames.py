@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from camwhisker.bench.contact import calibrate_simulated
 from camwhisker.bench.frames import format_frames, frame_runs, score_frames
-from camwhisker.bench.reality import seed_list
+from camwhisker.bench.seeds import seed_list
 from camwhisker.io.sources import VideoSource
 from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, StageProtocol
 from camwhisker.sim.render.builds import REALITY_SUITE, draw_build

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camwhisker.bench.seeds import seed_list
 from camwhisker.bench.vision import scene_errors
 from camwhisker.io.sources import VideoSource
 from camwhisker.sensor.file import Sensor
@@ -44,7 +45,7 @@ from camwhisker.vision.stream import REST_FRAMES, Frame, stream
 from camwhisker.vision.tracker import FrontEndOptions
 
 __all__ = ["RealityRow", "render_build_clip", "clip_row", "deviation_phi_deg", "run_build",
-           "table", "summary", "seed_list", "main"]  # fmt: skip
+           "table", "summary", "main"]  # fmt: skip
 
 #: The scene: 1 s at rest, tilts up to 35 deg, 1 s at rest again.
 SCENE = "rest_bracketed"
@@ -218,18 +219,6 @@ def summary(rows: list[RealityRow], effects: dict[int, float]) -> str:
         f"{count(seen, lambda r: r.warned)}; nominal renders "
         f"{count(renders, lambda r: r.warned)}",
     ])  # fmt: skip
-
-
-def seed_list(text: str) -> list[int]:
-    """'100-104', '100,101,107' or both, '141-146,151'; ValueError naming a bad item."""
-    seeds = []
-    for item in text.split(","):
-        lo, _, hi = item.strip().partition("-")
-        try:
-            seeds += list(range(int(lo), int(hi or lo) + 1))
-        except ValueError:
-            raise ValueError(f"seeds: {item!r} is not a seed or a range like 100-104") from None
-    return seeds
 
 
 def main(argv: list[str] | None = None) -> int:

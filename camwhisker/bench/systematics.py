@@ -39,7 +39,8 @@ from camwhisker.bench.calibration import (
     add_sweep_arguments,
     sweep_frames_of,
 )
-from camwhisker.bench.reality import clip_row, render_build_clip, seed_list
+from camwhisker.bench.reality import clip_row, render_build_clip
+from camwhisker.bench.seeds import seed_list
 from camwhisker.calibration.adjust import bias_terms, corner_shift_jacobian
 from camwhisker.calibration.sweep import (
     ROD_DIAMETER,

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from camwhisker.bench.seeds import seed_list
 from camwhisker.percept.texture import estimate_texture
 from camwhisker.sim.mechanics.texture import (
     FRAME_RATES,
@@ -163,8 +164,7 @@ def main(argv=None) -> int:
                    help="seeds per cell, inclusive (0-9 were used for tuning)")
     p.add_argument("--out", metavar="R.json", help="also write the table and every run here")
     args = p.parse_args(argv)
-    a, b = (int(x) for x in args.seeds.split("-"))
-    seeds = tuple(range(a, b + 1))
+    seeds = tuple(seed_list(args.seeds))
     start = time.perf_counter()
     table, runs = resolution_table(seeds)
     print(format_table(table, seeds))

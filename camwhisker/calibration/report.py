@@ -28,6 +28,7 @@ from camwhisker.calibration.adjust import tolerances
 from camwhisker.calibration.sweep import Calibration
 from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_write_text
+from camwhisker.files.jsonfile import number
 from camwhisker.sensor.file import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.sensor.model import GEOMETRY_NAMES, POINT_NAMES, geometry_vector
 
@@ -43,11 +44,6 @@ def report_paths(out_toml: str | Path) -> dict[str, Path]:
         "png": stem.with_name(stem.name + ".report.png"),
     }
 
-
-def _num(v) -> float | None:
-    """A JSON number: None where not finite (JSON has no NaN)."""
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def _why_held(cal: Calibration, name: str) -> str:
@@ -67,8 +63,8 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
     adj = cal.adjustment
     nominal_g, tol = geometry_vector(nominal), tolerances(nominal)
     params = [
-        {"name": name, "nominal": _num(nominal_g[i]), "fitted": _num(adj.value[i]),
-         "se": _num(adj.se[i]), "se_data": _num(adj.se_data[i]), "tolerance": _num(tol[i]),
+        {"name": name, "nominal": number(nominal_g[i]), "fitted": number(adj.value[i]),
+         "se": number(adj.se[i]), "se_data": number(adj.se_data[i]), "tolerance": number(tol[i]),
          "held": name in adj.held,
          "why_held": _why_held(cal, name)}
         for i, name in enumerate(GEOMETRY_NAMES)
@@ -82,14 +78,14 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
         "inputs": {**inputs, "nominal_sensor": nominal.source},
         "parameters": params,
         "residual_rms_px": {
-            "sigma_per_coordinate": _num(adj.sigma_px),
+            "sigma_per_coordinate": number(adj.sigma_px),
             "noise_per_coordinate": {
-                n: _num(v) for n, v in zip(POINT_NAMES, adj.noise_px, strict=True)
+                n: number(v) for n, v in zip(POINT_NAMES, adj.noise_px, strict=True)
             },  # fmt: skip
             "per_point": {
-                n: _num(v) for n, v in zip(POINT_NAMES, adj.rms_per_point_px(), strict=True)
+                n: number(v) for n, v in zip(POINT_NAMES, adj.rms_per_point_px(), strict=True)
             },  # fmt: skip
-            "per_frame": [_num(v) for v in adj.rms_per_frame_px()],
+            "per_frame": [number(v) for v in adj.rms_per_frame_px()],
         },
         "corner_offsets_at_rest_px": np.where(
             np.isfinite(tracked.corner_offsets_uv), tracked.corner_offsets_uv.round(3), None
@@ -101,12 +97,12 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
             "per_video": np.bincount(tracked.video).tolist(),
             "ok_fraction_per_round": cal.ok_fraction,
         },
-        "phi_max_deg": _num(adj.phi_max_deg),
-        "phi_se_deg_at_20_deg": _num(adj.phi_se_deg()),
-        "tip_radius_at_rest_px": _num(cal.tip_radius_px),
-        "tip_rim_scale_in_tilted_frames": _num(cal.rim_scale),
+        "phi_max_deg": number(adj.phi_max_deg),
+        "phi_se_deg_at_20_deg": number(adj.phi_se_deg()),
+        "tip_radius_at_rest_px": number(cal.tip_radius_px),
+        "tip_rim_scale_in_tilted_frames": number(cal.rim_scale),
         "tip_tilted_frames": cal.rim_frames,
-        "tip_edge_blur_px": _num(cal.rim_blur_px),
+        "tip_edge_blur_px": number(cal.rim_blur_px),
         "warnings": list(adj.warnings),
         "fitted_sensor": sensor_to_dict(adj.sensor),
     }

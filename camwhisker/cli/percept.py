@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import math
-from pathlib import Path
 
 from camwhisker.cli.common import CommandError, command_line
 
@@ -44,13 +42,10 @@ def _poses(args):
     return poses
 
 
-def _sha256(path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def _run_percept(args) -> int:
     from camwhisker import __version__
     from camwhisker.files.atomic import atomic_write_text
+    from camwhisker.files.digest import sha256_file
     from camwhisker.files.jsonfile import dumps
     from camwhisker.percept.percepts import (
         RISE_DEG,
@@ -68,7 +63,7 @@ def _run_percept(args) -> int:
         "camwhisker": __version__,
         "command": command_line(args),
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "inputs": [{"contacts": str(c), "sha256": _sha256(c), "pose": vars(pose)}
+        "inputs": [{"contacts": str(c), "sha256": sha256_file(c), "pose": vars(pose)}
                    for c, pose in zip(args.contacts, poses, strict=True)],
         **percept_record(p),
     }
@@ -114,16 +109,15 @@ def add_percept_bench(sub) -> None:
 
 def _run_percept_bench(args) -> int:
     from camwhisker.bench.percepts import format_summary, run_campaign, summarise
+    from camwhisker.bench.seeds import seed_list
     from camwhisker.files.atomic import atomic_write_text
     from camwhisker.files.jsonfile import dumps
     from camwhisker.sim.mechanics.experiment import NoiseModel, peg_radii
 
     try:
-        a, b = (int(v) for v in args.seeds.split("-"))
-    except ValueError:
-        raise CommandError(f"--seeds {args.seeds!r}: expected A-B (two integers)") from None
-    if b < a:
-        raise CommandError(f"--seeds {args.seeds!r}: the last seed is before the first")
+        seeds = seed_list(args.seeds)
+    except ValueError as exc:
+        raise CommandError(f"--{exc}") from None
     try:
         peg_radii(args.calib_pegs)
     except ValueError as exc:
@@ -135,7 +129,7 @@ def _run_percept_bench(args) -> int:
                            ) from None
     if not (0 < phi < math.inf and 0 < dz < math.inf):
         raise CommandError(f"--noise {args.noise!r}: both must be positive and finite")
-    rows = run_campaign(range(a, b + 1), pegs=args.calib_pegs,
+    rows = run_campaign(seeds, pegs=args.calib_pegs,
                         noise=NoiseModel(phi_deg=phi, dz_mm=dz))
     s = summarise(rows)
     print(format_summary(s))

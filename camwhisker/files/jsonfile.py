@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["plain", "dumps"]
+__all__ = ["plain", "dumps", "number"]
 
 
 def plain(value):
@@ -33,6 +33,14 @@ def plain(value):
     if value is None or isinstance(value, str | int | bool):
         return value
     return str(value)
+
+
+def number(x, digits: int | None = None) -> float | None:
+    """A JSON number: ``x`` as a float (rounded to ``digits``), None where it is missing or
+    not finite (JSON has no NaN)."""
+    if x is None or not math.isfinite(x):
+        return None
+    return float(x) if digits is None else round(float(x), digits)
 
 
 def dumps(value, **kwargs) -> str:

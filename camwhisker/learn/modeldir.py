@@ -7,7 +7,6 @@ swapped after training is refused rather than silently predicting something else
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 from camwhisker import __version__
 from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_path, atomic_write_text
+from camwhisker.files.digest import sha256_file
 from camwhisker.learn.net import build_net, import_torch
 from camwhisker.learn.series import Columns, LearnError, Normalisation
 
@@ -34,10 +34,6 @@ class Model:
     window: int
     norm: Normalisation
     config: dict
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def save_model(out: str | Path, net, columns: Columns, window: int, norm: Normalisation,
@@ -59,7 +55,7 @@ def save_model(out: str | Path, net, columns: Columns, window: int, norm: Normal
         "window": window,
         "architecture": arch,
         "normalisation": norm.to_json(),
-        "weights": {WEIGHTS: _sha256(out / WEIGHTS)},
+        "weights": {WEIGHTS: sha256_file(out / WEIGHTS)},
         "training": summary,
     }
     atomic_write_text(out / CONFIG, jsonfile.dumps(config, indent=1) + "\n")
@@ -104,7 +100,7 @@ def load_model(model: str | Path) -> Model:
         path = model / name
         if not path.is_file():
             raise LearnError(f"{path}: missing; {model} is not a complete model directory")
-        if _sha256(path) != digest:
+        if sha256_file(path) != digest:
             raise LearnError(f"{path}: altered since training (its SHA-256 is not the one "
                              f"{model / CONFIG} records)")
     columns = Columns(tuple(config["inputs"]), tuple(config["targets"]),

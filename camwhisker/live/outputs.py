@@ -11,6 +11,7 @@ import math
 import socket
 
 from camwhisker.files import jsonfile
+from camwhisker.files.jsonfile import number
 from camwhisker.io.signals import FORCE_COLUMNS
 from camwhisker.vision.tracker import FrameResult
 
@@ -20,10 +21,6 @@ __all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]
 DEFAULT_UDP_HOST = "127.0.0.1"
 
 
-def _num(x: float, digits: int) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(float(x), digits)
-
-
 def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
                    springs=None, extra: dict | None = None) -> str:  # fmt: skip
     """One frame's result as compact JSON (a line on stdout, a UDP datagram); with
@@ -31,11 +28,11 @@ def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
     contact's fields, :mod:`camwhisker.live.contact`) last."""
     ok = bool(r.ok)
     msg = {
-        "frame": r.frame, "seq": seq, "t_s": _num(t_s, 6),
-        "dz_mm": _num(r.dz_mm, 5) if ok else None,
-        "phi_deg": _num(r.phi_deg, 5) if ok else None,
-        "theta_deg": _num(r.theta_deg, 3) if ok else None,
-        "ok": int(ok), "latency_ms": _num(latency_ms, 3), "note": r.reason,
+        "frame": r.frame, "seq": seq, "t_s": number(t_s, 6),
+        "dz_mm": number(r.dz_mm, 5) if ok else None,
+        "phi_deg": number(r.phi_deg, 5) if ok else None,
+        "theta_deg": number(r.theta_deg, 3) if ok else None,
+        "ok": int(ok), "latency_ms": number(latency_ms, 3), "note": r.reason,
     }  # fmt: skip
     if springs is not None:
         for key, value in zip(FORCE_COLUMNS, (springs.fz_mN(r.dz_mm), springs.mb_Nmm(r.phi_deg)),

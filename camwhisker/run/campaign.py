@@ -20,7 +20,6 @@ first removes the temporary files that killed runs left in its output folders.
 from __future__ import annotations
 
 import glob
-import hashlib
 import json
 import time
 import traceback
@@ -31,6 +30,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from camwhisker.files.atomic import atomic_path, remove_stale_temps
+from camwhisker.files.digest import sha256_file
 from camwhisker.io import signals
 from camwhisker.io.signals import sidecar_path
 from camwhisker.run.workers import run_in_processes, stop_signals_interrupt
@@ -163,14 +163,6 @@ def output_path(
     return Path(dest) / rel / name
 
 
-def _digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def write_sidecar(out: Path, meta: dict, complete: bool = True) -> None:
     """Write ``out``'s sidecar (atomically), recording ``out`` as it is now.
 
@@ -178,7 +170,7 @@ def write_sidecar(out: Path, meta: dict, complete: bool = True) -> None:
     there should be (a truncated video): kept, but redone by the next run.
     """
     out = Path(out)
-    output = {"path": out.name, "bytes": out.stat().st_size, "sha256": _digest(out)}
+    output = {"path": out.name, "bytes": out.stat().st_size, "sha256": sha256_file(out)}
     record = dict(meta, output=output, complete=complete)
     signals.write_sidecar(out, record)
 
@@ -194,7 +186,7 @@ def is_complete(out: Path) -> bool:
         return (
             record.get("complete") is True
             and expected["bytes"] == out.stat().st_size
-            and expected["sha256"] == _digest(out)
+            and expected["sha256"] == sha256_file(out)
         )
     except (OSError, ValueError, KeyError, TypeError):
         return False
