@@ -7,7 +7,7 @@ import pytest
 
 from camwhisker.bench.systematics import GROUPS, refit_with_true_points, tilt_coefficients
 from camwhisker.calibration.adjust import adjust_geometry, bias_terms
-from camwhisker.calibration.sweep import Calibration, TrackedSweep
+from camwhisker.calibration.sweep import SensorFit, TrackedSweep
 from camwhisker.sensor.file import OPTIONAL_PLATE_KEYS, Sensor
 from camwhisker.sensor.model import TIP, PlateModel, geometry_vector
 from camwhisker.vision.mismatch import phi_response
@@ -63,7 +63,7 @@ def biased():
     n = len(q)
     tracked = TrackedSweep(pts, q, np.ones(n, bool), rest, np.zeros(n, int), np.arange(n) / 30,
                            np.full((1, TIP, 2), np.nan))  # fmt: skip
-    return build, Calibration(adj, tracked), exact
+    return build, SensorFit(adj, tracked), exact
 
 
 def _phi_error_deg(sensor: Sensor, build: Sensor) -> float:

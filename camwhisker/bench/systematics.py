@@ -45,7 +45,7 @@ from camwhisker.calibration.adjust import bias_terms, corner_shift_jacobian
 from camwhisker.calibration.sweep import (
     ROD_DIAMETER,
     SQUARE_SIDE,
-    Calibration,
+    SensorFit,
     adjust_tracked,
     calibrate_sensor,
 )
@@ -129,7 +129,7 @@ def white_noise_px(error_uv: np.ndarray) -> np.ndarray:
     return np.sqrt(np.nanmean(step**2, axis=(0, 2)) / 2.0)
 
 
-def refit_with_true_points(cal: Calibration, nominal: Sensor, true_uv: np.ndarray,
+def refit_with_true_points(cal: SensorFit, nominal: Sensor, true_uv: np.ndarray,
                            points: tuple[int, ...], noise_px: np.ndarray, seed: int = 0,
                            rod_diameter_mm: float | None = None) -> Sensor:  # fmt: skip
     """The calibration's last round adjusted again, the tracked ``points`` replaced by

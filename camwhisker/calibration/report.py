@@ -25,14 +25,14 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.calibration.adjust import tolerances
-from camwhisker.calibration.sweep import Calibration
+from camwhisker.calibration.sweep import SensorFit
 from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.jsonfile import number
 from camwhisker.sensor.file import Sensor, dump_sensor, sensor_to_dict
 from camwhisker.sensor.model import GEOMETRY_NAMES, POINT_NAMES, geometry_vector
 
-__all__ = ["report_paths", "calibration_record", "write_calibration", "plot_calibration"]
+__all__ = ["report_paths", "calibration_record", "write_sensor_fit", "plot_calibration"]
 
 
 def report_paths(out_toml: str | Path) -> dict[str, Path]:
@@ -46,7 +46,7 @@ def report_paths(out_toml: str | Path) -> dict[str, Path]:
 
 
 
-def _why_held(cal: Calibration, name: str) -> str:
+def _why_held(cal: SensorFit, name: str) -> str:
     if name == "plate.rod_diameter_mm":
         if cal.rim_frames:
             blur = (f"the edge's blur of {cal.rim_blur_px:.2f} px taken out"
@@ -58,7 +58,7 @@ def _why_held(cal: Calibration, name: str) -> str:
     return cal.adjustment.held.get(name, "")
 
 
-def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command: str) -> dict:
+def calibration_record(cal: SensorFit, nominal: Sensor, inputs: dict, command: str) -> dict:
     """The report's content (see the module notes)."""
     adj = cal.adjustment
     nominal_g, tol = geometry_vector(nominal), tolerances(nominal)
@@ -72,7 +72,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
     tracked = cal.tracked
     return {
         "camwhisker_version": __version__,
-        "made_by": "camwhisker.calibration.report.write_calibration",
+        "made_by": "camwhisker.calibration.report.write_sensor_fit",
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "command": command,
         "inputs": {**inputs, "nominal_sensor": nominal.source},
@@ -108,7 +108,7 @@ def calibration_record(cal: Calibration, nominal: Sensor, inputs: dict, command:
     }
 
 
-def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: str) -> None:
+def plot_calibration(cal: SensorFit, nominal: Sensor, path: str | Path, how: str) -> None:
     """Residual RMS per point and per frame; each fitted parameter's shift in SE."""
     from camwhisker.files.figures import new_figure, save_figure
 
@@ -138,8 +138,8 @@ def plot_calibration(cal: Calibration, nominal: Sensor, path: str | Path, how: s
     save_figure(fig, path, how)
 
 
-def write_calibration(
-    cal: Calibration, nominal: Sensor, out_toml: str | Path, inputs: dict, command: str = ""
+def write_sensor_fit(
+    cal: SensorFit, nominal: Sensor, out_toml: str | Path, inputs: dict, command: str = ""
 ) -> dict[str, Path]:
     """Write the fitted sensor file and its report (JSON, PNG); returns the paths by role."""
     paths = report_paths(out_toml)

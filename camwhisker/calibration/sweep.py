@@ -67,7 +67,7 @@ __all__ = [
     "MAX_ROUNDS",
     "SWEEP_APEX_MASK_PX",
     "TrackedSweep",
-    "Calibration",
+    "SensorFit",
     "track_sweep",
     "rest_frames",
     "corner_offsets",
@@ -142,7 +142,7 @@ class TrackedSweep:
 
 
 @dataclass(frozen=True)
-class Calibration:
+class SensorFit:
     """The calibrated geometry and how it was reached.
 
     adjustment : the last round's :class:`Adjustment`
@@ -396,7 +396,7 @@ def calibrate_sensor(
     on_round: Callable[[int, Adjustment], None] | None = None,
     options: FrontEndOptions | None = None,
     dz_steps: Sequence[tuple[str | Path, StageLog]] = (),
-) -> Calibration:
+) -> SensorFit:
     """Fit a build's geometry to its sweep videos, starting from the nominal ``sensor``.
 
     Parameters
@@ -424,7 +424,7 @@ def calibrate_sensor(
 
     Returns
     -------
-    Calibration
+    SensorFit
     """
     if rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {rounds}")
@@ -464,7 +464,7 @@ def calibrate_sensor(
         if previous is not None and _stable(previous, adj) and not rim_off:
             break
         previous = adj
-    return Calibration(adj, tracked, ok_fraction, radius_px, *used)
+    return SensorFit(adj, tracked, ok_fraction, radius_px, *used)
 
 
 def adjust_tracked(tracked: TrackedSweep, points_uv: np.ndarray, start: Sensor, fixed: dict,

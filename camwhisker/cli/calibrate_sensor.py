@@ -85,7 +85,7 @@ def _chessboard(args, sensor):
 def _run_calibrate_sensor(args) -> int:
     from tqdm import tqdm
 
-    from camwhisker.calibration.report import write_calibration
+    from camwhisker.calibration.report import write_sensor_fit
     from camwhisker.calibration.sweep import calibrate_sensor
     from camwhisker.contact.stage import read_stage_log
     from camwhisker.io.sources import check_frame_size, open_source
@@ -123,7 +123,7 @@ def _run_calibrate_sensor(args) -> int:
               "dz_steps": [{"video": v, "stage_log": log} for v, log in args.dz_steps],
               "chessboard": args.chessboard, "intrinsics_from_chessboard": intrinsics,
               "features": args.features}  # fmt: skip
-    paths = write_calibration(cal, sensor, args.out, inputs, command_line(args))
+    paths = write_sensor_fit(cal, sensor, args.out, inputs, command_line(args))
     adj = cal.adjustment
     print(f"{len(cal.ok_fraction)} rounds; ok rows {100 * cal.ok_fraction[0]:.1f} % with the "
           f"starting file, {100 * cal.ok_fraction[-1]:.1f} % with the fit; residual "
