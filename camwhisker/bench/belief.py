@@ -1,6 +1,6 @@
 """Contact belief (eq. 1) on rendered video through the front end: onset error and false contacts.
 
-Issue #22 item 3's done-when: on simulated runs the onset is found within 2
+The target: on simulated runs the onset is found within 2
 frames of the true one, and 10 minutes of no-contact video (18,000 frames at
 30 frames/s, nominal noise) give no false contact. Both use the front end's real
 noise: frames rendered with the nominal webcam's artefacts, JPEG-compressed as

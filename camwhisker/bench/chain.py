@@ -46,7 +46,7 @@ __all__ = ["ChainError", "run_chain", "format_summary", "LOW_Z", "FLAG_Z", "SHAP
 LOW_Z = 0.5
 #: ... above 1 a doubtful estimate (flagged).
 FLAG_Z = 1.0
-#: Issue #8: box and bottle points with a low score must lie this close to the profile.
+#: Box and bottle points with a low score must lie this close to the profile.
 SHAPE_TOL_MM = 3.0
 
 
@@ -69,7 +69,7 @@ TERMS = {
            "apart always, 0.5: no better than chance)",
     "n/a": "nothing to compute it on (no bad estimate, or no point)",
     "separation": "(summary.json only) Z against the cause rather than the error: slipping "
-                  "or compliant contact against rigid contact held still (issue #8's check)",
+                  "or compliant contact against rigid contact held still",
 }
 
 

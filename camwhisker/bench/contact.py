@@ -2,7 +2,7 @@
 
 :func:`calibrate_simulated` calibrates on simulated runs; :func:`evaluate_kind`
 runs the pause-level pipeline on the runs of one experiment kind and attaches
-the truth; :func:`summary` computes the numbers of issue #4 (RMSE and bias of
+the truth; :func:`summary` computes the contact numbers (RMSE and bias of
 GM, MF and fused estimates, AUC and flag rates of both Z scores);
 :func:`benchmark` times the vectorised core and prints samples/s beside the error.
 :func:`run_bench` does all of it at each noise level of

@@ -1,4 +1,4 @@
-"""Per-frame contact on filmed sweeps: issue #22's done-when through the front end.
+"""Per-frame contact on filmed sweeps: the targets, through the front end.
 
 :mod:`camwhisker.bench.frames` scores the contact chain on the simulator's
 signals with Gaussian noise. Here the same runs (every contact kind, paused or

@@ -1,4 +1,4 @@
-"""Per-frame contact (issue #22) on simulated runs, paused and continuous: the done-when numbers.
+"""Per-frame contact on simulated runs, paused and continuous: the done-when numbers.
 
 For each protocol (the paper's pauses, or a continuous sweep at a given base
 speed) every run of every contact kind goes through

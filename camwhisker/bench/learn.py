@@ -1,6 +1,6 @@
 """The learned estimator (camwhisker learn): architecture, training time, inference speed.
 
-The task stands in for a base-sensing whisker's recorded dataset (issue #24: three base
+The task stands in for a base-sensing whisker's recorded dataset (three base
 channels at 115 Hz; contact radius, height and azimuth): a cantilever pushed at a point
 ``r_mm`` out and ``h_mm`` up, in direction ``azimuth_deg``, by a base moving at a
 constant speed into and out of it. At the base, the moment is ``delta / r**2`` in the

@@ -1,4 +1,4 @@
-"""The learned estimator on our sensor (issue #24 item 5), beside GM, MF and fused.
+"""The learned estimator on our sensor, beside GM, MF and fused.
 
 Per noise level (:data:`~camwhisker.sim.mechanics.experiment.NOISE_LEVELS`: the paper's, our
 front end's), as contact-bench does: calibrate GM and MF on the simulated rigid runs of

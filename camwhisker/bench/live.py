@@ -53,7 +53,7 @@ __all__ = ["BENCH_SEED", "TARGET_P99_MS", "TARGET_CONTACT_P99_MS", "LatencyBench
 BENCH_SEED = 3001
 #: The issue's target for closed-loop use: p99 processing latency per frame.
 TARGET_P99_MS = 4.0
-#: Issue #22's target for the contact work per frame, on top of the front end.
+#: The target for the contact work per frame, on top of the front end.
 TARGET_CONTACT_P99_MS = 1.0
 #: Simulation seeds of the contact bench: the mapping runs, and the calibration runs
 #: (the tests' calibration seed).

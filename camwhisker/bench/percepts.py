@@ -64,7 +64,7 @@ CHECKED = {"wall": ("angle_deg", "distance_mm"), "cylinder": ("center_x_mm", "ce
 # Runs go on until phi reaches 30 deg (the default protocol stops at 40 mm of travel,
 # before a large cylinder's contact has slid far enough to show its curvature).
 PROTOCOL = StageProtocol(max_travel_mm=90.0)
-#: Issue #23's targets: each error's limit (deg or mm).
+#: The percepts' targets: each error's limit (deg or mm).
 TARGETS = {"angle_err_deg": 1.0, "distance_err_mm": 1.0, "radius_err_mm": 3.0,
            "center_err_mm": 2.0, "apex_err_mm": 2.0}
 # The parameters whose 95 % intervals bound each error (a point's: the hypot of its two).

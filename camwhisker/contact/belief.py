@@ -1,4 +1,4 @@
-"""Contact belief and onset from the signals alone (eq. 1 of the seed paper, issue #22 item 3).
+"""Contact belief and onset from the signals alone (eq. 1 of the seed paper).
 
 The paper's whiskers report a 2D deflection vector d(t); its contact belief is
 

@@ -86,8 +86,7 @@ BOTTLE = CircleScene(0.0, 55.0, 45.0)
 # Per-frame noise levels of the simulated front end (docs/sensor.md section 6 signals).
 # PAPER_NOISE: the paper's measured RMSE (Sec. III-A: phi 0.22 deg, dz 0.04 mm).
 # FRONT_END_NOISE: what our vision front end is built to reach (its targets:
-# phi RMSE <= 0.05 deg, dz RMSE <= 0.02 mm); issue #4 allows "the paper's
-# levels or lower, as chosen", so every score is reported at both.
+# phi RMSE <= 0.05 deg, dz RMSE <= 0.02 mm); every score is reported at both.
 PAPER_NOISE_PHI_DEG, PAPER_NOISE_DZ_MM = 0.22, 0.04
 FRONT_END_NOISE_PHI_DEG, FRONT_END_NOISE_DZ_MM = 0.05, 0.02
 

@@ -47,7 +47,7 @@ from camwhisker.sim.mechanics.whisker import WhiskerMechanics, solve_elastica
 __all__ = ["TextureSurface", "TextureProtocol", "TextureRun", "MODE_DAMPING", "FRAME_RATES",
            "contact_response", "tip_track", "simulate_texture"]
 
-#: The camera rates the texture is filmed at (issue #23 item 3).
+#: The camera rates the texture is filmed at.
 FRAME_RATES = (30.0, 120.0, 240.0)
 # A polymer whisker on polymer flexures rings for a few cycles: a few percent of critical.
 MODE_DAMPING = 0.05
