@@ -194,12 +194,16 @@ def test_a_frame_that_does_not_decode_is_a_gap():
 def test_signal_row_is_batch_format(tmp_path):
     nan3 = (math.nan,) * 3
     results = [
-        FrameResult(0, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), nan3, 0.0, 0.0, 0.0,
-                    0.0, 12),
-        FrameResult(1, 0.123456789, 12.3456789, -170.12345, True, nan3, nan3, 0.01, -0.02,
-                    0.003, 0.25, 9),
-        FrameResult(2, math.nan, math.nan, math.nan, False, nan3, nan3, reason="tip: lost, x"),
-        FrameResult(3, 0.5, 1.0, 2.0, False, nan3, nan3, rms_px=0.7, reason="poor fit"),
+        FrameResult(frame=0, dz_mm=0.0, phi_deg=0.0, theta_deg=math.nan, ok=True,
+                    model=(0.0, 0.0, math.nan), paper=nan3, sx_mm=0.0, sy_mm=0.0,
+                    phi_sigma_deg=0.0, rms_px=0.0, n_corners=12),
+        FrameResult(frame=1, dz_mm=0.123456789, phi_deg=12.3456789, theta_deg=-170.12345,
+                    ok=True, model=nan3, paper=nan3, sx_mm=0.01, sy_mm=-0.02,
+                    phi_sigma_deg=0.003, rms_px=0.25, n_corners=9),
+        FrameResult(frame=2, dz_mm=math.nan, phi_deg=math.nan, theta_deg=math.nan, ok=False,
+                    model=nan3, paper=nan3, reason="tip: lost, x"),
+        FrameResult(frame=3, dz_mm=0.5, phi_deg=1.0, theta_deg=2.0, ok=False, model=nan3,
+                    paper=nan3, rms_px=0.7, reason="poor fit"),
     ]  # fmt: skip
     times = [0.0, 0.0333333333, 1e-7, math.nan]
     write_signals(tmp_path / "batch.csv", zip(times, results, strict=True))

@@ -172,8 +172,9 @@ def test_untracked_point_is_crossed_where_expected_and_arrows_scale(scene):
     uv = rest.points_uv.copy()
     uv[0] = np.nan  # square_tl not tracked
     uv[N_SQUARE] += [1.0, 0.0]  # a cross corner moved 1 px right
-    moved = FrameResult(1, 0.0, 0.0, np.nan, True, (0.0, 0.0, np.nan), (0.0, 0.0, np.nan),
-                        points_uv=uv, quality=np.ones(TIP + 1))  # fmt: skip
+    moved = FrameResult(frame=1, dz_mm=0.0, phi_deg=0.0, theta_deg=np.nan, ok=True,
+                        model=(0.0, 0.0, np.nan), paper=(0.0, 0.0, np.nan), points_uv=uv,
+                        quality=np.ones(TIP + 1))  # fmt: skip
     blank = np.zeros_like(scene["frames"][0])
     image = annotate_frame(blank, moved, placement, np.zeros(5), layers=("points",))
     assert _near(image, rest.points_uv[0], UNTRACKED_BGR)

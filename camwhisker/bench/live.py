@@ -248,8 +248,9 @@ def bench_contact(fps: float = 30.0) -> ContactBench:
         for i in range(s["t_s"].size):
             if i == 30:  # the rest reference is built from the first 30 frames
                 rest.append(RestRecord(0, 30, None))
-            r = FrameResult(i, s["dz_mm"][i], s["phi_deg"][i], s["theta_deg"][i],
-                            bool(s["ok"][i]), nan3, nan3)
+            r = FrameResult(frame=i, dz_mm=s["dz_mm"][i], phi_deg=s["phi_deg"][i],
+                            theta_deg=s["theta_deg"][i], ok=bool(s["ok"][i]), model=nan3,
+                            paper=nan3)  # fmt: skip
             frame = Frame(i, float(s["t_s"][i]), None)
             tic, tc = time.perf_counter(), time.thread_time()
             values = contact.update(frame, r, rest)

@@ -186,7 +186,7 @@ class FrontEndOptions:
             raise ValueError(f"features must be FeatureHints or None, got {self.features!r}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FrameResult:
     """One frame's estimate. Values are NaN where untrusted; theta also where
     phi < PHI_MIN_FOR_THETA_DEG. ``points_uv`` (13, 2) and ``quality`` (13,)
@@ -216,7 +216,8 @@ class FrameResult:
         """A row with no estimate: every value (``q`` too) NaN, ``ok`` False, ``reason``
         saying why."""
         nan3 = (math.nan,) * 3
-        return cls(frame, math.nan, math.nan, math.nan, False, nan3, nan3, reason=reason)
+        return cls(frame=frame, dz_mm=math.nan, phi_deg=math.nan, theta_deg=math.nan, ok=False,
+                   model=nan3, paper=nan3, reason=reason)
 
 
 @dataclass(frozen=True)
@@ -383,9 +384,11 @@ class FrontEnd:
         look = _Look(frame, self.rest.gains, self.rest.cloth_level)
         self._refine(look, self._templates(self.q), self.rest.uv[:TIP], np.ones(TIP, bool))
         return FrameResult(
-            index, 0.0, 0.0, math.nan, True, (0.0, 0.0, math.nan), (0.0, 0.0, math.nan),
-            0.0, 0.0, 0.0, 0.0, TIP, "", self.rest.uv.copy(), np.ones(TIP + 1), np.zeros(5),
-        )  # fmt: skip
+            frame=index, dz_mm=0.0, phi_deg=0.0, theta_deg=math.nan, ok=True,
+            model=(0.0, 0.0, math.nan), paper=(0.0, 0.0, math.nan), sx_mm=0.0, sy_mm=0.0,
+            phi_sigma_deg=0.0, rms_px=0.0, n_corners=TIP, reason="",
+            points_uv=self.rest.uv.copy(), quality=np.ones(TIP + 1), q=np.zeros(5),
+        )
 
     rezero = start
 
@@ -812,9 +815,10 @@ class FrontEnd:
     def _result(self, fit, measured, quality, n_corners, ok, reason) -> FrameResult:
         paper = self.paper.pose_from_points(self.rest.paper, measured)
         if not fit.converged:
-            return FrameResult(self._index, math.nan, math.nan, math.nan, False,
-                               (math.nan,) * 3, paper, reason=reason, points_uv=measured,
-                               quality=quality, n_corners=n_corners)  # fmt: skip
+            return FrameResult(frame=self._index, dz_mm=math.nan, phi_deg=math.nan,
+                               theta_deg=math.nan, ok=False, model=(math.nan,) * 3, paper=paper,
+                               reason=reason, points_uv=measured, quality=quality,
+                               n_corners=n_corners)  # fmt: skip
         pose = fit.pose
         phi_deg = pose.phi_deg
         theta_deg = pose.theta_deg if phi_deg >= PHI_MIN_FOR_THETA_DEG else math.nan
@@ -827,10 +831,12 @@ class FrontEnd:
         else:
             dz = phi = theta = math.nan
         return FrameResult(
-            self._index, dz, phi, theta, ok, model, paper, pose.sx_mm, pose.sy_mm,
-            math.degrees(fit.phi_sigma_rad), fit.rms_px, n_corners, reason, measured, quality,
-            fit.q.copy(),
-        )  # fmt: skip
+            frame=self._index, dz_mm=dz, phi_deg=phi, theta_deg=theta, ok=ok, model=model,
+            paper=paper, sx_mm=pose.sx_mm, sy_mm=pose.sy_mm,
+            phi_sigma_deg=math.degrees(fit.phi_sigma_rad), rms_px=fit.rms_px,
+            n_corners=n_corners, reason=reason, points_uv=measured, quality=quality,
+            q=fit.q.copy(),
+        )
 
     def _fail(self, reason: str) -> FrameResult:
         self._lost = True
