@@ -22,6 +22,7 @@ artefacts at :func:`~camwhisker.sim.render.bound.nominal_bound_pose`, cached).
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -39,6 +40,7 @@ from camwhisker.bench.configs import DEFAULT, PAPER, Config
 from camwhisker.bench.pareto import pareto_front
 from camwhisker.bench.peers import PEERS
 from camwhisker.bench.vision import SCENES, render_scene, scene_errors
+from camwhisker.files.atomic import atomic_write_bytes, atomic_write_text
 from camwhisker.io.sources import VideoSource
 from camwhisker.sensor.model import TIP
 from camwhisker.sim.render.bound import nominal_bound_pose, pose_bound
@@ -109,8 +111,7 @@ def _bound(scene_name, scenario, sensor, cache: Path) -> dict:
     if path.exists():
         return json.loads(path.read_text())
     b = pose_bound(sensor, nominal_bound_pose(), scenario.artefacts)
-    cache.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(b))
+    atomic_write_text(path, json.dumps(b))
     return b
 
 
@@ -516,8 +517,9 @@ def plot(results: list[SceneResult], configs: list[Config], path: Path) -> Path:
     fig.text(0.77, 0.5, key, fontsize=8, family="monospace", va="center")
     fig.tight_layout(rect=(0, 0, 0.76, 1))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
@@ -530,9 +532,7 @@ def main(argv: list[str] | None, out: Path, plot_path: Path | None, n_frames: in
     t0 = time.perf_counter()
     results = run_benchmark(configs, scenes, n_frames, cache, log, repeats)
     text = markdown(results, configs, command, info, time.perf_counter() - t0, n_frames, repeats)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
+    atomic_write_text(out, text)
     if plot_path is not None:
         plot(results, configs, plot_path)
     return text

@@ -2,15 +2,21 @@
 
 Everything the package writes goes through :func:`atomic_path`: the content
 goes to a hidden temporary name in the target folder (``.STEM.XXXXXXXX.tmp.SUFFIX``),
-which is renamed into place only once it is complete. The writer holds an
+which is fsynced and renamed into place only once it is complete, and the
+folder is fsynced after the rename, so after a power cut the name holds the
+whole file or the old one, never an empty one. The writer holds an
 exclusive ``flock`` on the temporary file while it writes; the kernel drops it
 when the writer dies (kill -9 included), so :func:`remove_stale_temps` can tell
 a temporary file left by a dead writer from one still being written.
+
+An OSError while writing names the target file (not its temporary name), so
+the commands print which file the disk refused.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import os
 import re
@@ -18,7 +24,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "remove_stale_temps"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "remove_stale_temps",
+           "durable_replace", "sync_file", "sync_folder"]
 
 # The process's umask: os.umask reads it only by setting it, so set it back at once.
 _UMASK = os.umask(0o022)
@@ -31,24 +38,88 @@ TEMP_MARK = ".tmp"
 _TEMP_NAME = re.compile(r"\..+\.[a-z0-9_]{8}" + re.escape(TEMP_MARK) + r"(\.[^.]*)?")
 
 
+#: Errors of a write with no file name attached (a full disk, a quota, a file size
+#: limit, a failing device): inside :func:`atomic_path` they are the target's.
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix); rename it into place on success.
+    """Yield a temporary path beside ``path`` (same suffix); fsync it, rename it into
+    place and fsync the folder on success.
 
-    On an exception the temporary file is removed and ``path`` is left as it was.
-    The temporary file is locked (``flock``) until then, marking it as in use.
+    On an exception the temporary file is removed and ``path`` is left as it was;
+    an OSError of the write is raised again naming ``path``. The temporary file is
+    locked (``flock``) until then, marking it as in use.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _locked_temp(path)
+    try:
+        created = not path.parent.is_dir()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _locked_temp(path)
+    except OSError as exc:
+        raise _naming(exc, path, None) from exc
     try:
         yield Path(tmp)
+        sync_file(tmp)  # the data on the disk before the name points at it
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, path)
+        sync_folder(path.parent)  # the rename itself on the disk
+        if created:
+            sync_folder(path.parent.parent)
+    except OSError as exc:
+        raise _naming(exc, path, tmp) from exc
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         os.close(fd)  # releases the lock
+
+
+def _naming(exc: OSError, path: Path, tmp: str | None) -> OSError:
+    """``exc`` naming ``path`` where it is about the temporary file or an unnamed write
+    (``tmp`` None: creating the temporary file, always about ``path``)."""
+    if tmp is not None and exc.filename is not None and os.fspath(exc.filename) != tmp:
+        return exc  # the body's own error (reading an input, the folder): its own file
+    if tmp is not None and exc.filename is None and exc.errno not in _WRITE_ERRNOS:
+        return exc
+    return _named(exc, path)
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    if exc.errno is None:  # a library's OSError without a code (PyAV, OpenCV): its text
+        return OSError(f"{path}: {exc}")
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path))
+
+
+def sync_file(path: str | Path) -> None:
+    """fsync the file at ``path`` (opened again: a writer may have closed its own)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def sync_folder(folder: str | Path) -> None:
+    """fsync a folder, so the names created or renamed in it are on the disk."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def durable_replace(src: str | Path, dst: str | Path) -> Path:
+    """Rename a finished (synced) file to ``dst`` and fsync the folders; returns ``dst``."""
+    src, dst = Path(src), Path(dst)
+    try:
+        os.replace(src, dst)
+        sync_folder(dst.parent)
+        if src.parent.resolve() != dst.parent.resolve():
+            sync_folder(src.parent)
+    except OSError as exc:
+        raise _named(exc, dst) from exc
+    return dst
 
 
 def _locked_temp(path: Path) -> tuple[int, str]:

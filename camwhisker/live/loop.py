@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.files.atomic import atomic_path
+from camwhisker.files.atomic import atomic_path, sync_file
 from camwhisker.io.signals import (
     SignalWriter,
     sidecar,
@@ -382,6 +382,7 @@ class LiveSession:
             for sig, handler in old_handlers.items():
                 signal.signal(sig, handler)
             writer.close()
+            sync_file(self.out_csv)  # streamed under its name: on the disk before the sidecar
             if recorder is not None:
                 recorder.close()
             if udp is not None:

@@ -24,6 +24,7 @@ import av
 import cv2
 import numpy as np
 
+from camwhisker.files.atomic import sync_file, sync_folder
 from camwhisker.io.sources import TIMESTAMP_COLUMNS, timestamps_path
 
 __all__ = ["MjpgRoundTrip", "SessionRecorder", "decode_only", "JPEG_QUALITY"]
@@ -126,4 +127,8 @@ class SessionRecorder:
         self.closed = True
         self._ts.close()
         self._container.close()
+        # Streamed under their names (a killed session keeps them): on the disk at the end.
+        for path in (self.timestamps, self.video):
+            sync_file(path)
+        sync_folder(self.video.parent)
 

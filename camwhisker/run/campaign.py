@@ -29,7 +29,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from camwhisker.files.atomic import atomic_path, remove_stale_temps
+from camwhisker.files.atomic import atomic_path, durable_replace, remove_stale_temps
 from camwhisker.files.digest import sha256_file
 from camwhisker.io import signals
 from camwhisker.io.signals import sidecar_path
@@ -375,7 +375,8 @@ class BatchTask:
             if parquet:
                 _csv_to_parquet(table, out)
                 if report.rest_check is not None:
-                    meta["rest_check"] = report.rest_check.replace(rest_check_path(out)).name
+                    check = durable_replace(report.rest_check, rest_check_path(out))
+                    meta["rest_check"] = check.name
         finally:
             if parquet:  # the hidden CSV and its companions, used or interrupted
                 for p in (table, sidecar_path(table), rest_check_path(table)):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camwhisker.files.atomic import atomic_path
 from camwhisker.sensor.plate import Pose
 from camwhisker.sim.render.artefacts import Artefacts
 
@@ -59,7 +60,7 @@ class PoseTrack:
 
     def write_csv(self, path: Path) -> None:
         """The truth table: theta is left empty where phi is exactly 0 (undefined)."""
-        with open(path, "w", newline="") as fh:
+        with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             out = csv.writer(fh)
             out.writerow(TRUTH_COLUMNS)
             for i in range(len(self)):
