@@ -42,7 +42,7 @@ from camwhisker.contact.stage import StageLog
 from camwhisker.contact.zscore import SpreadTable, spread_table
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.tables import write_csv
-from camwhisker.files.tomlfile import read_toml, toml_value
+from camwhisker.files.tomlfile import read_toml, toml_comment, toml_value
 
 __all__ = ["MF_MAX_SPREAD_MM", "CalibrationError", "CalibrationRun", "calibrate",
            "format_calibration", "mf_phi_floor", "write_calibration", "read_calibration",
@@ -266,9 +266,9 @@ def write_calibration(path: str | Path, calib: Calibration) -> None:
     eq8 = calib.gm.alternatives.get("eq8")
     lines = [
         "# camwhisker calibration: GM (eq. 8 and a beam alternative), sigma_GM(phi), MF table.",
-        f"# Made by camwhisker {prov['version']} at {prov['created_utc']}.",
-        f"# Command: {prov.get('command', '')}",
-        f"# MF table (phi_deg, dz_mm, r_mm): {mf_path.name}",
+        toml_comment(f"Made by camwhisker {prov['version']} at {prov['created_utc']}."),
+        toml_comment(f"Command: {prov.get('command', '')}"),
+        toml_comment(f"MF table (phi_deg, dz_mm, r_mm): {mf_path.name}"),
     ]
     if eq8 is not None:
         lo, hi = eq8.ci["c"]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.files.tomlfile import read_toml
+from camwhisker.files.tomlfile import read_toml, toml_comment, toml_value
 
 __all__ = [
     "CameraConfig",
@@ -308,11 +308,13 @@ def _check_placement(sensor: Sensor) -> None:
 
 def dump_sensor(sensor: Sensor) -> str:
     """The resolved configuration as sensor-file TOML text (loads back to an equal Sensor)."""
-    lines = [f"# camwhisker sensor file (resolved from {sensor.source})"]
+    lines = [toml_comment(f"camwhisker sensor file (resolved from {sensor.source})")]
     for table, values in sensor_to_dict(sensor).items():
         lines.append(f"\n[{table}]")
         for key, value in values.items():
             if isinstance(value, list):
                 value = "[" + ", ".join(repr(float(v)) for v in value) + "]"
+            else:
+                value = toml_value(value)
             lines.append(f"{key} = {value}")
     return "\n".join(lines) + "\n"
