@@ -165,9 +165,11 @@ def _check_page_and_buttons(run, out, avi):
     assert meta["view"]["pictures"] == pictures
 
 
-def _request(url, method="GET"):
+def _request(url, method="GET", origin=None):
+    headers = {"Origin": origin} if origin else {}
     try:
-        with urllib.request.urlopen(urllib.request.Request(url, method=method)) as r:
+        with urllib.request.urlopen(urllib.request.Request(url, headers=headers,
+                                                           method=method)) as r:  # fmt: skip
             return r.status, r.read()
     except urllib.error.HTTPError as exc:
         return exc.code, exc.read()
@@ -180,9 +182,10 @@ def test_endpoints_without_a_browser(tmp_path, sensor):
     url = run.session.view.url
     try:
         _until(lambda: run.session.report.rows >= 10, "10 rows")
-        status, body = _request(url + "command/record", "POST")
+        status, body = _request(url + "command/record", "POST", url.rstrip("/"))
         assert status == 409 and "--record" in json.loads(body)["error"]
-        assert _request(url + "command/quit", "POST")[0] == 404  # the page cannot end a session
+        # The page cannot end a session.
+        assert _request(url + "command/quit", "POST", url.rstrip("/"))[0] == 404
         assert _request(url + "nothing")[0] == 404
         # The view takes the rows on its own thread: wait for the tenth there too.
         state = _until(lambda: (s := json.loads(_request(url + "state?after=-1")[1]))["rows"][9:]
@@ -235,6 +238,8 @@ def test_state_figures_from_published_rows():
         assert [r[0] for r in view.state_after(-1)["rows"]] == list(range(n))
         assert view.pictures == 0  # no page asked for one
         status, _ = _request(view.url + "command/rezero", "POST")
+        assert status == 403 and commands == []  # no Origin: not from the view's page
+        status, _ = _request(view.url + "command/rezero", "POST", view.url.rstrip("/"))
         assert status == 200 and commands == ["rezero"]
     finally:
         view.close()

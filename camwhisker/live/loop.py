@@ -351,7 +351,8 @@ class LiveSession:
         gc.freeze()
         if self.view is not None:
             self.view.start()
-            log.info("view at %s", self.view.url)
+            # The only place the token is shown (off loopback): not in the sidecar.
+            log.info("view at %s", self.view.page_url)
         if self.base is not None:
             self.base.start()
         grabber.start()
@@ -559,7 +560,8 @@ class LiveSession:
                                           "errors": udp.errors},
             view=None if self.view is None else {"url": self.view.url,
                                                  "pictures": self.view.pictures,
-                                                 "requests": self.view.requests},
+                                                 "requests": self.view.requests,
+                                                 "rejected_requests": self.view.rejected},
             contact=contact,
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)

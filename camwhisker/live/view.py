@@ -21,14 +21,28 @@ Endpoints: ``GET /`` the page; ``GET /frame.jpg?after=N`` the newest picture
 ``X-Frame`` header); ``GET /state?after=N`` JSON with the rows after frame N
 and the figures; ``POST /command/NAME`` (``rezero``, ``redetect``,
 ``record``).
+
+Who may use it: a request must be addressed to the view itself (``Host`` one of
+its names with its port: 127.0.0.1, localhost, [::1], the address it is bound
+to, and where bound to all interfaces this machine's name or any IP address),
+which defeats DNS rebinding; a command also needs ``Origin`` (or, without it,
+``Referer``) to be the view's own origin, so another page open in the browser
+cannot send one. Off loopback (``--view-host`` not a loopback address) every
+request also needs the session's random token (``?token=...``), printed once
+at start as part of the page's URL; the page passes it on. Anything else is
+403 (401 without the right token) and counted (:attr:`LiveView.rejected`, the
+sidecar's ``view.rejected_requests``).
 """
 
 from __future__ import annotations
 
 import collections
+import ipaddress
 import json
 import logging
 import math
+import secrets
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -45,7 +59,7 @@ from camwhisker.sensor.model import PlateModel
 from camwhisker.vision.stream import Frame
 from camwhisker.vision.tracker import FrameResult
 
-__all__ = ["DEFAULT_VIEW_HOST", "COMMANDS", "LiveView", "Published"]
+__all__ = ["DEFAULT_VIEW_HOST", "COMMANDS", "LiveView", "Published", "is_loopback"]
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +86,26 @@ HISTORY_ROWS = 600
 STATS_ROWS = 90
 
 _PAGE = Path(__file__).with_name("view.html")
+#: The names every view answers to (with its port).
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (a name or an address) is this machine only."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _is_ip(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name.strip("[]"))
+        return True
+    except ValueError:
+        return False
 
 
 @dataclass(frozen=True)
@@ -142,6 +176,11 @@ class LiveView:
             raise OSError(f"--view {host}:{port}: cannot serve there: {exc.strerror}") from exc
         self.server.daemon_threads = True  # a hung browser never holds the process at exit
         self.host, self.port = self.server.server_address[:2]
+        #: Required on every request off loopback (None on loopback).
+        self.token = None if is_loopback(host) else secrets.token_urlsafe(24)
+        self._names = _own_names(host)
+        #: Requests refused: foreign Host, foreign origin, missing or wrong token.
+        self.rejected = 0
         #: The newest row with its image (a reference the loop swaps), the rows not yet taken.
         self._latest: tuple[np.ndarray | None, Published] | None = None
         self._inbox: collections.deque[Published] = collections.deque(maxlen=HISTORY_ROWS)
@@ -170,7 +209,37 @@ class LiveView:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """Where it serves (without the token: this goes in the sidecar)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}/"
+
+    @property
+    def page_url(self) -> str:
+        """The page's URL to open, with the token where one is needed."""
+        return self.url + (f"?token={self.token}" if self.token else "")
+
+    def refusal(self, host: str | None, path: str, origin: str | None,
+                command: bool) -> tuple[int, str] | None:  # fmt: skip
+        """(status, reason) where a request must be refused, else None; ``host`` and
+        ``origin`` are its Host and Origin (or Referer's origin) headers."""
+        if not host or not self._own_host(host.lower()):
+            return 403, "not addressed to this view (Host)"
+        if self.token is not None:
+            given = parse_qs(urlsplit(path).query).get("token", [""])[0]
+            if not secrets.compare_digest(given.encode(), self.token.encode()):
+                return 401, "the token is missing or wrong: open the URL printed at start"
+        if command and (origin or "").lower() != f"http://{host.lower()}":
+            return 403, "a command from another page (Origin)"
+        return None
+
+    def _own_host(self, host: str) -> bool:
+        if host.endswith("]") or ":" not in host:  # no port: HTTP's default
+            name, port = host, "80"
+        else:
+            name, _, port = host.rpartition(":")
+        if port != str(self.port):
+            return False
+        return name in self._names or ("*" in self._names and _is_ip(name))
 
     def start(self) -> LiveView:
         for t in self._threads:
@@ -297,6 +366,15 @@ class LiveView:
                 "recording": latest.recording if latest else None}  # fmt: skip
 
 
+def _own_names(host: str) -> set[str]:
+    """The Host names a view bound to ``host`` answers to ("*": any IP address, for a
+    view on every interface: an address typed in is no rebound name)."""
+    names = set(LOOPBACK_NAMES) | {host.lower(), f"[{host.lower()}]"}
+    if host in ("0.0.0.0", "::", ""):
+        names |= {"*", socket.gethostname().lower(), socket.getfqdn().lower()}
+    return names
+
+
 def _figures(rows: list[list]) -> dict:
     """Frame rate (rows per second of their clock), latency p50 / p99 (ms) over ``rows``."""
     t = [row[1] for row in rows if row[1] is not None]
@@ -338,6 +416,22 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
         def _json(self, status: int, obj) -> None:
             self._send(status, json.dumps(obj, allow_nan=False).encode(), "application/json")
 
+        def _refused(self, command: bool = False) -> bool:
+            """Answer and count a request not from the view's own page (module notes)."""
+            origin = self.headers.get("Origin")
+            if origin is None and self.headers.get("Referer"):
+                ref = urlsplit(self.headers["Referer"])
+                origin = f"{ref.scheme}://{ref.netloc}"
+            why = view.refusal(self.headers.get("Host"), self.path, origin, command)
+            if why is None:
+                return False
+            if not view.rejected:
+                log.warning("view: refused a request: %s", why[1])
+            view.rejected += 1
+            self.close_connection = True  # never read what a refused request sends
+            self._json(why[0], {"error": why[1]})
+            return True
+
         def _after(self, query: str) -> int:
             try:
                 return int(parse_qs(query).get("after", ["-1"])[0])
@@ -348,7 +442,7 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
             view.requests += 1
             url = urlsplit(self.path)
             try:
-                if self._closed():
+                if self._refused() or self._closed():
                     return
                 if url.path in ("/", "/index.html"):
                     self._send(200, view.page, "text/html; charset=utf-8")
@@ -369,7 +463,7 @@ def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
             view.requests += 1
             name = urlsplit(self.path).path.removeprefix("/command/")
             try:
-                if self._closed():
+                if self._refused(command=True) or self._closed():
                     return
                 if name not in COMMANDS:
                     self._json(404, {"error": f"unknown command {name!r}"})
