@@ -115,7 +115,9 @@ def add_live(sub) -> None:
         metavar="PORT",
         help=f"serve a live view to a browser (port {VIEW_PORT} if none given; 0: any free one)",
     )
-    p.add_argument("--view-host", default="127.0.0.1", help="view address (default: this host)")
+    p.add_argument("--view-host", default="127.0.0.1",
+                   help="view address (default: this host; off it, the page's URL printed "
+                        "at start holds the token it needs)")
     p.add_argument(
         "--playback-fps", type=float, metavar="FPS", help="play a file at this rate, like a camera"
     )
