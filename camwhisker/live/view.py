@@ -54,6 +54,7 @@ from urllib.parse import parse_qs, urlsplit
 import cv2
 import numpy as np
 
+from camwhisker.files.jsonfile import number
 from camwhisker.run.overlay import Placement, annotate_frame, is_rest_row, pose_vector
 from camwhisker.sensor.model import PlateModel
 from camwhisker.vision.stream import Frame
@@ -129,19 +130,15 @@ class Published:
 CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",))
 
 
-def _num(x: float, digits: int) -> float | None:
-    return round(float(x), digits) if x is not None and math.isfinite(x) else None
-
-
 def _row_numbers(p: Published) -> list:
     r, ok = p.result, bool(p.result.ok)
-    row = [p.index, _num(p.t_s, 4), _num(r.dz_mm, 5) if ok else None,
-           _num(r.phi_deg, 4) if ok else None, _num(r.theta_deg, 2) if ok else None,
-           int(ok), _num(p.latency_ms, 2)]  # fmt: skip
+    row = [p.index, number(p.t_s, 4), number(r.dz_mm, 5) if ok else None,
+           number(r.phi_deg, 4) if ok else None, number(r.theta_deg, 2) if ok else None,
+           int(ok), number(p.latency_ms, 2)]  # fmt: skip
     c = p.contact or {}
     for names in CONTACT_PLOTS:
         name = next((n for n in names if n in c), None)
-        row.append(None if name is None or c[name] is None else _num(c[name], 4))
+        row.append(None if name is None or c[name] is None else number(c[name], 4))
     return row
 
 
@@ -380,101 +377,104 @@ def _figures(rows: list[list]) -> dict:
     t = [row[1] for row in rows if row[1] is not None]
     lat = [row[6] for row in rows if row[6] is not None]
     fps = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else None
-    return {"fps": _num(fps, 1) if fps else None,
-            "latency_p50_ms": _num(float(np.percentile(lat, 50)), 2) if lat else None,
-            "latency_p99_ms": _num(float(np.percentile(lat, 99)), 2) if lat else None}  # fmt: skip
+    p50, p99 = np.percentile(lat, [50, 99]) if lat else (None, None)
+    return {"fps": number(fps, 1) if fps else None, "latency_p50_ms": number(p50, 2),
+            "latency_p99_ms": number(p99, 2)}
+
+
+class _PageHandler(BaseHTTPRequestHandler):
+    """The page's requests (see the module's notes); ``view`` is set per session."""
+
+    view: LiveView
+
+    protocol_version = "HTTP/1.1"  # keep-alive: one thread per page, not per request
+    timeout = 10.0  # an idle connection's thread ends (the page asks every 0.2 s)
+
+    def _closed(self) -> bool:
+        """After the session: 503, and the connection closed."""
+        if not self.view.stopped:
+            return False
+        self.close_connection = True
+        self._json(503, {"error": "the session has ended"})
+        return True
+
+    def log_message(self, fmt, *args):  # the terminal is the session's
+        log.debug("view: " + fmt, *args)
+
+    def _send(self, status: int, body: bytes, kind: str, headers: dict | None = None):
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        for key, value in (headers or {}).items():
+            self.send_header(key, value)
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, status: int, obj) -> None:
+        self._send(status, json.dumps(obj, allow_nan=False).encode(), "application/json")
+
+    def _refused(self, command: bool = False) -> bool:
+        """Answer and count a request not from the view's own page (module notes)."""
+        origin = self.headers.get("Origin")
+        if origin is None and self.headers.get("Referer"):
+            ref = urlsplit(self.headers["Referer"])
+            origin = f"{ref.scheme}://{ref.netloc}"
+        why = self.view.refusal(self.headers.get("Host"), self.path, origin, command)
+        if why is None:
+            return False
+        if not self.view.rejected:
+            log.warning("view: refused a request: %s", why[1])
+        self.view.rejected += 1
+        self.close_connection = True  # never read what a refused request sends
+        self._json(why[0], {"error": why[1]})
+        return True
+
+    def _after(self, query: str) -> int:
+        try:
+            return int(parse_qs(query).get("after", ["-1"])[0])
+        except ValueError:
+            return -1
+
+    def do_GET(self):  # noqa: N802 - the server's name for it
+        self.view.requests += 1
+        url = urlsplit(self.path)
+        try:
+            if self._refused() or self._closed():
+                return
+            if url.path in ("/", "/index.html"):
+                self._send(200, self.view.page, "text/html; charset=utf-8")
+            elif url.path == "/frame.jpg":
+                picture = self.view.picture_after(self._after(url.query))
+                if picture is None:
+                    self._send(204, b"", "image/jpeg")
+                else:
+                    self._send(200, picture[1], "image/jpeg", {"X-Frame": str(picture[0])})
+            elif url.path == "/state":
+                self._json(200, self.view.state_after(self._after(url.query)))
+            else:
+                self._json(404, {"error": f"no page {url.path}"})
+        except (BrokenPipeError, ConnectionResetError):  # the page went away
+            pass
+
+    def do_POST(self):  # noqa: N802
+        self.view.requests += 1
+        name = urlsplit(self.path).path.removeprefix("/command/")
+        try:
+            if self._refused(command=True) or self._closed():
+                return
+            if name not in COMMANDS:
+                self._json(404, {"error": f"unknown command {name!r}"})
+                return
+            try:
+                self.view.command(name)
+            except ValueError as exc:  # e.g. recording without --record
+                self._json(409, {"error": str(exc)})
+                return
+            self._json(200, {"command": name})
+        except (BrokenPipeError, ConnectionResetError):
+            pass
 
 
 def _handler(view: LiveView) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        """The page's requests (see the module's notes)."""
-
-        protocol_version = "HTTP/1.1"  # keep-alive: one thread per page, not per request
-        timeout = 10.0  # an idle connection's thread ends (the page asks every 0.2 s)
-
-        def _closed(self) -> bool:
-            """After the session: 503, and the connection closed."""
-            if not view.stopped:
-                return False
-            self.close_connection = True
-            self._json(503, {"error": "the session has ended"})
-            return True
-
-        def log_message(self, fmt, *args):  # the terminal is the session's
-            log.debug("view: " + fmt, *args)
-
-        def _send(self, status: int, body: bytes, kind: str, headers: dict | None = None):
-            self.send_response(status)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            for key, value in (headers or {}).items():
-                self.send_header(key, value)
-            self.end_headers()
-            self.wfile.write(body)
-
-        def _json(self, status: int, obj) -> None:
-            self._send(status, json.dumps(obj, allow_nan=False).encode(), "application/json")
-
-        def _refused(self, command: bool = False) -> bool:
-            """Answer and count a request not from the view's own page (module notes)."""
-            origin = self.headers.get("Origin")
-            if origin is None and self.headers.get("Referer"):
-                ref = urlsplit(self.headers["Referer"])
-                origin = f"{ref.scheme}://{ref.netloc}"
-            why = view.refusal(self.headers.get("Host"), self.path, origin, command)
-            if why is None:
-                return False
-            if not view.rejected:
-                log.warning("view: refused a request: %s", why[1])
-            view.rejected += 1
-            self.close_connection = True  # never read what a refused request sends
-            self._json(why[0], {"error": why[1]})
-            return True
-
-        def _after(self, query: str) -> int:
-            try:
-                return int(parse_qs(query).get("after", ["-1"])[0])
-            except ValueError:
-                return -1
-
-        def do_GET(self):  # noqa: N802 - the server's name for it
-            view.requests += 1
-            url = urlsplit(self.path)
-            try:
-                if self._refused() or self._closed():
-                    return
-                if url.path in ("/", "/index.html"):
-                    self._send(200, view.page, "text/html; charset=utf-8")
-                elif url.path == "/frame.jpg":
-                    picture = view.picture_after(self._after(url.query))
-                    if picture is None:
-                        self._send(204, b"", "image/jpeg")
-                    else:
-                        self._send(200, picture[1], "image/jpeg", {"X-Frame": str(picture[0])})
-                elif url.path == "/state":
-                    self._json(200, view.state_after(self._after(url.query)))
-                else:
-                    self._json(404, {"error": f"no page {url.path}"})
-            except (BrokenPipeError, ConnectionResetError):  # the page went away
-                pass
-
-        def do_POST(self):  # noqa: N802
-            view.requests += 1
-            name = urlsplit(self.path).path.removeprefix("/command/")
-            try:
-                if self._refused(command=True) or self._closed():
-                    return
-                if name not in COMMANDS:
-                    self._json(404, {"error": f"unknown command {name!r}"})
-                    return
-                try:
-                    view.command(name)
-                except ValueError as exc:  # e.g. recording without --record
-                    self._json(409, {"error": str(exc)})
-                    return
-                self._json(200, {"command": name})
-            except (BrokenPipeError, ConnectionResetError):
-                pass
-
-    return Handler
+    return type("Handler", (_PageHandler,), {"view": view})
