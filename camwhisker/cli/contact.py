@@ -134,8 +134,16 @@ def add_contact(sub) -> None:
     p = sub.add_parser("contact", help="contact distance and shape per signal row")
     p.add_argument("--signals", required=True, metavar="S.csv",
                    help="the run's signal table (batch, live or replay)")
-    p.add_argument("--stage", required=True, metavar="L.csv",
-                   help="the run's stage log (t_s, x_mm on the stage's clock)")
+    base = p.add_mutually_exclusive_group(required=True)
+    base.add_argument("--stage", metavar="L.csv",
+                      help="the run's stage log (t_s, x_mm on the stage's clock)")
+    base.add_argument("--pose", metavar="P.csv",
+                      help="the run's pose log instead (t_s, x_mm, y_mm, z_mm, qw, qx, qy, qz "
+                           "on its own clock, docs/sensor.md section 9): adds the contact "
+                           "point px_mm, py_mm, pz_mm and the normal nx, ny, nz in its frame")
+    p.add_argument("--mount", metavar="X,Y,Z,QW,QX,QY,QZ",
+                   help="with --pose, where the log gives a carrier's pose (a robot's "
+                        "flange): the sensor's pose in the carrier's frame")
     p.add_argument("--calib", required=True, metavar="CALIB",
                    help="calibration file written by camwhisker calibrate")
     p.add_argument("--offset-s", type=float,
@@ -167,8 +175,19 @@ def _run_contact(args) -> int:
         from camwhisker.learn.modeldir import load_model
 
         model = load_model(args.learned)  # before any work: a bad model is named first
-    cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s,
-                             mode=args.per)
+    if args.mount and not args.pose:
+        raise CommandError("--mount goes with --pose (a carrier's pose log)")
+    if args.pose:
+        from camwhisker.contact.space import contact_rows_in_space
+        from camwhisker.io.poses import Mount, read_pose_log
+
+        poses = read_pose_log(args.pose, Mount.parse(args.mount) if args.mount else None)
+        cols, run, theta = contact_rows_in_space(signals, poses, calib, args.offset_s,
+                                                 mode=args.per)  # fmt: skip
+        print(f"the base pressed toward theta {theta:.1f} deg")
+    else:
+        cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s,
+                                 mode=args.per)  # fmt: skip
     if model is not None:
         from camwhisker.learn.sensor import learned_r_mm
 
@@ -191,6 +210,6 @@ def _run_contact(args) -> int:
           f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
     if defined == 0:
         print(f"camwhisker contact: problem: {args.signals}: no row has a contact estimate "
-              f"({onset} in {args.stage})", file=sys.stderr)
+              f"({onset} in {args.stage or args.pose})", file=sys.stderr)
         return 1
     return 0
