@@ -17,6 +17,7 @@ from camwhisker.cli import main
 from camwhisker.contact.calibrate import read_calibration
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.space import (
+    BASE_COLUMNS,
     WORLD_COLUMNS,
     SpaceError,
     contact_rows_in_space,
@@ -136,7 +137,7 @@ def test_a_stage_run_in_space_gives_its_contacts_placed_in_the_world(sim):
     flat, flat_run = contact_rows(signals, log, calib)
     assert abs(theta) < 0.1  # the simulator's whisker lags a +x base: theta 0
     assert run.offset_s == pytest.approx(flat_run.offset_s, abs=1e-9)  # the same pauses
-    assert list(cols)[10:16] == list(WORLD_COLUMNS)
+    assert list(cols)[10:22] == [*WORLD_COLUMNS, *BASE_COLUMNS]
     point = np.column_stack([cols[c] for c in WORLD_COLUMNS[:3]])
     # The stage's plane is x_S (the travel) and z_S (the shaft): eq. 12's point there.
     flat_point = P0 + R0.apply(np.column_stack([flat["x_hat_mm"], 0 * flat["x_hat_mm"],

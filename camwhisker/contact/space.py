@@ -24,11 +24,14 @@ from camwhisker.contact.pipeline import CONTACT_COLUMNS, Calibration, RunAnalysi
 from camwhisker.contact.stage import CONTACT_PHI_DEG, StageLog, stage_log_from_arrays
 from camwhisker.io.poses import MAX_GAP_S, PoseLog
 
-__all__ = ["WORLD_COLUMNS", "MAX_TURN_DEG", "MIN_TRAVEL_MM", "SpaceError", "pressing_theta_deg",
-           "travel_log", "contact_rows_in_space"]  # fmt: skip
+__all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "MAX_TURN_DEG", "MIN_TRAVEL_MM", "SpaceError",
+           "pressing_theta_deg", "travel_log", "contact_rows_in_space"]  # fmt: skip
 
 #: The contact point and the surface normal's estimate in W, after the section 7 columns.
 WORLD_COLUMNS = ("px_mm", "py_mm", "pz_mm", "nx", "ny", "nz")
+#: Written after them: the base (S's origin) in W and the shaft's rest direction (z_S), for
+#: the free space the base moved through and the normal's component along the shaft.
+BASE_COLUMNS = ("bx_mm", "by_mm", "bz_mm", "ax", "ay", "az")
 #: Largest turn of the base over a run (deg): at the whisker's 100 mm it moves the shaft's
 #: point by 0.9 mm, about GM's spread; more needs the turning base's own model.
 MAX_TURN_DEG = 0.5
@@ -112,7 +115,9 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
     point = p + np.einsum("nij,nj->ni", m, local)
     normal = np.einsum("nij,j->ni", m, -d_s)
     normal[~np.isfinite(point).all(axis=1)] = np.nan
-    world = dict(zip(WORLD_COLUMNS, [*point.T, *normal.T], strict=True))
+    shaft = m[:, :, 2]
+    world = dict(zip(WORLD_COLUMNS + BASE_COLUMNS, [*point.T, *normal.T, *p.T, *shaft.T],
+                     strict=True))  # fmt: skip
     n = len(CONTACT_COLUMNS)
     names = list(cols)
     return {**{k: cols[k] for k in names[:n]}, **world,
