@@ -20,6 +20,7 @@ BENCH_SCRIPTS = {
     "filmed-frames-bench": ("filmed_frames", "per-frame contact on filmed sweeps"),
     "texture-bench": ("texture", "smallest gap and amplitude resolved, per frame rate"),
     "learn-bench": ("learn", "the learned estimator: architecture, training, inference"),
+    "solids-bench": ("solids", "objects in 3-D from sweeps lifted into space"),
 }
 
 

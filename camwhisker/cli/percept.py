@@ -14,7 +14,10 @@ def add_percept(sub) -> None:
     p = sub.add_parser("percept", help="the object behind contact tables: wall, cylinder, box "
                                        "corner or nothing, with 95 %% intervals")
     p.add_argument("--contacts", action="append", required=True, metavar="C.csv",
-                   help="a contact table (camwhisker contact); repeat for more sweeps")
+                   help="a contact table (camwhisker contact); repeat for more sweeps. Tables "
+                        "with the contact point in space (contact --pose: px_mm ...) give a "
+                        "plane, sphere, cylinder or nothing in that frame (docs/sensor.md "
+                        "section 9)")
     p.add_argument("--pose", action="append", metavar="X0,Y0,DEG",
                    help="where a table's stage frame lies in the common frame (common = "
                         "(X0, Y0) + rotation by DEG of the stage's x, y); once per --contacts "
@@ -42,7 +45,47 @@ def _poses(args):
     return poses
 
 
+def _in_space(paths) -> bool:
+    """Whether the tables hold contact points in W: all of them, or (an error) only some."""
+    from camwhisker.files.tables import read_header
+
+    has = [("px_mm" in read_header(p)) for p in paths]
+    if any(has) and not all(has):
+        raise CommandError("--contacts: give tables all from contact --pose (points in space) "
+                           "or all from a stage (points in its plane), not both")
+    return all(has)
+
+
+def _run_percept_in_space(args) -> int:
+    from camwhisker import __version__
+    from camwhisker.files.atomic import atomic_write_text
+    from camwhisker.files.digest import sha256_file
+    from camwhisker.files.jsonfile import dumps
+    from camwhisker.percept.solids import perceive_solid, read_surfels3, solid_record
+
+    if args.pose or args.plot:
+        raise CommandError("--pose and --plot are for stage tables; tables in space carry their "
+                           "own frame (draw them with camwhisker map --percept)")
+    surfels = read_surfels3(args.contacts)
+    p = perceive_solid(surfels)
+    record = {"camwhisker": __version__, "command": command_line(args),
+              "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+              "inputs": [{"contacts": str(c), "sha256": sha256_file(c)} for c in args.contacts],
+              **solid_record(p)}  # fmt: skip
+    atomic_write_text(args.out, dumps(record, indent=1) + "\n")
+    params = ", ".join(f"{k} {v:.3g} [{lo:.3g}, {hi:.3g}]"
+                       for (k, v), (lo, hi) in zip(p.best.params.items(),
+                                                   p.best.intervals.values(), strict=True))
+    print(f"{p.best.model} from {surfels.n} contacts" + (f": {params}" if params else "")
+          + (f"; runner-up {p.runner_up}, evidence ratio {p.evidence_ratio:.3g}"
+             if p.runner_up else ""))  # fmt: skip
+    print(f"wrote {args.out}")
+    return 0
+
+
 def _run_percept(args) -> int:
+    if _in_space(args.contacts):
+        return _run_percept_in_space(args)
     from camwhisker import __version__
     from camwhisker.files.atomic import atomic_write_text
     from camwhisker.files.digest import sha256_file

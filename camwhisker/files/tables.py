@@ -17,11 +17,26 @@ import numpy as np
 
 from camwhisker.files.atomic import atomic_write_text
 
-__all__ = ["TableError", "read_columns", "read_log", "write_csv", "format_cell"]
+__all__ = ["TableError", "read_header", "read_columns", "read_log", "write_csv", "format_cell"]
 
 
 class TableError(ValueError):
     """A table that cannot be used; the message names the file, row and column."""
+
+
+def read_header(path: str | Path) -> list[str]:
+    """A CSV's column names (its first row), stripped.
+
+    Raises
+    ------
+    TableError
+        A missing or unreadable file.
+    """
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            return [h.strip() for h in next(csv.reader(fh), [])]
+    except OSError as exc:
+        raise TableError(f"{path}: cannot read ({exc.strerror})") from exc
 
 
 def read_columns(path: str | Path, columns: tuple[str, ...] | None = None,

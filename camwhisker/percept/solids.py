@@ -1,0 +1,323 @@
+"""Objects in 3-D from contacts placed in W: plane, sphere, cylinder or none, with intervals.
+
+The 3-D form of :mod:`camwhisker.percept.percepts` (docs/sensor.md section 9). Surfels come
+from contact tables with the world columns (``camwhisker contact --pose``): a point on
+the surface, the surface normal's estimate across the shaft (toward psi) and, where the
+table has it, the shaft's rest direction. Each model is fitted by robust least squares
+(Cauchy loss) to seed 000's cost (eqs. 3-6) less its free-space term: contacts far from the
+surface and normals that disagree with the surface's; the model with the lowest BIC is the
+percept, "none" charging each residual :data:`NONE_RESIDUAL` scales. The free-space term
+is left out: the base, the only free space a table holds, passes behind a finite wall's
+plane while it touches the wall's edge (tuning seeds 0, 3, 6: it turned every wall into a
+cylinder), and the measured normals already say which side is outside.
+
+A measured normal lies across the shaft: the surface's own normal less its component along
+the shaft (the contact force's component along the shaft does not bend the whisker). So a
+model's normal is compared with it in the plane across the shaft, where the table gives
+the shaft's direction.
+
+Models (W, mm; each normal points out of the object):
+
+- ``plane``: unit normal n and distance d, n . p = d;
+- ``sphere``: centre c and radius R;
+- ``cylinder``: a point c on its axis, the axis u (unit) and radius R; c is the axis's
+  point nearest the contacts' centroid.
+
+Intervals are 95 % Wald intervals: (J^T J)^-1 times the residuals' robust variance,
+inflated for the contacts' correlation along a sweep, carried to the reported
+parameters by their Jacobian (the delta method).
+
+References
+----------
+Pearson, M. J. et al. (seed paper 000), eqs. 3-7: surfels, the percept cost, model choice.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from camwhisker.files.tables import TableError, read_columns
+from camwhisker.percept.percepts import DIR_SIGMA_RAD, MAX_AUTOCORR, NONE_RESIDUAL, POINT_SIGMA_MM
+
+__all__ = ["MODELS", "Surfels3", "Fit3", "Percept3", "surfels_from_tables", "read_surfels3",
+           "fit_solid", "perceive_solid", "solid_record", "MIN_SURFELS"]  # fmt: skip
+
+MODELS = ("plane", "sphere", "cylinder")
+#: Fewer contacts than this cannot tell a shape in 3-D: "none".
+MIN_SURFELS = 6
+# A model normal within this of the shaft (its part across the shaft under sin 6 deg) says
+# nothing about the measured one, which lies across the shaft.
+_ACROSS_MIN = 0.1
+# Scale (mm) of the cylinder's gauge residual: it only pins c along the axis.
+_GAUGE_MM = 1.0
+# Starting radii (mm) for spheres and cylinders, from a fingertip to a bin.
+_START_RADII_MM = (10.0, 30.0, 100.0, 300.0)
+# Two-sided 95 % normal quantile.
+Z95 = 1.959963984540054
+# Step of the reported parameters' numeric Jacobian.
+_STEP = 1e-6
+
+_WORLD = ("px_mm", "py_mm", "pz_mm")
+_NORMAL = ("nx", "ny", "nz")
+_SHAFT = ("ax", "ay", "az")
+
+
+@dataclass(frozen=True)
+class Surfels3:
+    """Contacts in W: ``p_mm`` (N, 3), ``normal`` (N, 3) unit or NaN, ``shaft`` (N, 3) unit
+    or NaN, ``table`` (N,)."""
+
+    p_mm: np.ndarray
+    normal: np.ndarray
+    shaft: np.ndarray
+    table: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.p_mm.shape[0])
+
+
+@dataclass
+class Fit3:
+    """One model's fit: reported parameters, 95 % intervals, robust cost and BIC."""
+
+    model: str
+    params: dict
+    intervals: dict
+    cost: float
+    bic: float
+    n_residuals: int
+    x: np.ndarray = field(repr=False, default=None)
+
+
+@dataclass
+class Percept3:
+    """The chosen model, every candidate's fit, the runner-up and the evidence ratio."""
+
+    best: Fit3
+    fits: dict
+    runner_up: str
+    evidence_ratio: float
+    n_surfels: int
+
+
+def _stack(cols: dict, names) -> np.ndarray:
+    return np.column_stack([np.asarray(cols[c], float) for c in names])
+
+
+def surfels_from_tables(tables: list[dict], sources: list[str] | None = None) -> Surfels3:
+    """Surfels of contact tables' columns (as read by :func:`read_columns`): one per distinct
+    contact point (a pause's estimate repeated on its frames counts once)."""
+    parts = []
+    for i, cols in enumerate(tables):
+        name = sources[i] if sources else f"<contacts {i}>"
+        missing = [c for c in _WORLD + _NORMAL if c not in cols]
+        if missing:
+            raise TableError(f"{name}: no {missing[0]} column: contact tables from "
+                             "`camwhisker contact --pose` have them")  # fmt: skip
+        p = _stack(cols, _WORLD)
+        n = _stack(cols, _NORMAL)
+        a = _stack(cols, _SHAFT) if all(c in cols for c in _SHAFT) else np.full(p.shape, np.nan)
+        # The same point on consecutive rows is one pause's estimate.
+        keep = np.isfinite(p).all(axis=1) & ~np.r_[False, np.all(p[1:] == p[:-1], axis=1)]
+        parts.append((p[keep], n[keep], a[keep], np.full(int(keep.sum()), i)))
+    p, n, a, t = (np.concatenate([q[k] for q in parts]) if parts else np.empty(0)
+                  for k in range(4))  # fmt: skip
+    return Surfels3(p.reshape(-1, 3), n.reshape(-1, 3), a.reshape(-1, 3), t.astype(int))
+
+
+def read_surfels3(paths: list[str | Path]) -> Surfels3:
+    """Surfels of contact table files (docs/sensor.md sections 7 and 9)."""
+    names = _WORLD + _NORMAL
+    tables = [read_columns(p, names, _SHAFT) for p in paths]
+    return surfels_from_tables(tables, [str(p) for p in paths])
+
+
+def _unit(a: float, b: float) -> np.ndarray:
+    return np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)])
+
+
+def _angles(v: np.ndarray) -> tuple[float, float]:
+    v = v / np.linalg.norm(v)
+    return math.acos(float(np.clip(v[2], -1.0, 1.0))), math.atan2(float(v[1]), float(v[0]))
+
+
+def _geometry(model: str, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (mm, positive outside) and unit outward normal at each point."""
+    if model == "plane":
+        n = _unit(x[0], x[1])
+        return p @ n - x[2], np.tile(n, (p.shape[0], 1))
+    if model == "sphere":
+        v = p - x[:3]
+        r = np.linalg.norm(v, axis=1)
+        return r - abs(x[3]), v / np.maximum(r, 1e-9)[:, None]
+    u = _unit(x[3], x[4])
+    v = p - x[:3]
+    radial = v - np.outer(v @ u, u)
+    r = np.linalg.norm(radial, axis=1)
+    return r - abs(x[5]), radial / np.maximum(r, 1e-9)[:, None]
+
+
+def _normal_angle(model_n: np.ndarray, measured: np.ndarray, shaft: np.ndarray) -> np.ndarray:
+    """Angle (rad) between a model normal and the measured one, across the shaft where
+    known; 0 where no normal was measured or the model's lies along the shaft."""
+    m = model_n
+    has_shaft = np.isfinite(shaft).all(axis=1)
+    a = np.where(has_shaft[:, None], shaft, 0.0)
+    across = m - np.sum(m * a, axis=1)[:, None] * a
+    size = np.linalg.norm(across, axis=1)
+    ok = np.isfinite(measured).all(axis=1) & (size >= _ACROSS_MIN)
+    across = across / np.maximum(size, 1e-9)[:, None]
+    meas = np.where(ok[:, None], measured, 0.0)
+    cos = np.sum(across * meas, axis=1)
+    sin = np.linalg.norm(np.cross(across, meas), axis=1)
+    return np.where(ok, np.arctan2(sin, cos), 0.0)
+
+
+def _residuals(model: str, x: np.ndarray, s: Surfels3, centroid: np.ndarray) -> np.ndarray:
+    dist, normal = _geometry(model, x, s.p_mm)
+    parts = [dist / POINT_SIGMA_MM, _normal_angle(normal, s.normal, s.shaft) / DIR_SIGMA_RAD]
+    if model == "cylinder":
+        parts.append([(x[:3] - centroid) @ _unit(x[3], x[4]) / _GAUGE_MM])
+    return np.concatenate([np.atleast_1d(np.asarray(q, float)) for q in parts])
+
+
+def _mean_normal(s: Surfels3) -> np.ndarray | None:
+    n = s.normal[np.isfinite(s.normal).all(axis=1)]
+    if not n.size or np.linalg.norm(n.sum(axis=0)) < 1e-9:
+        return None
+    m = n.sum(axis=0)
+    return m / np.linalg.norm(m)
+
+
+def _starts(model: str, s: Surfels3) -> list[np.ndarray]:
+    p = s.p_mm
+    centroid = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - centroid)
+    mean_n = _mean_normal(s)
+    if model == "plane":
+        out = []
+        for n in [v for v in (mean_n, vt[2]) if v is not None]:
+            if mean_n is not None and n @ mean_n < 0:
+                n = -n
+            out.append(np.array([*_angles(n), float(np.median(p @ n))]))
+        return out
+    n = s.normal if mean_n is not None else np.zeros_like(p)
+    n = np.where(np.isfinite(n), n, 0.0)
+    if model == "sphere":
+        return [np.array([*(p - r * n).mean(axis=0), r]) for r in _START_RADII_MM]
+    axes = [vt[0]]
+    good = n[np.linalg.norm(n, axis=1) > 0.5]
+    if len(good) >= 2:
+        axes.append(np.linalg.eigh(good.T @ good)[1][:, 0])  # normals lie across the axis
+    out = []
+    for u in axes:
+        for r in _START_RADII_MM:
+            c = (p - r * n).mean(axis=0)
+            c = c + ((centroid - c) @ u) * u
+            out.append(np.array([*c, *_angles(u), r]))
+    return out
+
+
+_K = {"plane": 3, "sphere": 4, "cylinder": 5}
+
+
+def _public(model: str, x: np.ndarray, centroid: np.ndarray) -> dict:
+    """Reported parameters (docs/sensor.md section 9) of a fitted vector."""
+    if model == "plane":
+        n = _unit(x[0], x[1])
+        return {"normal_x": n[0], "normal_y": n[1], "normal_z": n[2], "distance_mm": x[2]}
+    if model == "sphere":
+        return {"center_x_mm": x[0], "center_y_mm": x[1], "center_z_mm": x[2],
+                "radius_mm": abs(x[3])}
+    u = _unit(x[3], x[4])
+    u = u if u[np.argmax(np.abs(u))] > 0 else -u  # an axis has no sign: its largest part > 0
+    c = x[:3] + ((centroid - x[:3]) @ u) * u
+    return {"center_x_mm": c[0], "center_y_mm": c[1], "center_z_mm": c[2], "axis_x": u[0],
+            "axis_y": u[1], "axis_z": u[2], "radius_mm": abs(x[5])}
+
+
+def _inflation(point_res: np.ndarray) -> float:
+    """AR(1) variance inflation (1 + rho) / (1 - rho) of residuals in order along a sweep."""
+    r = point_res - point_res.mean()
+    if r.size < 3 or not np.any(r):
+        return 1.0
+    rho = float(np.clip(np.sum(r[1:] * r[:-1]) / np.sum(r * r), 0.0, MAX_AUTOCORR))
+    return (1.0 + rho) / (1.0 - rho)
+
+
+def _intervals(model: str, res, centroid: np.ndarray, n: int, m: int) -> dict:
+    """95 % intervals of the reported parameters by the delta method (NaN where singular)."""
+    k = _K[model]
+    sigma2 = float(np.sum(np.log1p(res.fun[:m] ** 2))) / max(m - k, 1) * _inflation(res.fun[:n])
+    try:
+        cov = np.linalg.inv(res.jac.T @ res.jac) * sigma2
+    except np.linalg.LinAlgError:
+        cov = np.full((res.x.size,) * 2, np.nan)
+    base = _public(model, res.x, centroid)
+    jac = np.zeros((len(base), res.x.size))
+    for i in range(res.x.size):
+        h = np.zeros(res.x.size)
+        h[i] = _STEP * max(1.0, abs(res.x[i]))
+        up = _public(model, res.x + h, centroid)
+        down = _public(model, res.x - h, centroid)
+        jac[:, i] = [(up[k2] - down[k2]) / (2 * h[i]) for k2 in base]
+    var = np.einsum("ij,jk,ik->i", jac, cov, jac)
+    half = Z95 * np.sqrt(np.clip(var, 0.0, None))
+    return {name: [base[name] - w, base[name] + w] for name, w in zip(base, half, strict=True)}
+
+
+def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
+    """Robust least-squares fit of one model; None without a starting point."""
+    if model not in _K:
+        raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
+    centroid = s.p_mm.mean(axis=0)
+    best = None
+    for x0 in _starts(model, s):
+        res = least_squares(lambda x: _residuals(model, x, s, centroid), x0, loss="cauchy",
+                            f_scale=1.0)  # fmt: skip
+        if best is None or res.cost < best.cost:
+            best = res
+    if best is None:
+        return None
+    m = _n_contact_residuals(s)
+    cost = float(np.sum(np.log1p(best.fun**2)))
+    k = _K[model]
+    return Fit3(model, _public(model, best.x, centroid), _intervals(model, best, centroid, s.n, m),
+                cost, cost + k * math.log(m), m, best.x)  # fmt: skip
+
+
+def _n_contact_residuals(s: Surfels3) -> int:
+    """Contacts and their normals: the data the information criterion counts."""
+    return 2 * s.n
+
+
+def perceive_solid(s: Surfels3, models=MODELS) -> Percept3:
+    """Fit every model and choose by BIC; "none" with fewer than :data:`MIN_SURFELS` contacts."""
+    m = _n_contact_residuals(s)
+    none_cost = m * math.log1p(NONE_RESIDUAL**2)
+    fits = {"none": Fit3("none", {}, {}, none_cost, none_cost, m)}
+    if s.n >= MIN_SURFELS:
+        for model in models:
+            f = fit_solid(model, s)
+            if f is not None:
+                fits[model] = f
+    ranked = sorted(fits.values(), key=lambda f: f.bic)
+    best, runner = ranked[0], (ranked[1] if len(ranked) > 1 else None)
+    ratio = math.exp(min((runner.bic - best.bic) / 2.0, 700.0)) if runner else math.inf
+    return Percept3(best, fits, runner.model if runner else "", ratio, s.n)
+
+
+def solid_record(p: Percept3) -> dict:
+    """The percept as plain data (docs/sensor.md section 9): model, params, intervals_95,
+    runner-up, evidence ratio and every candidate's BIC."""
+    return {"model": p.best.model, "params": p.best.params, "intervals_95": p.best.intervals,
+            "runner_up": p.runner_up, "evidence_ratio": p.evidence_ratio,
+            "n_surfels": p.n_surfels,
+            "candidates": {m: {"bic": f.bic, "cost": f.cost, "params": f.params}
+                           for m, f in p.fits.items()}}  # fmt: skip

@@ -1,0 +1,156 @@
+"""Objects in 3-D (docs/sensor.md section 9): plane, sphere, cylinder or none.
+
+Two sources of surfels: analytic shapes with the errors a whisker makes (a contact point
+off along the shaft, the normal measured across the shaft), and the planar simulator's
+walls and cylinders lifted into space (exact objects when extruded), through the whole
+contact side (:mod:`camwhisker.bench.solids`; seeds 0-29 tuned, held-out in BENCHMARKS).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from camwhisker.bench.contact import calibrate_simulated
+from camwhisker.bench.solids import CALIB_SEED, run_solid_sweep
+from camwhisker.cli import main
+from camwhisker.contact.space import WORLD_COLUMNS
+from camwhisker.files.tables import TableError, write_csv
+from camwhisker.percept.solids import MIN_SURFELS, Surfels3, perceive_solid, read_surfels3
+
+#: The contact point's error along the shaft (mm): the fused r's scatter, a little more.
+ALONG_SHAFT_MM = 0.5
+
+
+def _shafts(rng, n):
+    a = rng.normal(size=(n, 3))
+    a[:, 2] += 3.0  # whiskers pointing roughly along +z
+    return a / np.linalg.norm(a, axis=1)[:, None]
+
+
+def _whisker_surfels(rng, p, normal, n):
+    """What a whisker reports of true points and normals: each point off along its shaft,
+    the normal across the shaft, 3 deg of noise."""
+    a = _shafts(rng, n)
+    m = normal - np.sum(normal * a, axis=1)[:, None] * a
+    m /= np.linalg.norm(m, axis=1)[:, None]
+    m += rng.normal(scale=0.05, size=m.shape)
+    m /= np.linalg.norm(m, axis=1)[:, None]
+    return Surfels3(p + a * rng.normal(scale=ALONG_SHAFT_MM, size=(n, 1)), m, a, np.zeros(n, int))
+
+
+def _sphere(rng, n=60):
+    d = rng.normal(size=(n, 3))
+    d[:, 2] -= 2.0  # the side facing the whiskers
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return _whisker_surfels(rng, np.array([10.0, -20.0, 150.0]) + 40.0 * d, d, n)
+
+
+def _cylinder(rng, n=60):
+    u = np.array([1.0, 1.0, 0.3]) / np.linalg.norm([1.0, 1.0, 0.3])
+    e1 = np.cross(u, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    ang = rng.uniform(0.6 * np.pi, 1.4 * np.pi, n)
+    radial = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
+    p = np.array([0.0, 0.0, 120.0]) + rng.uniform(-40, 40, n)[:, None] * u + 25.0 * radial
+    return _whisker_surfels(rng, p, radial, n), u
+
+
+def _plane(rng, n=60):
+    nrm = np.array([0.2, -0.3, -0.93]) / np.linalg.norm([0.2, -0.3, -0.93])
+    e1 = np.cross(nrm, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(nrm, e1)
+    q = rng.uniform(-40, 40, (n, 2))
+    p = -140.0 * nrm + q[:, :1] * e1 + q[:, 1:] * e2
+    return _whisker_surfels(rng, p, np.tile(nrm, (n, 1)), n), nrm
+
+
+def test_a_sphere_is_named_and_placed():
+    p = perceive_solid(_sphere(np.random.default_rng(1)))
+    assert p.best.model == "sphere" and p.evidence_ratio > 1e6
+    c = [p.best.params[f"center_{k}_mm"] for k in "xyz"]
+    # 60 points, 0.5 mm along the shafts: centre and radius to well under a millimetre.
+    assert np.linalg.norm(np.subtract(c, [10.0, -20.0, 150.0])) < 1.0
+    assert abs(p.best.params["radius_mm"] - 40.0) < 1.0
+    lo, hi = p.best.intervals["radius_mm"]
+    assert lo < p.best.params["radius_mm"] < hi and hi - lo < 3.0
+
+
+def test_a_cylinder_of_any_axis_is_named_and_placed():
+    s, u = _cylinder(np.random.default_rng(2))
+    p = perceive_solid(s)
+    assert p.best.model == "cylinder"
+    axis = np.array([p.best.params[f"axis_{k}"] for k in "xyz"])
+    assert math.degrees(math.acos(min(1.0, abs(axis @ u)))) < 1.0
+    assert abs(p.best.params["radius_mm"] - 25.0) < 1.0
+    assert axis[np.argmax(np.abs(axis))] > 0  # an axis is reported with its largest part > 0
+
+
+def test_a_plane_is_named_with_its_outward_normal():
+    s, nrm = _plane(np.random.default_rng(3))
+    p = perceive_solid(s)
+    assert p.best.model == "plane"
+    n = np.array([p.best.params[f"normal_{k}"] for k in "xyz"])
+    assert math.degrees(math.acos(min(1.0, n @ nrm))) < 1.0  # the sign too: out of the object
+    assert abs(p.best.params["distance_mm"] + 140.0) < 1.0
+
+
+def test_too_few_contacts_are_no_object():
+    s = _sphere(np.random.default_rng(4), n=MIN_SURFELS - 1)
+    p = perceive_solid(s)
+    assert p.best.model == "none" and p.fits.keys() == {"none"}
+
+
+@pytest.fixture(scope="module")
+def calib():
+    return calibrate_simulated(CALIB_SEED)
+
+
+@pytest.mark.parametrize("seed, kind", [(1, "cylinder"), (0, "wall"), (2, "none")])
+def test_lifted_sweeps_through_the_contact_side(calib, seed, kind):
+    # Tuning seeds: the numbers in the comments are what they gave when the code was set.
+    row = run_solid_sweep(seed, calib)
+    assert row["kind"] == kind and row["correct"], row
+    if kind == "cylinder":  # the issue's targets: axis 3 deg, radius 2 mm (0.07 and 0.06 here)
+        assert row["axis_err_deg"] < 3.0 and row["radius_err_mm"] < 2.0
+        assert row["center_err_mm"] < 2.0
+    if kind == "wall":  # normal 0.36 deg; distance 1.56 mm, short of the 1 mm target
+        assert row["normal_err_deg"] < 1.0 and row["distance_err_mm"] < 2.5
+
+
+def test_percept_command_writes_section_9s_json(tmp_path, capsys):
+    s, _ = _cylinder(np.random.default_rng(5))
+    cols = {"t_s": np.arange(s.n, dtype=float), **dict(zip(WORLD_COLUMNS, [*s.p_mm.T,
+            *s.normal.T], strict=True)), "ax": s.shaft[:, 0], "ay": s.shaft[:, 1],
+            "az": s.shaft[:, 2]}  # fmt: skip
+    write_csv(tmp_path / "c.csv", cols, digits=9)
+    out = tmp_path / "p.json"
+    assert main(["percept", "--contacts", str(tmp_path / "c.csv"), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.startswith("cylinder from 60 contacts")
+
+    def refuse(name):
+        raise AssertionError(f"{name} in strict JSON")
+
+    doc = json.loads(out.read_text(), parse_constant=refuse)
+    names = ["center_x_mm", "center_y_mm", "center_z_mm", "axis_x", "axis_y", "axis_z",
+             "radius_mm"]
+    assert doc["model"] == "cylinder" and list(doc["params"]) == names
+    assert list(doc["intervals_95"]) == names
+    assert all(lo <= doc["params"][k] <= hi for k, (lo, hi) in doc["intervals_95"].items())
+    assert len(doc["inputs"][0]["sha256"]) == 64
+
+
+def test_a_table_without_points_in_space_is_named(tmp_path, capsys):
+    write_csv(tmp_path / "flat.csv", {"t_s": np.arange(3.0), "px_mm": np.zeros(3)})
+    with pytest.raises(TableError, match="flat.csv: row 1: missing column py_mm"):
+        read_surfels3([tmp_path / "flat.csv"])
+    write_csv(tmp_path / "stage.csv", {"t_s": np.arange(3.0), "x_mm": np.zeros(3)})
+    assert main(["percept", "--contacts", str(tmp_path / "flat.csv"), "--contacts",
+                 str(tmp_path / "stage.csv"), "--out", str(tmp_path / "p.json")]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert not (tmp_path / "p.json").exists()
