@@ -6,7 +6,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ["README.md", "BENCHMARKS.md", "docs/sensor.md", "docs/texture.md", "docs/learn.md"]
+DOCUMENTS = ["README.md", "BENCHMARKS.md", "docs/sensor.md", "docs/texture.md", "docs/learn.md",
+             "docs/map.md"]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
