@@ -319,16 +319,17 @@ def _splat(p_mm: np.ndarray, b: np.ndarray, grid: BeliefGrid) -> None:
     """Max of b exp(-d^2 / 2 sigma^2) into ``grid.belief``, over chunks of points and of x
     slabs so no work array exceeds :data:`CHUNK_ELEMENTS`."""
     nx, ny, nz = grid.belief.shape
-    # The Gaussian is separable: each point's kernel is the outer product of three 1-D ones.
-    g = [np.exp(-((grid.centres_mm(a)[None, :] - p_mm[:, a, None]) ** 2)
-                / (2.0 * grid.sigma_mm**2)) for a in range(3)]  # fmt: skip
+    centres = [grid.centres_mm(a) for a in range(3)]
     per_point = max(1, CHUNK_ELEMENTS // (nx * ny * nz))
     slab = max(1, min(nx, CHUNK_ELEMENTS // (ny * nz)))
     for lo in range(0, b.size, per_point):
         s = slice(lo, lo + per_point)
+        # The Gaussian is separable: each point's kernel is the outer product of three 1-D ones.
+        g = [np.exp(-((centres[a][None, :] - p_mm[s, a, None]) ** 2) / (2.0 * grid.sigma_mm**2))
+             for a in range(3)]  # fmt: skip
         for i in range(0, nx, slab):
-            gx = b[s, None] * g[0][s, i:i + slab]
-            block = gx[:, :, None, None] * g[1][s, None, :, None] * g[2][s, None, None, :]
+            gx = b[s, None] * g[0][:, i:i + slab]
+            block = gx[:, :, None, None] * g[1][:, None, :, None] * g[2][:, None, None, :]
             np.maximum(grid.belief[i:i + slab], block.max(axis=0), out=grid.belief[i:i + slab])
 
 
