@@ -10,7 +10,7 @@ from camwhisker.cli.dev import BENCH_SCRIPTS
 
 USER_ORDER = ["batch", "overlay", "live", "replay", "list-cameras", "calibrate-sensor",
               "calibrate", "calibrate-springs", "validate", "contact", "belief", "experiment",
-              "percept", "texture", "learn", "predict", "dev"]  # fmt: skip
+              "percept", "map", "texture", "learn", "predict", "dev"]  # fmt: skip
 DEV = ["render", "bound", "make-samples", "describe", "make-experiment", "simulate-stage",
        "simulate-texture", "chain", "bench", "contact-bench", "percept-bench"]  # fmt: skip
 

@@ -11,6 +11,7 @@ sit under ``camwhisker dev``:
 - :mod:`~camwhisker.cli.contact` calibrate, contact; dev simulate-stage
 - :mod:`~camwhisker.cli.texture` texture: texture from sliding; dev simulate-texture
 - :mod:`~camwhisker.cli.experiment` experiment: a folder of recordings, end to end
+- :mod:`~camwhisker.cli.map`     map: contacts in space as a point cloud, a belief grid, pictures
 - :mod:`~camwhisker.cli.validate` validate: the paper's accuracy tests (Fig. 6 A/B)
 - :mod:`~camwhisker.cli.bench`   dev chain, contact-bench, bench
 - :mod:`~camwhisker.cli.dev`     dev NAME-bench: the benchmark scripts
