@@ -1,13 +1,10 @@
 """Objects in 3-D from simulated sweeps lifted into space: identification, error, coverage.
 
-The planar simulator's walls and cylinders (:mod:`camwhisker.sim.mechanics.objects`) are
-exact 3-D objects when extruded across their plane: a wall is a plane, a cylinder one
-whose axis is perpendicular to the plane of the sweep. Each run is swept at several
-heights along that axis (:data:`HEIGHTS_MM`, each with its own noise), its stage motion
-given as a pose log in a world frame turned and shifted from the simulator's
-(:data:`WORLD_TURN_DEG`, :data:`WORLD_SHIFT_MM`), and the contacts placed by
-:func:`camwhisker.contact.space.contact_rows_in_space`; :func:`~camwhisker.percept.solids.
-perceive_solid` names the object. Spheres need the 3-D simulator: they are not here.
+The planar simulator's walls and cylinders, swept at several heights and given as pose
+logs in a turned world frame (:mod:`camwhisker.sim.mechanics.space`), through
+:func:`camwhisker.contact.space.contact_rows_in_space` (per pause) and
+:func:`camwhisker.percept.solids.perceive_solid`. Spheres need the 3-D simulator: they
+are not here.
 """
 
 from __future__ import annotations
@@ -16,125 +13,78 @@ import math
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from camwhisker.bench.contact import calibrate_simulated
-from camwhisker.bench.percepts import PROTOCOL, _quiet
+from camwhisker.bench.percepts import _quiet
 from camwhisker.contact.space import SpaceError, contact_rows_in_space
 from camwhisker.io.poses import pose_log_from_arrays
 from camwhisker.percept.solids import perceive_solid, surfels_from_tables
-from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, NoiseModel, simulate_run
-from camwhisker.sim.mechanics.objects import draw_sweep
+from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, NoiseModel
+from camwhisker.sim.mechanics.space import simulate_space_sweep, truth_in_world
 
-__all__ = ["KINDS", "MODEL_OF", "HEIGHTS_MM", "CALIB_SEED", "TUNING_SEEDS", "HELD_OUT_SEEDS",
-           "simulate_solid_sweep", "truth_in_world", "run_solid_sweep", "run_campaign",
-           "summarise", "format_summary", "main"]  # fmt: skip
+__all__ = ["KINDS", "MODEL_OF", "CALIB_SEED", "TUNING_SEEDS", "HELD_OUT_SEEDS",
+           "contact_tables", "run_solid_sweep", "run_campaign", "summarise", "format_summary",
+           "main"]  # fmt: skip
 
 KINDS = ("wall", "cylinder", "none")
 MODEL_OF = {"wall": "plane", "cylinder": "cylinder", "none": "none"}
-#: Sweeps at these heights along the extrusion (mm): the axis is told by the spread.
-HEIGHTS_MM = (-30.0, 0.0, 30.0)
-#: The world frame: the simulator's turned by these Euler angles (zyx, deg) and shifted.
-WORLD_TURN_DEG = (35.0, -20.0, 50.0)
-WORLD_SHIFT_MM = (120.0, -40.0, 300.0)
 CALIB_SEED = 500
 TUNING_SEEDS = range(0, 30)
 HELD_OUT_SEEDS = range(1000, 1060)
 
-_WORLD = Rotation.from_euler("zyx", WORLD_TURN_DEG, degrees=True)
 
-
-def _sim_frame(angle_deg: float) -> np.ndarray:
-    """Columns x_S, y_S, z_S in the simulator's 3-D frame (plane x-z, extrusion y) of a run
-    whose stage frame is turned by ``angle_deg``: x_S along the travel, z_S the shaft."""
-    a = math.radians(angle_deg)
-    x_s = np.array([math.cos(a), 0.0, math.sin(a)])
-    z_s = np.array([-math.sin(a), 0.0, math.cos(a)])
-    return np.column_stack([x_s, np.cross(z_s, x_s), z_s])
-
-
-def _to_world(p_sim: np.ndarray) -> np.ndarray:
-    return _WORLD.apply(p_sim) + np.asarray(WORLD_SHIFT_MM)
-
-
-def _poses(run, pose: tuple, height_mm: float):
-    """The run's stage motion as a pose log in the world frame."""
-    x0, y0, angle = pose
-    frame = _sim_frame(angle)
-    x = np.asarray(run.stage["x_mm"], float)
-    base = np.array([x0, height_mm, y0]) + np.outer(x, frame[:, 0])
-    q = (_WORLD * Rotation.from_matrix(frame)).as_quat(scalar_first=True)
-    return pose_log_from_arrays(run.stage["t_s"], _to_world(base), np.tile(q, (x.size, 1)),
-                                f"<{run.name} poses>")  # fmt: skip
-
-
-def simulate_solid_sweep(kind: str, rng, calib, noise: NoiseModel = FRONT_END_NOISE):
-    """The object, and its runs at every height as contact tables with world columns."""
-    sweep = draw_sweep(kind, rng)
+def contact_tables(kind: str, rng, calib, noise: NoiseModel = FRONT_END_NOISE):
+    """The object and its runs at every height as contact tables with world columns."""
+    sweep, runs = simulate_space_sweep(kind, rng, noise, quiet=_quiet)
     tables = []
-    for h in HEIGHTS_MM:
-        for i, spec in enumerate(sweep.runs):
-            run = simulate_run(f"h{h:g}run{i}", "slide-box", spec.scene, rng, protocol=PROTOCOL,
-                               noise=noise, travel_sign=spec.travel_sign)  # fmt: skip
-            offset = None
-            if kind == "none":
-                run.signals = _quiet(run.signals, rng, noise)
-                offset = run.offset_s
-            try:
-                cols, _, _ = contact_rows_in_space(run.signals, _poses(run, spec.pose, h), calib,
-                                                   offset, mode="pause")  # fmt: skip
-            except SpaceError:  # nothing touched: no direction, no contacts
-                continue
-            tables.append(cols)
+    for lr in runs:
+        # Nothing touched: nothing to align the clocks on, the user gives the offset.
+        offset = lr.run.offset_s if kind == "none" else None
+        try:
+            cols, _, _ = contact_rows_in_space(lr.run.signals,
+                                               pose_log_from_arrays(*lr.poses, f"<{lr.name}>"),
+                                               calib, offset, mode="pause")  # fmt: skip
+        except SpaceError:  # nothing touched: no direction, no contacts
+            continue
+        tables.append(cols)
     return sweep, tables
 
 
-def truth_in_world(sweep) -> dict:
-    """The true object in the world frame, with section 9's parameter names."""
-    t = sweep.truth
-    y_axis = _WORLD.apply([0.0, 1.0, 0.0])
-    if sweep.kind == "cylinder":
-        c = _to_world(np.array([t["center_x_mm"], 0.0, t["center_y_mm"]]))
-        return {"center_mm": c, "axis": y_axis, "radius_mm": t["radius_mm"]}
-    if sweep.kind == "wall":
-        a = math.radians(t["angle_deg"])
-        n_sim = np.array([-math.sin(a), 0.0, math.cos(a)])  # toward the side the base comes from
-        point = _to_world(np.array([t["end_x_mm"], 0.0, t["end_y_mm"]]))
-        n = _WORLD.apply(n_sim)
-        return {"normal": n, "distance_mm": float(n @ point)}
-    return {}
+def _vec(d: dict, names) -> np.ndarray:
+    return np.array([d[n] for n in names], float)
+
+
+_CENTER = ("center_x_mm", "center_y_mm", "center_z_mm")
+_AXIS = ("axis_x", "axis_y", "axis_z")
+_NORMAL = ("normal_x", "normal_y", "normal_z")
 
 
 def _errors(kind: str, truth: dict, params: dict) -> dict:
     if kind == "cylinder":
-        u = np.array([params["axis_x"], params["axis_y"], params["axis_z"]])
-        c = np.array([params["center_x_mm"], params["center_y_mm"], params["center_z_mm"]])
-        off = c - truth["center_mm"]
-        off -= (off @ truth["axis"]) * truth["axis"]  # any point of the true axis will do
-        return {"axis_err_deg": math.degrees(math.acos(min(1.0, abs(u @ truth["axis"])))),
+        u, true_u = _vec(params, _AXIS), _vec(truth, _AXIS)
+        off = _vec(params, _CENTER) - _vec(truth, _CENTER)
+        off -= (off @ true_u) * true_u  # any point of the true axis will do
+        return {"axis_err_deg": math.degrees(math.acos(min(1.0, abs(u @ true_u)))),
                 "radius_err_mm": abs(params["radius_mm"] - truth["radius_mm"]),
                 "center_err_mm": float(np.linalg.norm(off))}
     if kind == "wall":
-        n = np.array([params["normal_x"], params["normal_y"], params["normal_z"]])
-        return {"normal_err_deg": math.degrees(math.acos(min(1.0, float(n @ truth["normal"])))),
+        cos = float(_vec(params, _NORMAL) @ _vec(truth, _NORMAL))
+        return {"normal_err_deg": math.degrees(math.acos(min(1.0, cos))),
                 "distance_err_mm": abs(params["distance_mm"] - truth["distance_mm"])}
     return {}
 
 
 def _true_params(kind: str, truth: dict, params: dict) -> dict:
-    """The truth in the fitted parameters' names: a cylinder's centre as the point of the
-    true axis nearest the fitted one, its axis with the fitted one's sign."""
+    """The truth as the fit reports it: a cylinder's centre as the point of the true axis
+    nearest the fitted one, its axis with the fitted one's sign."""
     if kind == "wall":
-        n = truth["normal"]
-        return {"normal_x": n[0], "normal_y": n[1], "normal_z": n[2],
-                "distance_mm": truth["distance_mm"]}
-    u = truth["axis"]
-    fitted_u = np.array([params["axis_x"], params["axis_y"], params["axis_z"]])
-    u = u if u @ fitted_u >= 0 else -u
-    c = np.array([params["center_x_mm"], params["center_y_mm"], params["center_z_mm"]])
-    c = truth["center_mm"] + ((c - truth["center_mm"]) @ u) * u
-    return {"center_x_mm": c[0], "center_y_mm": c[1], "center_z_mm": c[2], "axis_x": u[0],
-            "axis_y": u[1], "axis_z": u[2], "radius_mm": truth["radius_mm"]}
+        return truth
+    u = _vec(truth, _AXIS)
+    u = u if u @ _vec(params, _AXIS) >= 0 else -u
+    c0 = _vec(truth, _CENTER)
+    c = c0 + ((_vec(params, _CENTER) - c0) @ u) * u
+    return {**dict(zip(_CENTER, c, strict=True)), **dict(zip(_AXIS, u, strict=True)),
+            "radius_mm": truth["radius_mm"]}
 
 
 def run_solid_sweep(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> dict:
@@ -142,7 +92,7 @@ def run_solid_sweep(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> di
     rng = np.random.default_rng(seed)
     kind = KINDS[seed % len(KINDS)]
     t0 = time.perf_counter()
-    sweep, tables = simulate_solid_sweep(kind, rng, calib, noise)
+    sweep, tables = contact_tables(kind, rng, calib, noise)
     s = surfels_from_tables(tables)
     p = perceive_solid(s)
     out = {"seed": seed, "kind": kind, "chosen": p.best.model, "runner_up": p.runner_up,

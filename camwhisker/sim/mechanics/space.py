@@ -1,0 +1,148 @@
+"""Planar stage runs lifted into space: walls and cylinders as exact 3-D objects.
+
+The planar simulator's walls and cylinders (:mod:`camwhisker.sim.mechanics.objects`) are
+exact 3-D objects when extruded across their plane: a wall is a plane, a cylinder one whose
+axis is perpendicular to the plane of the sweep. Each run is swept at several heights
+along that axis (:data:`HEIGHTS_MM`, each with its own noise), and its stage motion is
+given as the base's pose (docs/sensor.md section 9) in a world frame turned and shifted
+from the simulator's (:data:`WORLD_TURN_DEG`, :data:`WORLD_SHIFT_MM`).
+
+The simulator's 3-D frame: its plane is x-z (x the stage's travel, z the whisker at
+rest), the extrusion along y. A run's sensor frame S has x_S along the travel and z_S
+along the shaft (its theta is 0 for a base travelling +x, the simulator's convention).
+Spheres need the whisker bending out of its plane: they are not here.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from camwhisker import __version__
+from camwhisker.files.atomic import atomic_write_text
+from camwhisker.files.jsonfile import dumps
+from camwhisker.files.tables import write_csv
+from camwhisker.sim.mechanics.experiment import (
+    FRONT_END_NOISE,
+    NoiseModel,
+    StageProtocol,
+    simulate_run,
+)
+from camwhisker.sim.mechanics.objects import draw_sweep
+
+__all__ = ["HEIGHTS_MM", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "LiftedRun", "lifted_poses",
+           "simulate_space_sweep", "truth_in_world", "write_space_sweep"]  # fmt: skip
+
+#: Sweeps at these heights along the extrusion (mm): the axis is told by their spread.
+HEIGHTS_MM = (-30.0, 0.0, 30.0)
+#: The world frame: the simulator's turned by these Euler angles (zyx, deg) and shifted.
+WORLD_TURN_DEG = (35.0, -20.0, 50.0)
+WORLD_SHIFT_MM = (120.0, -40.0, 300.0)
+#: The stage protocol of the percept sweeps (their travel covers a cylinder's far side).
+MAX_TRAVEL_MM = 90.0
+
+_WORLD = Rotation.from_euler("zyx", WORLD_TURN_DEG, degrees=True)
+
+
+def _sim_frame(angle_deg: float) -> np.ndarray:
+    """Columns x_S, y_S, z_S in the simulator's 3-D frame of a run whose stage frame is
+    turned by ``angle_deg`` in the plane."""
+    a = math.radians(angle_deg)
+    x_s = np.array([math.cos(a), 0.0, math.sin(a)])
+    z_s = np.array([-math.sin(a), 0.0, math.cos(a)])
+    return np.column_stack([x_s, np.cross(z_s, x_s), z_s])
+
+
+def _to_world(p_sim: np.ndarray) -> np.ndarray:
+    return _WORLD.apply(p_sim) + np.asarray(WORLD_SHIFT_MM)
+
+
+def lifted_poses(stage: dict, pose: tuple, height_mm: float):
+    """The base's poses in the world frame for a run's stage log: t_s (N,), position (N, 3)
+    and quaternion (N, 4), scalar first."""
+    x0, y0, angle = pose
+    frame = _sim_frame(angle)
+    x = np.asarray(stage["x_mm"], float)
+    base = np.array([x0, height_mm, y0]) + np.outer(x, frame[:, 0])
+    q = (_WORLD * Rotation.from_matrix(frame)).as_quat(scalar_first=True)
+    return np.asarray(stage["t_s"], float), _to_world(base), np.tile(q, (x.size, 1))
+
+
+class LiftedRun:
+    """One simulated run at one height: the run (signals, stage log, truth) and its poses."""
+
+    def __init__(self, run, height_mm: float, poses: tuple):
+        self.run, self.height_mm, self.poses = run, height_mm, poses
+
+    @property
+    def name(self) -> str:
+        return self.run.name
+
+
+def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, quiet=None):
+    """An object of ``kind`` ("wall", "cylinder" or "none") and its runs at every height.
+
+    ``quiet(signals, rng, noise)``, where given for "none", replaces the signals by the
+    front end's noise alone (nothing touched).
+    """
+    sweep = draw_sweep(kind, rng)
+    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM)
+    runs = []
+    for h in HEIGHTS_MM:
+        for i, spec in enumerate(sweep.runs):
+            run = simulate_run(f"h{h:+.0f}run{i}", "slide-box", spec.scene, rng,
+                               protocol=protocol, noise=noise, travel_sign=spec.travel_sign)
+            if kind == "none" and quiet is not None:
+                run.signals = quiet(run.signals, rng, noise)
+            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h)))
+    return sweep, runs
+
+
+def truth_in_world(sweep) -> dict:
+    """The true object in the world frame: ``model`` and section 9's parameters."""
+    t = sweep.truth
+    if sweep.kind == "cylinder":
+        c = _to_world(np.array([t["center_x_mm"], 0.0, t["center_y_mm"]]))
+        u = _WORLD.apply([0.0, 1.0, 0.0])
+        u = u if u[np.argmax(np.abs(u))] > 0 else -u
+        return {"model": "cylinder", "center_x_mm": c[0], "center_y_mm": c[1],
+                "center_z_mm": c[2], "axis_x": u[0], "axis_y": u[1], "axis_z": u[2],
+                "radius_mm": t["radius_mm"]}
+    if sweep.kind == "wall":
+        a = math.radians(t["angle_deg"])
+        n = _WORLD.apply([-math.sin(a), 0.0, math.cos(a)])  # toward the side the base comes from
+        point = _to_world(np.array([t["end_x_mm"], 0.0, t["end_y_mm"]]))
+        return {"model": "plane", "normal_x": n[0], "normal_y": n[1], "normal_z": n[2],
+                "distance_mm": float(n @ point)}
+    return {"model": "none"}
+
+
+def write_space_sweep(dest: str | Path, kind: str, seed: int, command: str = "",
+                      noise: NoiseModel = FRONT_END_NOISE) -> list[Path]:  # fmt: skip
+    """Simulate a sweep and write, per run, ``NAME.signals.csv``, ``NAME.pose.csv`` (on the
+    stage's clock) and ``NAME.truth.csv``, and ``object.json``: the object in the world
+    frame, the runs' true clock offsets, how it was made. Returns the paths written."""
+    out = Path(dest)
+    out.mkdir(parents=True, exist_ok=True)
+    sweep, runs = simulate_space_sweep(kind, np.random.default_rng(seed), noise)
+    paths = []
+    for lr in runs:
+        sig, (t, p, q) = lr.run.signals, lr.poses
+        cols = {"t_s": t, "x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2],
+                "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]}
+        files = {f"{lr.name}.signals.csv": {k: sig[k] for k in ("frame", "t_s", "dz_mm",
+                                                                "phi_deg", "theta_deg", "ok")},
+                 f"{lr.name}.pose.csv": cols,
+                 f"{lr.name}.truth.csv": lr.run.truth}  # fmt: skip
+        for name, table in files.items():
+            write_csv(out / name, table, digits=10)
+            paths.append(out / name)
+    record = {"camwhisker": __version__, "command": command, "kind": kind, "seed": seed,
+              "object": truth_in_world(sweep),
+              "runs": [{"name": lr.name, "height_mm": lr.height_mm,
+                        "offset_s": lr.run.offset_s} for lr in runs]}  # fmt: skip
+    atomic_write_text(out / "object.json", dumps(record, indent=1) + "\n")
+    return [*paths, out / "object.json"]
