@@ -12,7 +12,8 @@ USER_ORDER = ["batch", "overlay", "live", "replay", "list-cameras", "calibrate-s
               "calibrate", "calibrate-springs", "validate", "contact", "belief", "experiment",
               "percept", "map", "texture", "learn", "predict", "dev"]  # fmt: skip
 DEV = ["render", "bound", "make-samples", "describe", "make-experiment", "simulate-stage",
-       "simulate-texture", "chain", "bench", "contact-bench", "percept-bench"]  # fmt: skip
+       "simulate-space", "simulate-texture", "chain", "bench", "contact-bench",
+       "percept-bench"]  # fmt: skip
 
 
 def _commands(parser) -> list[str]:

@@ -119,9 +119,9 @@ def paired_runs(args: argparse.Namespace, *optional: str) -> list[tuple]:
 
 def command_line(args: argparse.Namespace) -> str:
     """The command as parsed (also right when main() is called with an argv list)."""
-    parts = ["camwhisker", args.command]
+    parts = ["camwhisker", *args.command.split()]  # "dev NAME" is two words
     for key, value in vars(args).items():
-        if key in ("command", "func") or value is None:
+        if key in ("command", "dev_command", "func") or value is None:
             continue
         flag = "--" + key.replace("_", "-")
         for v in value if isinstance(value, list) else [value]:

@@ -17,7 +17,7 @@ from camwhisker.cli.common import (
 )
 from camwhisker.sensor.file import load_sensor
 
-__all__ = ["add_simulate_stage", "add_calibrate", "add_contact"]
+__all__ = ["add_simulate_space", "add_simulate_stage", "add_calibrate", "add_contact"]
 
 _SENSOR_HELP = "sensor file, for the whisker's length; default: Table I values"
 
@@ -83,6 +83,27 @@ def _run_simulate(args) -> int:
         print(f"{run.name}: {run.info['n_steps']} steps, offset {run.offset_s:+.3f} s, "
               f"{run.signals['t_s'].size} frames")
     print(f"wrote {len(runs)} run(s) to {args.out} ({manifest.name})")
+    return 0
+
+
+def add_simulate_space(sub) -> None:
+    p = sub.add_parser("simulate-space",
+                       help="a wall or a cylinder swept at three heights, its runs as signal "
+                            "tables and pose logs in a turned world frame, with the truth")
+    p.add_argument("--kind", required=True, choices=("wall", "cylinder"),
+                   help="a wall is a plane in space, a cylinder's axis is across the sweeps")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for NAME.signals.csv, NAME.pose.csv and object.json (the "
+                        "object in the world frame, the true clock offsets)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the object and the runs")
+    p.set_defaults(func=_run_simulate_space)
+
+
+def _run_simulate_space(args) -> int:
+    from camwhisker.sim.mechanics.space import write_space_sweep
+
+    paths = write_space_sweep(args.out, args.kind, args.seed, command_line(args))
+    print(f"wrote {len(paths)} files to {args.out} (object.json: the object and the offsets)")
     return 0
 
 

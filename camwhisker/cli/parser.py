@@ -57,6 +57,7 @@ _DEV_COMMANDS = [
     synth.add_describe,
     synth.add_experiment,
     contact.add_simulate_stage,
+    contact.add_simulate_space,
     texture.add_simulate_texture,
     bench.add_chain,
     bench.add_bench,

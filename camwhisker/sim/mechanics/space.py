@@ -122,9 +122,9 @@ def truth_in_world(sweep) -> dict:
 
 def write_space_sweep(dest: str | Path, kind: str, seed: int, command: str = "",
                       noise: NoiseModel = FRONT_END_NOISE) -> list[Path]:  # fmt: skip
-    """Simulate a sweep and write, per run, ``NAME.signals.csv``, ``NAME.pose.csv`` (on the
-    stage's clock) and ``NAME.truth.csv``, and ``object.json``: the object in the world
-    frame, the runs' true clock offsets, how it was made. Returns the paths written."""
+    """Simulate a sweep and write, per run, ``NAME.signals.csv`` and ``NAME.pose.csv`` (on the
+    stage's clock), and ``object.json``: the object in the world frame, the runs' true clock
+    offsets, how it was made. Returns the paths written."""
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
     sweep, runs = simulate_space_sweep(kind, np.random.default_rng(seed), noise)
@@ -133,13 +133,10 @@ def write_space_sweep(dest: str | Path, kind: str, seed: int, command: str = "",
         sig, (t, p, q) = lr.run.signals, lr.poses
         cols = {"t_s": t, "x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2],
                 "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]}
-        files = {f"{lr.name}.signals.csv": {k: sig[k] for k in ("frame", "t_s", "dz_mm",
-                                                                "phi_deg", "theta_deg", "ok")},
-                 f"{lr.name}.pose.csv": cols,
-                 f"{lr.name}.truth.csv": lr.run.truth}  # fmt: skip
-        for name, table in files.items():
-            write_csv(out / name, table, digits=10)
-            paths.append(out / name)
+        signals = {k: sig[k] for k in ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")}
+        write_csv(out / f"{lr.name}.signals.csv", signals, digits=8)
+        write_csv(out / f"{lr.name}.pose.csv", cols, digits=9)
+        paths += [out / f"{lr.name}.signals.csv", out / f"{lr.name}.pose.csv"]
     record = {"camwhisker": __version__, "command": command, "kind": kind, "seed": seed,
               "object": truth_in_world(sweep),
               "runs": [{"name": lr.name, "height_mm": lr.height_mm,

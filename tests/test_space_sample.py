@@ -1,0 +1,47 @@
+"""The README's example in space, on the bundled sample: contact --pose per run, percept
+and map, against the simulator's object in sample_frames/space/object.json."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker.cli import main
+
+SPACE = Path(__file__).resolve().parents[1] / "sample_frames" / "space"
+
+
+def _vec(d: dict, names) -> np.ndarray:
+    return np.array([d[n] for n in names], float)
+
+
+def test_the_bundled_cylinder_from_space(tmp_path, capsys):
+    runs = sorted(p.name.removesuffix(".signals.csv") for p in SPACE.glob("*.signals.csv"))
+    assert len(runs) == 6  # both ways at three heights
+    for n in runs:
+        assert main(["contact", "--signals", str(SPACE / f"{n}.signals.csv"), "--pose",
+                     str(SPACE / f"{n}.pose.csv"), "--calib", str(SPACE / "calib.toml"),
+                     "--per", "pause", "--out", str(tmp_path / f"{n}.csv")]) == 0
+    tables = [a for n in runs for a in ("--contacts", str(tmp_path / f"{n}.csv"))]
+    assert main(["percept", *tables, "--out", str(tmp_path / "object.json")]) == 0
+    fit = json.loads((tmp_path / "object.json").read_text())
+    truth = json.loads((SPACE / "object.json").read_text())["object"]
+    assert fit["model"] == "cylinder"
+    p, axis, centre = fit["params"], ("axis_x", "axis_y", "axis_z"), ("center_x_mm",
+                                                                      "center_y_mm",
+                                                                      "center_z_mm")
+    u, true_u = _vec(p, axis), _vec(truth, axis)
+    off = _vec(p, centre) - _vec(truth, centre)
+    off -= (off @ true_u) * true_u
+    # The README's numbers (0.07 deg, 0.02 mm, 48.33 against 48.27 mm), with room for
+    # another machine's last bits: the issue's targets are 3 deg and 2 mm.
+    assert math.degrees(math.acos(min(1.0, abs(u @ true_u)))) < 0.2
+    assert np.linalg.norm(off) < 0.2
+    assert abs(p["radius_mm"] - truth["radius_mm"]) < 0.2
+    assert main(["map", *tables, "--percept", str(tmp_path / "object.json"), "--out",
+                 str(tmp_path / "map")]) == 0
+    assert "12161 contact points from 6 table(s)" in capsys.readouterr().out
+    assert (tmp_path / "map.png").stat().st_size > 100_000
