@@ -76,7 +76,8 @@ def test_a_second_run_reuses_every_table(ran, capsys):
 
 
 @pytest.mark.parametrize("files, message", [
-    (["a.mp4", "a.stage.csv", "b.mp4"], r"b.mp4: no stage log b.stage.csv beside it"),
+    (["a.mp4", "a.stage.csv", "b.mp4"], r"b.mp4: no stage log b.stage.csv or pose log b.pose.csv"),
+    (["a.mp4", "a.stage.csv", "a.pose.csv"], r"run a has a stage log and a pose log"),
     (["a.mp4", "a.stage.csv", "c.stage.csv"], r"c.stage.csv: no video c.mp4 or c.avi"),
     (["a.mp4", "a.avi", "a.stage.csv"], r"a.avi: run a has two videos"),
     (["a.mp4", "a.stage.csv"], r"no calibration run"),
@@ -95,3 +96,48 @@ def test_the_command_names_a_missing_sensor_file(tmp_path, capsys):
     assert main(["experiment", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     assert f"{tmp_path}: no sensor.toml" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_runs_with_pose_logs_are_placed_in_space(ran, tmp_path):
+    # The object runs' stage logs given instead as pose logs of a base moving along x_S in
+    # a turned world frame: their contacts are the stage tables' points, placed in it.
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from camwhisker.contact.stage import read_stage_log
+    from camwhisker.files.tables import read_columns
+
+    turn = Rotation.from_euler("zyx", [20.0, 10.0, -30.0], degrees=True)
+    shift = np.array([5.0, 200.0, -50.0])
+    folder = tmp_path / "rig"
+    folder.mkdir()
+    objects = ("bottle_left", "bottle_right", "box_box")
+    for f in (ran / "recordings").iterdir():
+        name = f.name.split(".")[0]
+        if name in objects and f.name.endswith(".stage.csv"):
+            log = read_stage_log(f)
+            p = shift + turn.apply(np.column_stack([log.x_mm, 0 * log.x_mm, 0 * log.x_mm]))
+            q = np.tile(turn.as_quat(scalar_first=True), (log.t_s.size, 1))
+            rows = np.column_stack([log.t_s, p, q])
+            np.savetxt(folder / f"{name}.pose.csv", rows, delimiter=",", fmt="%.10g",
+                       header="t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz", comments="")
+        else:
+            (folder / f.name).symlink_to(f.resolve())
+    out = tmp_path / "out"
+    shutil.copytree(ran / "out" / "signals", out / "signals")  # batch's tables reused
+    assert main(["experiment", str(folder), "--out", str(out), "--quiet"]) == 0
+    s = _strict(out / "summary.json")
+    assert sorted(r["name"] for r in s["runs"] if r["log"] == "pose") == list(objects)
+    assert s["space"]["runs"] == list(objects) and (out / "map.ply").stat().st_size > 1000
+    for name in objects:
+        flat = read_columns(ran / "out" / "contact" / f"{name}.csv", ("x_hat_mm", "y_hat_mm"))
+        placed = read_columns(out / "contact" / f"{name}.csv", ("px_mm", "py_mm", "pz_mm"))
+        want = shift + turn.apply(np.column_stack([flat["x_hat_mm"], 0 * flat["x_hat_mm"],
+                                                   flat["y_hat_mm"]]))  # fmt: skip
+        got = np.column_stack([placed["px_mm"], placed["py_mm"], placed["pz_mm"]])
+        both = np.isfinite(got).all(axis=1)
+        assert np.array_equal(both, np.isfinite(want).all(axis=1)) and both.sum() > 50
+        # The pressing direction is the tracked theta's mean (within ~0.1 deg of the
+        # axis on these videos): it turns a point 100 mm up the shaft by under 0.2 mm;
+        # the tables' 6 printed digits add 0.001 mm.
+        assert np.max(np.linalg.norm(got[both] - want[both], axis=1)) < 0.3, name

@@ -10,14 +10,15 @@ __all__ = ["add_experiment"]
 def add_experiment(sub) -> None:
     p = sub.add_parser(
         "experiment",
-        help="a folder of recordings (NAME.mp4 + NAME.stage.csv) -> batch, calibrate, "
-        "contact, percepts and plots",
+        help="a folder of recordings (NAME.mp4 + NAME.stage.csv or NAME.pose.csv) -> "
+        "batch, calibrate, contact, percepts and plots",
         description="Runs batch on every video, calibrate on the runs whose stage log has "
         "an r_mm column, contact on every run and percept on every other run, with the "
         "plots. Finished signal tables are reused when run again.",
     )
     p.add_argument("folder", help="per run NAME.mp4 or NAME.avi with NAME.stage.csv "
-                   "(docs/sensor.md section 7), and sensor.toml")  # fmt: skip
+                   "(docs/sensor.md section 7) or NAME.pose.csv (section 9), and "
+                   "sensor.toml")  # fmt: skip
     p.add_argument("--out", required=True, metavar="DIR",
                    help="folder for signals/, calib.toml, contact/, percept/, the figures "
                    "and summary.json")  # fmt: skip
@@ -25,19 +26,24 @@ def add_experiment(sub) -> None:
     p.add_argument("--per", choices=("pause", "frame"), default="pause",
                    help="contact from the medians of each stage pause, as the paper "
                    "(default), or from every frame")  # fmt: skip
+    p.add_argument("--mount", metavar="X,Y,Z,QW,QX,QY,QZ",
+                   help="where the pose logs give a carrier's pose (a robot's flange): the "
+                        "sensor's pose in the carrier's frame (docs/sensor.md section 9)")
     p.add_argument("--jobs", type=int, default=2, help="videos processed in parallel")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run_experiment)
 
 
 def _run_experiment(args) -> int:
+    from camwhisker.io.poses import Mount
     from camwhisker.run.experiment import format_experiment, run_experiment
     from camwhisker.run.workers import stop_signals_interrupt
 
+    mount = Mount.parse(args.mount) if args.mount else None
     with stop_signals_interrupt():  # SIGTERM unwinds as Ctrl-C does: no temporary file left
         summary = run_experiment(args.folder, args.out, sensor=args.sensor, jobs=args.jobs,
                                  per=args.per, progress=not args.quiet,
-                                 command=command_line(args))  # fmt: skip
+                                 command=command_line(args), mount=mount)  # fmt: skip
     print(format_experiment(summary))
     print(f"wrote {args.out}/summary.json, calib.toml, signals/, contact/, percept/ and "
           "fig7a_gm_model.png")

@@ -1,15 +1,18 @@
 """The user's own pipeline: a folder of recordings -> signals, calibration, contacts, objects.
 
 A folder holds, per run, ``NAME.mp4`` or ``NAME.avi`` with ``NAME.stage.csv`` (its stage
-log, docs/sensor.md section 7), and one sensor file ``sensor.toml`` (or give ``sensor``).
-The calibration runs are those whose stage log has an ``r_mm`` column. :func:`run_experiment`
+log, docs/sensor.md section 7) or ``NAME.pose.csv`` (the base's pose log, section 9: a
+base moving in space), and one sensor file ``sensor.toml`` (or give ``sensor``). The
+calibration runs are those whose stage log has an ``r_mm`` column. :func:`run_experiment`
 runs, in order:
 
 1. ``batch``: the front end on every video (parallel processes; finished tables reused);
 2. ``calibrate``: GM (eq. 8), sigma_GM and the MF table from the calibration runs;
-3. ``contact``: a contact table per run (docs/sensor.md section 7);
-4. ``percept``: the object behind each other run's contacts, and the plots (Fig. 7A; the
-   contacts with the fitted object per run).
+3. ``contact``: a contact table per run (docs/sensor.md section 7; with the contact point
+   in space for runs with a pose log, section 9);
+4. ``percept``: the object behind each other stage run's contacts, and the plots (Fig.
+   7A; the contacts with the fitted object per run); the runs in space together give one
+   object in the world frame (``percept/space.json``) and one map (``map.*``).
 
 Everything lands under the output folder with ``summary.json`` saying how it was made.
 No truth is read: :mod:`camwhisker.bench.chain` adds the check against a simulator's.
@@ -27,11 +30,13 @@ import numpy as np
 
 from camwhisker import __version__
 from camwhisker.contact.calibrate import CalibrationRun, calibrate, write_calibration
-from camwhisker.contact.pipeline import Calibration, contact_rows
+from camwhisker.contact.pipeline import Calibration, RunAnalysis, contact_rows
+from camwhisker.contact.space import contact_rows_in_space
 from camwhisker.contact.stage import read_stage_log
 from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.tables import write_csv
+from camwhisker.io.poses import Mount, read_pose_log
 from camwhisker.io.signals import read_signal_table, sidecar_path
 from camwhisker.run.campaign import BatchTask, run_many
 from camwhisker.sensor.file import Sensor, load_sensor
@@ -43,6 +48,7 @@ __all__ = ["ExperimentError", "Recording", "find_recordings", "run_experiment",
 #: A run's video, by suffix, in the order looked for.
 VIDEO_SUFFIXES = (".mp4", ".avi")
 STAGE_SUFFIX = ".stage.csv"
+POSE_SUFFIX = ".pose.csv"
 #: The folder's sensor file, where none is given.
 SENSOR_NAME = "sensor.toml"
 
@@ -53,12 +59,16 @@ class ExperimentError(ValueError):
 
 @dataclass(frozen=True)
 class Recording:
-    """One run of a folder: its video, its stage log, and whether it calibrates."""
+    """One run of a folder: its video, its stage log or pose log, whether it calibrates."""
 
     name: str
     video: Path
     stage: Path
     calibration: bool
+
+    @property
+    def in_space(self) -> bool:
+        return self.stage.name.endswith(POSE_SUFFIX)
 
 
 def _has_r_mm(stage: Path) -> bool:
@@ -86,21 +96,36 @@ def find_recordings(folder: str | Path) -> list[Recording]:
                 raise ExperimentError(f"{video}: run {video.stem} has two videos "
                                       f"({videos[video.stem].name} too)")  # fmt: skip
             videos[video.stem] = video
-    logs = {p.name[: -len(STAGE_SUFFIX)]: p for p in sorted(folder.glob(f"*{STAGE_SUFFIX}"))}
+    logs = _logs(folder)
     for name, video in videos.items():
         if name not in logs:
-            raise ExperimentError(f"{video}: no stage log {name}{STAGE_SUFFIX} beside it")
+            raise ExperimentError(f"{video}: no stage log {name}{STAGE_SUFFIX} or pose log "
+                                  f"{name}{POSE_SUFFIX} beside it")  # fmt: skip
     for name, log in logs.items():
         if name not in videos:
             raise ExperimentError(f"{log}: no video {name}.mp4 or {name}.avi beside it")
     if not videos:
         raise ExperimentError(f"{folder}: no run (NAME.mp4 or NAME.avi with "
-                              f"NAME{STAGE_SUFFIX})")  # fmt: skip
-    runs = [Recording(n, videos[n], logs[n], _has_r_mm(logs[n])) for n in sorted(videos)]
+                              f"NAME{STAGE_SUFFIX} or NAME{POSE_SUFFIX})")  # fmt: skip
+    runs = [Recording(n, videos[n], logs[n], not logs[n].name.endswith(POSE_SUFFIX)
+                      and _has_r_mm(logs[n])) for n in sorted(videos)]  # fmt: skip
     if not any(r.calibration for r in runs):
         raise ExperimentError(f"{folder}: no calibration run (a stage log with an r_mm "
                               "column, docs/sensor.md section 7)")  # fmt: skip
     return runs
+
+
+def _logs(folder: Path) -> dict[str, Path]:
+    """Each run's log by name: a stage log or a pose log, not both."""
+    logs: dict[str, Path] = {}
+    for suffix in (STAGE_SUFFIX, POSE_SUFFIX):
+        for p in sorted(folder.glob(f"*{suffix}")):
+            name = p.name[: -len(suffix)]
+            if name in logs:
+                raise ExperimentError(f"{p}: run {name} has a stage log and a pose log; "
+                                      "keep the one its base followed")  # fmt: skip
+            logs[name] = p
+    return logs
 
 
 def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
@@ -115,7 +140,8 @@ def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
 
 def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | Sensor | None
                    = None, jobs: int = 2, per: str = "pause", progress: bool = True,
-                   command: str = "", plots: bool = True) -> dict:  # fmt: skip
+                   command: str = "", plots: bool = True, mount: Mount | None = None
+                   ) -> dict:  # fmt: skip
     """Batch, calibrate, contact and percepts over a folder of recordings.
 
     Parameters
@@ -133,6 +159,8 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
         Contact from the medians of each stage pause (the paper's) or from every frame.
     command : str
         How it was called, for the summary and the calibration's provenance.
+    mount : Mount, optional
+        Where the pose logs give a carrier's pose: the sensor's pose in the carrier's frame.
 
     Returns
     -------
@@ -145,7 +173,8 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
     timings: dict = {}
     tables, timings["batch"] = batch_runs(runs, sensor, out, jobs, progress)
     signals = {r.name: read_signal_table(tables[r.name]) for r in runs}
-    logs = {r.name: read_stage_log(r.stage) for r in runs}
+    logs = {r.name: read_pose_log(r.stage, mount) if r.in_space else read_stage_log(r.stage)
+            for r in runs}  # fmt: skip
 
     t0 = time.perf_counter()
     calib, cal_data = calibrate_runs(runs, sensor, tables, signals, logs,
@@ -154,15 +183,15 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
     timings["calibrate"] = {"seconds": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
-    contacts = {}
-    for r in runs:
-        cols, run = contact_rows(signals[r.name], logs[r.name], calib, mode=per)
-        write_csv(out / "contact" / f"{r.name}.csv", cols)
-        contacts[r.name] = (cols, run)
+    contacts = {r.name: contact_step(r, signals[r.name], logs[r.name], calib, per, out)
+                for r in runs}  # fmt: skip
     timings["contact"] = {"seconds": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
-    percepts = _percepts(out, [r for r in runs if not r.calibration], plots)
+    percepts = _percepts(out, [r for r in runs if not r.calibration and not r.in_space], plots)
+    in_space = [r for r in runs if r.in_space]
+    if in_space:
+        percepts["space"] = _space_percept(out, in_space, plots, command)
     if plots:
         from camwhisker.contact.plots import plot_gm_model
 
@@ -175,6 +204,38 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
                              "calibration": str(out / "calib.toml"), "per": per}  # fmt: skip
     atomic_write_text(out / "summary.json", jsonfile.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def contact_step(r: Recording, signals: dict, log, calib: Calibration, per: str,
+                 out: Path) -> tuple[dict, RunAnalysis]:  # fmt: skip
+    """Step 3: one run's contact table, written; a run in space gets its points in W."""
+    if r.in_space:
+        cols, run, _ = contact_rows_in_space(signals, log, calib, mode=per)
+    else:
+        cols, run = contact_rows(signals, log, calib, mode=per)
+    write_csv(out / "contact" / f"{r.name}.csv", cols)
+    return cols, run
+
+
+def _space_percept(out: Path, runs: list[Recording], plots: bool, command: str) -> dict:
+    """Step 4 in space: one object from every run in space, and their map's points."""
+    from camwhisker.percept.contact_map import plot_contact_map, read_contact_points, write_ply
+    from camwhisker.percept.solids import perceive_solid, read_surfels3, solid_record
+
+    tables = [out / "contact" / f"{r.name}.csv" for r in runs]
+    p = perceive_solid(read_surfels3(tables))
+    record = {"camwhisker": __version__, "contacts": [str(t) for t in tables], **solid_record(p)}
+    atomic_write_text(out / "percept" / "space.json", jsonfile.dumps(record, indent=1) + "\n")
+    points = read_contact_points(tables)
+    write_ply(out / "map.ply", points, comments=[command or "camwhisker experiment"])
+    if plots:
+        from camwhisker.percept.contact_map import read_percept
+
+        plot_contact_map(points, out / "map.png", command or "camwhisker experiment",
+                         read_percept(out / "percept" / "space.json"))  # fmt: skip
+    return {"object": p.best.model, "model": p.best.model, "contacts": p.n_surfels,
+            "params": p.best.params, "intervals_95": p.best.intervals,
+            "runs": [r.name for r in runs]}  # fmt: skip
 
 
 def batch_runs(runs: list, sensor: Sensor, out: Path, jobs: int, progress: bool
@@ -249,11 +310,13 @@ def _summary(runs, signals, contacts, percepts, calib: Calibration, timings) -> 
         per_run.append({
             "name": r.name, "role": "calibration" if r.calibration else "object",
             "frames": int(signals[r.name]["ok"].size), "ok": int(signals[r.name]["ok"].sum()),
+            "log": "pose" if r.in_space else "stage",
             "offset_s": run.offset_s, "x_contact_mm": run.x_contact_mm,
             "rows_with_estimate": int(np.isfinite(cols["r_hat_mm"]).sum()),
             **({"percept": percepts[r.name]} if r.name in percepts else {}),
         })  # fmt: skip
-    return {"runs": per_run,
+    space = {"space": percepts["space"]} if "space" in percepts else {}
+    return {"runs": per_run, **space,
             "calibration": {"gm_model": calib.gm.kind, "gm_params": calib.gm.params,
                             "gm_ci95": calib.gm.ci, "calibration_runs":
                             sum(r.calibration for r in runs)},
@@ -271,6 +334,11 @@ def format_experiment(s: dict) -> str:
         obj = r.get("percept", {}).get("object", "")
         lines.append(f"  {r['name']:<24}{r['role']:<13}{r['ok']:>5} of {r['frames']:<3}"
                      f"{r['offset_s']:>+10.3f}{r['rows_with_estimate']:>11}  {obj}")  # fmt: skip
+    if "space" in s:
+        sp = s["space"]
+        params = ", ".join(f"{k} {v:.4g}" for k, v in sp["params"].items())
+        lines.append(f"in space ({len(sp['runs'])} runs, {sp['contacts']} contacts): "
+                     f"{sp['model']}" + (f" ({params})" if params else ""))
     t = s["timings"]
     lines.append(f"time: batch {t['batch']['seconds']:.1f} s ({t['batch']['frames']} frames, "
                  f"{t['batch']['reused']} tables reused), calibrate "
