@@ -17,7 +17,8 @@ import numpy as np
 
 from camwhisker.files.atomic import atomic_write_text
 
-__all__ = ["TableError", "read_header", "read_columns", "read_log", "write_csv", "format_cell"]
+__all__ = ["TableError", "read_header", "read_columns", "read_log", "check_times", "write_csv",
+           "format_cell"]
 
 
 class TableError(ValueError):
@@ -126,6 +127,24 @@ def read_log(path: str | Path, required: tuple[str, ...], optional: tuple[str, .
             data[name].append(value)
         row_of.append(i)
     return {k: np.array(v, float) for k, v in data.items()}, row_of
+
+
+def check_times(t_s: np.ndarray, rows: list[int], source: str, max_gap_s: float,
+                error: type[Exception]) -> None:
+    """A log's times strictly increasing with no gap over ``max_gap_s``; ``error`` naming
+    the file, the row (``rows[i]`` numbers sample i) and column t_s otherwise."""
+    dt = np.diff(t_s)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = bad[0]
+        what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
+        raise error(f"{source}: row {rows[k + 1]}, column t_s: {what}: "
+                    f"{t_s[k + 1]!r} after {t_s[k]!r}")  # fmt: skip
+    gap = np.flatnonzero(dt > max_gap_s)
+    if gap.size:
+        k = gap[0]
+        raise error(f"{source}: row {rows[k + 1]}, column t_s: gap of {dt[k]:.3f} s "
+                    f"(more than {max_gap_s:g} s without a sample)")  # fmt: skip
 
 
 def format_cell(value, digits: int = 6) -> str:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.files.tables import read_log, write_csv
+from camwhisker.files.tables import check_times, read_log, write_csv
 
 __all__ = ["ForceLogError", "ForceLog", "read_force_log", "write_force_log", "FORCE_COLUMNS"]
 
@@ -58,18 +58,7 @@ def read_force_log(path: str | Path) -> ForceLog:
     t = data["t_s"]
     if t.size < 2:
         raise ForceLogError(f"{path}: needs at least 2 samples, got {t.size}")
-    dt = np.diff(t)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        k = bad[0]
-        what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
-        raise ForceLogError(f"{path}: row {row_of[k + 1]}, column t_s: {what}: "
-                            f"{t[k + 1]!r} after {t[k]!r}")
-    gap = np.flatnonzero(dt > MAX_GAP_S)
-    if gap.size:
-        k = gap[0]
-        raise ForceLogError(f"{path}: row {row_of[k + 1]}, column t_s: gap of {dt[k]:.3f} s "
-                            f"(more than {MAX_GAP_S:g} s without a sample)")
+    check_times(t, row_of, str(path), MAX_GAP_S, ForceLogError)
     mb = data.get("mb_Nmm")
     if mb is not None and (mb < 0).any():
         k = int(np.flatnonzero(mb < 0)[0])

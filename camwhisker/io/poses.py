@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from camwhisker.files.tables import read_log
+from camwhisker.files.tables import check_times, read_log
 
 __all__ = ["POSE_COLUMNS", "MAX_GAP_S", "QUAT_NORM_TOL", "PoseLogError", "Mount", "PoseLog",
            "read_pose_log", "pose_log_from_arrays"]  # fmt: skip
@@ -119,18 +119,7 @@ def pose_log_from_arrays(t_s, p_mm, quat, source: str = "<arrays>", rows=None,
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             raise PoseLogError(f"{source}: row {rows[bad[0]]}, column {name}: not a finite number")
-    dt = np.diff(t)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        k = bad[0]
-        what = "duplicate time" if dt[k] == 0 else "time goes backwards (unsorted)"
-        raise PoseLogError(f"{source}: row {rows[k + 1]}, column t_s: {what}: "
-                           f"{t[k + 1]!r} after {t[k]!r}")  # fmt: skip
-    gap = np.flatnonzero(dt > max_gap_s)
-    if gap.size:
-        k = gap[0]
-        raise PoseLogError(f"{source}: row {rows[k + 1]}, column t_s: gap of {dt[k]:.3f} s "
-                           f"(more than {max_gap_s:g} s without a sample)")  # fmt: skip
+    check_times(t, rows, source, max_gap_s, PoseLogError)
     norm = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(np.abs(norm - 1.0) > QUAT_NORM_TOL)
     if bad.size:

@@ -27,7 +27,7 @@ next run over which the fitted line rises steeply.
 Intervals are 95 % Wald intervals from the Jacobian at the solution (a
 corner's with each contact's face held fixed, :func:`_frozen_jacobian`),
 (J^T J)^-1 times the residuals' robust variance, inflated for the contacts'
-correlation along a sweep (AR(1), :func:`_inflation`; the campaign,
+correlation along a sweep (AR(1), :func:`ar1_inflation`; the campaign,
 :mod:`camwhisker.bench.percepts`, measures how often they cover the truth).
 
 References
@@ -48,7 +48,7 @@ from camwhisker.percept.surfels import Surfels
 
 __all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "object_of", "outline",
            "percept_record", "steep_turn_deg", "RISE_DEG", "BLIND_TURN_DEG", "POINT_SIGMA_MM",
-           "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS"]
+           "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS", "ar1_inflation"]
 
 MODELS = ("line", "circle", "corner")
 #: What each model stands for.
@@ -301,7 +301,7 @@ def _public(model, x):
             "face2_deg": math.degrees(x[2] - x[3]) % 360.0, "opening_deg": math.degrees(x[3])}
 
 
-def _inflation(point_res: np.ndarray) -> float:
+def ar1_inflation(point_res: np.ndarray) -> float:
     """AR(1) variance inflation (1 + rho) / (1 - rho) of residuals in time order.
 
     Neighbouring contacts of a sweep err alike (the contact estimate drifts as
@@ -337,7 +337,7 @@ def _intervals(model, x, jac, fun, k, n_points, m):
     The spread comes from the ``m`` contact and direction residuals; free-space
     residuals (zero unless the model swallows the base) would only dilute it.
     """
-    sigma2 = float(np.sum(_rho(fun[:m] ** 2))) / max(m - k, 1) * _inflation(fun[:n_points])
+    sigma2 = float(np.sum(_rho(fun[:m] ** 2))) / max(m - k, 1) * ar1_inflation(fun[:n_points])
     try:
         cov = np.linalg.inv(jac.T @ jac) * sigma2
     except np.linalg.LinAlgError:

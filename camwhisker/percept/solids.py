@@ -39,7 +39,7 @@ Pearson, M. J. et al. (seed paper 000), eqs. 3-7: surfels, the percept cost, mod
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -47,9 +47,16 @@ from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
 from camwhisker.files.tables import TableError, read_columns
-from camwhisker.percept.percepts import DIR_SIGMA_RAD, MAX_AUTOCORR, NONE_RESIDUAL, POINT_SIGMA_MM
+from camwhisker.percept.percepts import (
+    DIR_SIGMA_RAD,
+    NONE_RESIDUAL,
+    POINT_SIGMA_MM,
+    Fit,
+    Percept,
+    ar1_inflation,
+)
 
-__all__ = ["MODELS", "Surfels3", "Fit3", "Percept3", "surfels_from_tables", "read_surfels3",
+__all__ = ["MODELS", "Surfels3", "surfels_from_tables", "read_surfels3",
            "fit_solid", "perceive_solid", "solid_record", "MIN_SURFELS"]  # fmt: skip
 
 MODELS = ("plane", "sphere", "cylinder")
@@ -85,30 +92,6 @@ class Surfels3:
     @property
     def n(self) -> int:
         return int(self.p_mm.shape[0])
-
-
-@dataclass
-class Fit3:
-    """One model's fit: reported parameters, 95 % intervals, robust cost and BIC."""
-
-    model: str
-    params: dict
-    intervals: dict
-    cost: float
-    bic: float
-    n_residuals: int
-    x: np.ndarray = field(repr=False, default=None)
-
-
-@dataclass
-class Percept3:
-    """The chosen model, every candidate's fit, the runner-up and the evidence ratio."""
-
-    best: Fit3
-    fits: dict
-    runner_up: str
-    evidence_ratio: float
-    n_surfels: int
 
 
 def _stack(cols: dict, names) -> np.ndarray:
@@ -247,19 +230,10 @@ def _public(model: str, x: np.ndarray, centroid: np.ndarray) -> dict:
             "axis_y": u[1], "axis_z": u[2], "radius_mm": abs(x[5])}
 
 
-def _inflation(point_res: np.ndarray) -> float:
-    """AR(1) variance inflation (1 + rho) / (1 - rho) of residuals in order along a sweep."""
-    r = point_res - point_res.mean()
-    if r.size < 3 or not np.any(r):
-        return 1.0
-    rho = float(np.clip(np.sum(r[1:] * r[:-1]) / np.sum(r * r), 0.0, MAX_AUTOCORR))
-    return (1.0 + rho) / (1.0 - rho)
-
-
 def _intervals(model: str, res, centroid: np.ndarray, n: int, m: int) -> dict:
     """95 % intervals of the reported parameters by the delta method (NaN where singular)."""
     k = _K[model]
-    sigma2 = float(np.sum(np.log1p(res.fun[:m] ** 2))) / max(m - k, 1) * _inflation(res.fun[:n])
+    sigma2 = float(np.sum(np.log1p(res.fun[:m] ** 2))) / max(m - k, 1) * ar1_inflation(res.fun[:n])
     try:
         cov = np.linalg.inv(res.jac.T @ res.jac) * sigma2
     except np.linalg.LinAlgError:
@@ -305,7 +279,7 @@ def _jackknife(model: str, s: Surfels3, x: np.ndarray, params: dict, intervals: 
     return out
 
 
-def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
+def fit_solid(model: str, s: Surfels3) -> Fit | None:
     """Robust least-squares fit of one model; None without a starting point."""
     if model not in _K:
         raise ValueError(f"unknown model {model!r} (known: {', '.join(MODELS)})")
@@ -323,7 +297,7 @@ def fit_solid(model: str, s: Surfels3) -> Fit3 | None:
     k = _K[model]
     params = _public(model, best.x, centroid)
     intervals = _jackknife(model, s, best.x, params, _intervals(model, best, centroid, s.n, m))
-    return Fit3(model, params, intervals, cost, cost + k * math.log(m), m, best.x)
+    return Fit(model, params, intervals, cost, cost + k * math.log(m), m, best.x)
 
 
 def _n_contact_residuals(s: Surfels3) -> int:
@@ -331,11 +305,11 @@ def _n_contact_residuals(s: Surfels3) -> int:
     return 2 * s.n
 
 
-def perceive_solid(s: Surfels3, models=MODELS) -> Percept3:
+def perceive_solid(s: Surfels3, models=MODELS) -> Percept:
     """Fit every model and choose by BIC; "none" with fewer than :data:`MIN_SURFELS` contacts."""
     m = _n_contact_residuals(s)
     none_cost = m * math.log1p(NONE_RESIDUAL**2)
-    fits = {"none": Fit3("none", {}, {}, none_cost, none_cost, m)}
+    fits = {"none": Fit("none", {}, {}, none_cost, none_cost, m)}
     if s.n >= MIN_SURFELS:
         for model in models:
             f = fit_solid(model, s)
@@ -344,10 +318,10 @@ def perceive_solid(s: Surfels3, models=MODELS) -> Percept3:
     ranked = sorted(fits.values(), key=lambda f: f.bic)
     best, runner = ranked[0], (ranked[1] if len(ranked) > 1 else None)
     ratio = math.exp(min((runner.bic - best.bic) / 2.0, 700.0)) if runner else math.inf
-    return Percept3(best, fits, runner.model if runner else "", ratio, s.n)
+    return Percept(best, fits, runner.model if runner else "", ratio, s.n)
 
 
-def solid_record(p: Percept3) -> dict:
+def solid_record(p: Percept) -> dict:
     """The percept as plain data (docs/sensor.md section 9): model, params, intervals_95,
     runner-up, evidence ratio and every candidate's BIC."""
     return {"model": p.best.model, "params": p.best.params, "intervals_95": p.best.intervals,
