@@ -8,8 +8,8 @@ table has it, the shaft's rest direction. Each model is fitted by robust least s
 surface and normals that disagree with the surface's; the model with the lowest BIC is the
 percept, "none" charging each residual :data:`NONE_RESIDUAL` scales. The free-space term
 is left out: the base, the only free space a table holds, passes behind a finite wall's
-plane while it touches the wall's edge (tuning seeds 0, 3, 6: it turned every wall into a
-cylinder), and the measured normals already say which side is outside.
+plane while it touches the wall's edge (it turned walls into cylinders), and the measured
+normals already say which side is outside.
 
 A measured normal lies across the shaft: the surface's own normal less its component along
 the shaft (the contact force's component along the shaft does not bend the whisker). So a
@@ -27,9 +27,8 @@ Intervals are 95 % Wald intervals: (J^T J)^-1 times the residuals' robust varian
 inflated for the contacts' correlation along a sweep, carried to the reported
 parameters by their Jacobian (the delta method); with contacts from two tables or more,
 widened by the leave-one-table-out jackknife (Student's t): a run's own bias (MF's along
-the shaft in a slide) is shared by all its contacts and shows only between runs. On the
-tuning sweeps of ``camwhisker dev solids-bench`` (0-29) the Wald intervals alone covered
-61 % of the true parameters, with the jackknife 84 %.
+the shaft in a slide) is shared by all its contacts and shows only between runs
+(BENCHMARKS.md, objects in 3-D).
 
 References
 ----------
