@@ -18,9 +18,16 @@ from camwhisker.bench.contact import calibrate_simulated
 from camwhisker.bench.percepts import _quiet
 from camwhisker.contact.space import SpaceError, contact_rows_in_space
 from camwhisker.io.poses import pose_log_from_arrays
-from camwhisker.percept.solids import perceive_solid, surfels_from_tables
+from camwhisker.percept.percepts import BLIND_TURN_DEG
+from camwhisker.percept.solids import (
+    MIN_SURFELS,
+    fit_solid,
+    next_plane_run,
+    perceive_solid,
+    surfels_from_tables,
+)
 from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, NoiseModel
-from camwhisker.sim.mechanics.space import simulate_space_sweep, truth_in_world
+from camwhisker.sim.mechanics.space import simulate_space_sweep, truth_in_world, turned_wall_runs
 
 __all__ = ["KINDS", "MODEL_OF", "CALIB_SEED", "TUNING_SEEDS", "HELD_OUT_SEEDS",
            "contact_tables", "run_solid_sweep", "run_campaign", "summarise", "format_summary",
@@ -34,8 +41,24 @@ HELD_OUT_SEEDS = range(1000, 1060)
 
 
 def contact_tables(kind: str, rng, calib, noise: NoiseModel = FRONT_END_NOISE):
-    """The object and its runs at every height as contact tables with world columns."""
+    """The object and its runs at every height as contact tables with world columns; a
+    wall (and the nothing in its place) gets a second run at every height, turned as the
+    first run's plane asks (:func:`~camwhisker.percept.solids.next_plane_run`)."""
     sweep, runs = simulate_space_sweep(kind, rng, noise, quiet=_quiet)
+    tables = _tables(kind, runs, calib)
+    if kind in ("wall", "none"):
+        s = surfels_from_tables(tables)
+        plane = fit_solid("plane", s) if s.n >= MIN_SURFELS else None
+        turn = next_plane_run(plane, s) if plane is not None else None
+        more = turned_wall_runs(sweep, turn["turn_deg"] if turn else BLIND_TURN_DEG, rng, noise)
+        if kind == "none":
+            for lr in more:
+                lr.run.signals = _quiet(lr.run.signals, rng, noise)
+        tables += _tables(kind, more, calib)
+    return sweep, tables
+
+
+def _tables(kind: str, runs, calib) -> list[dict]:
     tables = []
     for lr in runs:
         # Nothing touched: nothing to align the clocks on, the user gives the offset.
@@ -47,7 +70,7 @@ def contact_tables(kind: str, rng, calib, noise: NoiseModel = FRONT_END_NOISE):
         except SpaceError:  # nothing touched: no direction, no contacts
             continue
         tables.append(cols)
-    return sweep, tables
+    return tables
 
 
 def _vec(d: dict, names) -> np.ndarray:

@@ -61,6 +61,7 @@ def _run_percept_in_space(args) -> int:
     from camwhisker.files.atomic import atomic_write_text
     from camwhisker.files.digest import sha256_file
     from camwhisker.files.jsonfile import dumps
+    from camwhisker.percept.percepts import RISE_DEG
     from camwhisker.percept.solids import perceive_solid, read_surfels3, solid_record
 
     if args.pose or args.plot:
@@ -71,7 +72,7 @@ def _run_percept_in_space(args) -> int:
     record = {"camwhisker": __version__, "command": command_line(args),
               "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
               "inputs": [{"contacts": str(c), "sha256": sha256_file(c)} for c in args.contacts],
-              **solid_record(p)}  # fmt: skip
+              **solid_record(p, surfels)}  # fmt: skip
     atomic_write_text(args.out, dumps(record, indent=1) + "\n")
     params = ", ".join(f"{k} {v:.3g} [{lo:.3g}, {hi:.3g}]"
                        for (k, v), (lo, hi) in zip(p.best.params.items(),
@@ -79,6 +80,11 @@ def _run_percept_in_space(args) -> int:
     print(f"{p.best.model} from {surfels.n} contacts" + (f": {params}" if params else "")
           + (f"; runner-up {p.runner_up}, evidence ratio {p.evidence_ratio:.3g}"
              if p.runner_up else ""))  # fmt: skip
+    if record["next_run"] is not None:
+        r = record["next_run"]
+        print(f"for a run over which the plane rises at {RISE_DEG:g} deg: turn the first run's "
+              f"travel and shaft by {r['turn_deg']:.1f} deg about ({r['about_x']:.3f}, "
+              f"{r['about_y']:.3f}, {r['about_z']:.3f})")
     print(f"wrote {args.out}")
     return 0
 

@@ -50,13 +50,15 @@ from camwhisker.percept.percepts import (
     DIR_SIGMA_RAD,
     NONE_RESIDUAL,
     POINT_SIGMA_MM,
+    RISE_DEG,
     Fit,
     Percept,
     ar1_inflation,
 )
 
 __all__ = ["MODELS", "Surfels3", "surfels_from_tables", "read_surfels3",
-           "fit_solid", "perceive_solid", "solid_record", "MIN_SURFELS"]  # fmt: skip
+           "fit_solid", "perceive_solid", "next_plane_run", "solid_record",
+           "MIN_SURFELS"]  # fmt: skip
 
 MODELS = ("plane", "sphere", "cylinder")
 #: Fewer contacts than this cannot tell a shape in 3-D: "none".
@@ -76,17 +78,20 @@ _STEP = 1e-6
 _WORLD = ("px_mm", "py_mm", "pz_mm")
 _NORMAL = ("nx", "ny", "nz")
 _SHAFT = ("ax", "ay", "az")
+_BASE = ("bx_mm", "by_mm", "bz_mm")
 
 
 @dataclass(frozen=True)
 class Surfels3:
     """Contacts in W: ``p_mm`` (N, 3), ``normal`` (N, 3) unit or NaN, ``shaft`` (N, 3) unit
-    or NaN, ``table`` (N,)."""
+    or NaN, ``table`` (N,), ``travel`` (N, 3): the unit direction its table's base moved
+    in, NaN where the table has no base columns."""
 
     p_mm: np.ndarray
     normal: np.ndarray
     shaft: np.ndarray
     table: np.ndarray
+    travel: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -112,16 +117,29 @@ def surfels_from_tables(tables: list[dict], sources: list[str] | None = None) ->
         a = _stack(cols, _SHAFT) if all(c in cols for c in _SHAFT) else np.full(p.shape, np.nan)
         # The same point on consecutive rows is one pause's estimate.
         keep = np.isfinite(p).all(axis=1) & ~np.r_[False, np.all(p[1:] == p[:-1], axis=1)]
-        parts.append((p[keep], n[keep], a[keep], np.full(int(keep.sum()), i)))
-    p, n, a, t = (np.concatenate([q[k] for q in parts]) if parts else np.empty(0)
-                  for k in range(4))  # fmt: skip
-    return Surfels3(p.reshape(-1, 3), n.reshape(-1, 3), a.reshape(-1, 3), t.astype(int))
+        d = np.tile(_travel(cols), (int(keep.sum()), 1))
+        parts.append((p[keep], n[keep], a[keep], np.full(int(keep.sum()), i), d))
+    p, n, a, t, d = (np.concatenate([q[k] for q in parts]) if parts else np.empty(0)
+                     for k in range(5))  # fmt: skip
+    return Surfels3(p.reshape(-1, 3), n.reshape(-1, 3), a.reshape(-1, 3), t.astype(int),
+                    d.reshape(-1, 3))
+
+
+def _travel(cols: dict) -> np.ndarray:
+    """The unit direction from a table's first base position to its last (NaN without)."""
+    if not all(c in cols for c in _BASE):
+        return np.full(3, np.nan)
+    b = _stack(cols, _BASE)
+    b = b[np.isfinite(b).all(axis=1)]
+    step = b[-1] - b[0] if len(b) > 1 else np.zeros(3)
+    size = float(np.linalg.norm(step))
+    return step / size if size > 0 else np.full(3, np.nan)
 
 
 def read_surfels3(paths: list[str | Path]) -> Surfels3:
     """Surfels of contact table files (docs/sensor.md sections 7 and 9)."""
     names = _WORLD + _NORMAL
-    tables = [read_columns(p, names, _SHAFT) for p in paths]
+    tables = [read_columns(p, names, _SHAFT + _BASE) for p in paths]
     return surfels_from_tables(tables, [str(p) for p in paths])
 
 
@@ -251,7 +269,8 @@ def _intervals(model: str, res, centroid: np.ndarray, n: int, m: int) -> dict:
 
 
 def _subset(s: Surfels3, keep: np.ndarray) -> Surfels3:
-    return Surfels3(s.p_mm[keep], s.normal[keep], s.shaft[keep], s.table[keep])
+    travel = None if s.travel is None else s.travel[keep]
+    return Surfels3(s.p_mm[keep], s.normal[keep], s.shaft[keep], s.table[keep], travel)
 
 
 def _jackknife(model: str, s: Surfels3, x: np.ndarray, params: dict, intervals: dict) -> dict:
@@ -320,11 +339,38 @@ def perceive_solid(s: Surfels3, models=MODELS) -> Percept:
     return Percept(best, fits, runner.model if runner else "", ratio, s.n)
 
 
-def solid_record(p: Percept) -> dict:
+def next_plane_run(fit: Fit, s: Surfels3, rise_deg: float = RISE_DEG) -> dict | None:
+    """Active sensing for a plane: the turn of the first table's sweep (its travel and
+    shaft together, about their plane's normal ``about``) after which the plane's trace in
+    that sweep's plane rises at ``rise_deg`` from the travel, as the planar percepts turn a
+    wall's next run (:func:`camwhisker.percept.percepts.steep_turn_deg`); None where the
+    table gives no travel or shaft, or the plane lies in the sweep's plane."""
+    if fit.model != "plane" or s.travel is None or not s.n:
+        return None
+    first = s.table == s.table[0]
+    d, a = np.nanmean(s.travel[first], axis=0), np.nanmean(s.shaft[first], axis=0)
+    about = np.cross(d, a)
+    n = np.array([fit.params["normal_x"], fit.params["normal_y"], fit.params["normal_z"]])
+    trace = np.cross(n, about)
+    if not np.isfinite(about).all() or np.linalg.norm(about) < 1e-6 or \
+            np.linalg.norm(trace) < 1e-6:
+        return None
+    about /= np.linalg.norm(about)
+    e1 = d - (d @ about) * about
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(about, e1)
+    rise = math.degrees(math.atan2(float(trace @ e2), float(trace @ e1))) % 180.0
+    turn = (rise - rise_deg + 90.0) % 180.0 - 90.0
+    return {"turn_deg": turn, "about_x": about[0], "about_y": about[1], "about_z": about[2]}
+
+
+def solid_record(p: Percept, s: Surfels3 | None = None) -> dict:
     """The percept as plain data (docs/sensor.md section 9): model, params, intervals_95,
-    runner-up, evidence ratio and every candidate's BIC."""
+    runner-up, evidence ratio, for a plane the turn of a steeper next run
+    (:func:`next_plane_run`, from the surfels ``s``), and every candidate's BIC."""
     return {"model": p.best.model, "params": p.best.params, "intervals_95": p.best.intervals,
             "runner_up": p.runner_up, "evidence_ratio": p.evidence_ratio,
             "n_surfels": p.n_surfels,
+            "next_run": next_plane_run(p.best, s) if s is not None else None,
             "candidates": {m: {"bic": f.bic, "cost": f.cost, "params": f.params}
                            for m, f in p.fits.items()}}  # fmt: skip

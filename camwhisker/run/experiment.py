@@ -223,8 +223,10 @@ def _space_percept(out: Path, runs: list[Recording], plots: bool, command: str) 
     from camwhisker.percept.solids import perceive_solid, read_surfels3, solid_record
 
     tables = [out / "contact" / f"{r.name}.csv" for r in runs]
-    p = perceive_solid(read_surfels3(tables))
-    record = {"camwhisker": __version__, "contacts": [str(t) for t in tables], **solid_record(p)}
+    surfels = read_surfels3(tables)
+    p = perceive_solid(surfels)
+    record = {"camwhisker": __version__, "contacts": [str(t) for t in tables],
+              **solid_record(p, surfels)}  # fmt: skip
     atomic_write_text(out / "percept" / "space.json", jsonfile.dumps(record, indent=1) + "\n")
     points = read_contact_points(tables)
     write_ply(out / "map.ply", points, comments=[command or "camwhisker experiment"])

@@ -31,10 +31,11 @@ from camwhisker.sim.mechanics.experiment import (
     StageProtocol,
     simulate_run,
 )
-from camwhisker.sim.mechanics.objects import draw_sweep
+from camwhisker.sim.mechanics.objects import draw_sweep, turned_wall_run
 
 __all__ = ["HEIGHTS_MM", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "LiftedRun", "lifted_poses",
-           "simulate_space_sweep", "truth_in_world", "write_space_sweep"]  # fmt: skip
+           "simulate_space_sweep", "turned_wall_runs", "truth_in_world",
+           "write_space_sweep"]  # fmt: skip
 
 #: Sweeps at these heights along the extrusion (mm): the axis is told by their spread.
 HEIGHTS_MM = (-30.0, 0.0, 30.0)
@@ -82,6 +83,28 @@ class LiftedRun:
         return self.run.name
 
 
+def _at_heights(specs, rng, noise: NoiseModel, first: int = 0, quiet=None) -> list[LiftedRun]:
+    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM)
+    runs = []
+    for h in HEIGHTS_MM:
+        for i, spec in enumerate(specs, start=first):
+            run = simulate_run(f"h{h:+.0f}run{i}", "slide-box", spec.scene, rng,
+                               protocol=protocol, noise=noise, travel_sign=spec.travel_sign)
+            if quiet is not None:
+                run.signals = quiet(run.signals, rng, noise)
+            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h)))
+    return runs
+
+
+def turned_wall_runs(sweep, turn_deg: float, rng, noise: NoiseModel = FRONT_END_NOISE
+                     ) -> list[LiftedRun]:  # fmt: skip
+    """A wall's first run again at every height, its travel and shaft turned by
+    ``turn_deg`` about their plane's normal (x_S cross z_S; the planar simulator's stage
+    frame turned by ``turn_deg``, :func:`~camwhisker.sim.mechanics.objects.turned_wall_run`)."""
+    return _at_heights([turned_wall_run(sweep.runs[0], turn_deg)], rng, noise,
+                       first=len(sweep.runs))  # fmt: skip
+
+
 def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, quiet=None):
     """An object of ``kind`` ("wall", "cylinder" or "none") and its runs at every height.
 
@@ -89,16 +112,7 @@ def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, qu
     front end's noise alone (nothing touched).
     """
     sweep = draw_sweep(kind, rng)
-    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM)
-    runs = []
-    for h in HEIGHTS_MM:
-        for i, spec in enumerate(sweep.runs):
-            run = simulate_run(f"h{h:+.0f}run{i}", "slide-box", spec.scene, rng,
-                               protocol=protocol, noise=noise, travel_sign=spec.travel_sign)
-            if kind == "none" and quiet is not None:
-                run.signals = quiet(run.signals, rng, noise)
-            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h)))
-    return sweep, runs
+    return sweep, _at_heights(sweep.runs, rng, noise, quiet=quiet if kind == "none" else None)
 
 
 def truth_in_world(sweep) -> dict:
