@@ -52,7 +52,8 @@ def test_a_sensor_from_a_folder_named_with_a_tab_and_a_newline_reads_back(tmp_pa
 
 def test_calibrate_under_a_folder_named_with_a_tab_and_a_newline_reads_back(tmp_path, capsys):
     root = tmp_path / "stage\truns\nday 2"
-    assert main(["simulate-stage", "--kind", "eq8", "--out", f"{root}/cal", "--seed", "21"]) == 0
+    assert main(["dev", "simulate-stage", "--kind", "eq8", "--out", f"{root}/cal",
+                 "--seed", "21"]) == 0
     calib = root / "calib.toml"
     args = ["calibrate", "--out", str(calib)]
     for r in ("r22.5", "r42.5", "r60", "r90"):
