@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from camwhisker.cli.common import command_line, sensor_arg
 
 __all__ = ["add_experiment"]
@@ -47,4 +49,6 @@ def _run_experiment(args) -> int:
     print(format_experiment(summary))
     print(f"wrote {args.out}/summary.json, calib.toml, signals/, contact/, percept/ and "
           "fig7a_gm_model.png")
-    return 0
+    for name, why in summary["failed"].items():
+        print(f"camwhisker experiment: problem: {name}: {why}", file=sys.stderr)
+    return 1 if summary["failed"] else 0

@@ -165,7 +165,8 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
     Returns
     -------
     dict
-        The summary, also in ``out/summary.json`` (strict JSON).
+        The summary, also in ``out/summary.json`` (strict JSON); ``failed`` names the runs
+        whose contact could not be made and why (the other runs are done).
     """
     folder, out = Path(folder), Path(out)
     runs = find_recordings(folder)
@@ -183,13 +184,18 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
     timings["calibrate"] = {"seconds": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
-    contacts = {r.name: contact_step(r, signals[r.name], logs[r.name], calib, per, out)
-                for r in runs}  # fmt: skip
+    contacts, failed = {}, {}
+    for r in runs:
+        try:
+            contacts[r.name] = contact_step(r, signals[r.name], logs[r.name], calib, per, out)
+        except ValueError as exc:  # one run's contact fails alone; the others go on
+            failed[r.name] = str(exc)
     timings["contact"] = {"seconds": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
-    percepts = _percepts(out, [r for r in runs if not r.calibration and not r.in_space], plots)
-    in_space = [r for r in runs if r.in_space]
+    done = [r for r in runs if r.name in contacts]
+    percepts = _percepts(out, [r for r in done if not r.calibration and not r.in_space], plots)
+    in_space = [r for r in done if r.in_space]
     if in_space:
         percepts["space"] = _space_percept(out, in_space, plots, command)
     if plots:
@@ -199,6 +205,7 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
                       f"Fig. 7A: {command or 'camwhisker experiment'}")  # fmt: skip
     timings["percept"] = {"seconds": time.perf_counter() - t0}
     summary = _summary(runs, signals, contacts, percepts, calib, timings)
+    summary["failed"] = failed
     summary["provenance"] = {"camwhisker_version": __version__, "command": command,
                              "folder": str(folder), "sensor": sensor.source,
                              "calibration": str(out / "calib.toml"), "per": per}  # fmt: skip
@@ -308,6 +315,8 @@ def _percepts(out: Path, runs: list[Recording], plots: bool) -> dict:
 def _summary(runs, signals, contacts, percepts, calib: Calibration, timings) -> dict:
     per_run = []
     for r in runs:
+        if r.name not in contacts:
+            continue
         cols, run = contacts[r.name]
         per_run.append({
             "name": r.name, "role": "calibration" if r.calibration else "object",
@@ -341,6 +350,8 @@ def format_experiment(s: dict) -> str:
         params = ", ".join(f"{k} {v:.4g}" for k, v in sp["params"].items())
         lines.append(f"in space ({len(sp['runs'])} runs, {sp['contacts']} contacts): "
                      f"{sp['model']}" + (f" ({params})" if params else ""))
+    for name, why in s.get("failed", {}).items():
+        lines.append(f"  {name}: contact failed: {why}")
     t = s["timings"]
     lines.append(f"time: batch {t['batch']['seconds']:.1f} s ({t['batch']['frames']} frames, "
                  f"{t['batch']['reused']} tables reused), calibrate "
