@@ -2,8 +2,8 @@
 
 ``import camwhisker as cw`` gives the Python API (:mod:`camwhisker.api`, docs/api.md):
 ``cw.track`` (video -> signal table), the readers ``cw.read_signals``,
-``cw.read_stage_log``, ``cw.read_force_log`` and ``cw.read_contacts`` (tables as pandas
-DataFrames), ``cw.calibrate``, ``cw.contacts``, ``cw.perceive``, and the sensor file
+``cw.read_stage_log``, ``cw.read_pose_log``, ``cw.read_force_log`` and
+``cw.read_contacts`` (tables as pandas DataFrames), ``cw.calibrate``, ``cw.contacts``, ``cw.perceive``, and the sensor file
 (``cw.Sensor``, ``cw.load_sensor``) and calibration (``cw.Calibration``,
 ``cw.read_calibration``, ``cw.write_calibration``).
 
@@ -18,7 +18,8 @@ them :mod:`~camwhisker.sim` (simulators), :mod:`~camwhisker.bench` and
 __version__ = "0.1.0"
 
 _API = ("Sensor", "load_sensor", "Calibration", "read_calibration", "write_calibration",
-        "track", "read_signals", "read_stage_log", "read_force_log", "read_contacts",
+        "track", "read_signals", "read_stage_log", "read_pose_log", "read_force_log",
+        "read_contacts",
         "calibrate", "contacts", "perceive")  # fmt: skip
 
 __all__ = ["__version__", *_API]

@@ -40,7 +40,8 @@ if TYPE_CHECKING:
     from camwhisker.percept.percepts import Percept
 
 __all__ = ["Sensor", "load_sensor", "Calibration", "read_calibration", "write_calibration",
-           "track", "read_signals", "read_stage_log", "read_force_log", "read_contacts",
+           "track", "read_signals", "read_stage_log", "read_pose_log", "read_force_log",
+           "read_contacts",
            "calibrate", "contacts", "perceive"]  # fmt: skip
 
 def _pandas():
@@ -130,6 +131,15 @@ def read_stage_log(path: str | Path) -> pd.DataFrame:
 def read_force_log(path: str | Path) -> pd.DataFrame:
     """A force-torque log (docs/sensor.md section 7.1), checked, as a DataFrame."""
     _read_force_log(path)
+    return _pandas().read_csv(path)
+
+
+def read_pose_log(path: str | Path) -> pd.DataFrame:
+    """A pose log (docs/sensor.md section 9), checked (row order, gaps, each quaternion's
+    norm), as a DataFrame."""
+    from camwhisker.io.poses import read_pose_log as _read
+
+    _read(path)
     return _pandas().read_csv(path)
 
 

@@ -100,3 +100,17 @@ def test_bad_input_is_named():
         cw.perceive([pd.DataFrame({"t_s": [0.0]})], poses=[])
     with pytest.raises(ValueError, match="<run 0>: no column frame"):
         cw.calibrate([(pd.DataFrame({"t_s": [0.0]}), pd.DataFrame({"t_s": [0.0]}))])
+
+
+def test_a_pose_log_reads_as_a_dataframe_or_a_named_error(tmp_path):
+    from camwhisker.io.poses import PoseLogError
+
+    good = ROOT / "sample_frames" / "space" / "h+0run0.pose.csv"
+    df = cw.read_pose_log(good)
+    assert list(df.columns) == ["t_s", "x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz"]
+    norm = (df[["qw", "qx", "qy", "qz"]] ** 2).sum(axis=1) ** 0.5
+    assert float((norm - 1).abs().max()) < 1e-6  # written to 9 digits
+    bad = tmp_path / "b.pose.csv"
+    bad.write_text("t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0,0,0,2,0,0,0\n")
+    with pytest.raises(PoseLogError, match="b.pose.csv: row 3, columns qw-qz"):
+        cw.read_pose_log(bad)

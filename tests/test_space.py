@@ -220,3 +220,16 @@ def test_contact_command_with_a_pose_log_and_a_mount(sim, tmp_path, capsys):
                  str(sim / "run" / "r60_stage.csv"), "--mount", "0,0,0,1,0,0,0", "--calib",
                  str(sim / "calib.toml"), "--out", str(tmp_path / "x.csv")]) == 2
     assert "--mount goes with --pose" in capsys.readouterr().err
+
+
+def test_a_clock_that_cannot_be_aligned_names_the_pose_log(sim):
+    # Three seconds of a base moving at 10 mm/s against a run of minutes: phi does not
+    # follow it at any offset.
+    calib = read_calibration(sim / "calib.toml")
+    signals = read_signal_table(sim / "run" / "r60_signals.csv")
+    t = np.linspace(0.0, 3.0, 50)
+    p = np.column_stack([10.0 * t, 0 * t, 0 * t])
+    poses = pose_log_from_arrays(t, p, np.tile([1.0, 0.0, 0.0, 0.0], (t.size, 1)),
+                                 "short.pose.csv")  # fmt: skip
+    with pytest.raises(ValueError, match="short.pose.csv .*cannot estimate the clock offset"):
+        contact_rows_in_space(signals, poses, calib)
