@@ -3,9 +3,9 @@
 ``import camwhisker as cw`` gives the Python API (:mod:`camwhisker.api`, docs/api.md):
 ``cw.track`` (video -> signal table), the readers ``cw.read_signals``,
 ``cw.read_stage_log``, ``cw.read_pose_log``, ``cw.read_force_log`` and
-``cw.read_contacts`` (tables as pandas DataFrames), ``cw.calibrate``, ``cw.contacts``, ``cw.perceive``, and the sensor file
-(``cw.Sensor``, ``cw.load_sensor``) and calibration (``cw.Calibration``,
-``cw.read_calibration``, ``cw.write_calibration``).
+``cw.read_contacts`` (tables as pandas DataFrames), ``cw.calibrate``, ``cw.contacts``,
+``cw.perceive``, and the sensor file (``cw.Sensor``, ``cw.load_sensor``) and calibration
+(``cw.Calibration``, ``cw.read_calibration``, ``cw.write_calibration``).
 
 The packages, in the order the data flows: :mod:`~camwhisker.files`,
 :mod:`~camwhisker.sensor`, :mod:`~camwhisker.vision`, :mod:`~camwhisker.io`,

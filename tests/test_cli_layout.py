@@ -11,7 +11,8 @@ from camwhisker.cli.dev import BENCH_SCRIPTS
 USER_ORDER = ["batch", "overlay", "live", "replay", "list-cameras", "calibrate-sensor",
               "calibrate", "calibrate-springs", "validate", "contact", "belief", "experiment",
               "percept", "map", "texture", "learn", "predict", "dev"]  # fmt: skip
-DEV = ["render", "bound", "make-samples", "describe", "make-experiment", "simulate-stage",
+DEV = ["render", "bound", "make-samples", "describe", "make-experiment",
+       "make-space-experiment", "simulate-stage",
        "simulate-space", "simulate-texture", "chain", "bench", "contact-bench",
        "percept-bench"]  # fmt: skip
 

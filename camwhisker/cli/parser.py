@@ -56,6 +56,7 @@ _DEV_COMMANDS = [
     synth.add_samples,
     synth.add_describe,
     synth.add_experiment,
+    synth.add_space_experiment,
     contact.add_simulate_stage,
     contact.add_simulate_space,
     texture.add_simulate_texture,

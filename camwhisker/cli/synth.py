@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from camwhisker.cli.common import sensor_arg
+from camwhisker.cli.common import command_line, sensor_arg
 from camwhisker.sensor.file import load_sensor
 from camwhisker.sim.render.scenarios import SCENARIOS
 
@@ -145,6 +145,28 @@ def add_experiment(sub) -> None:
     p.add_argument("--seed", type=int, default=8, help="seed of the simulation and the renders")
     p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
     p.set_defaults(func=_run_experiment)
+
+
+def add_space_experiment(sub) -> None:
+    p = sub.add_parser(
+        "make-space-experiment",
+        help="a wall or cylinder swept in space and its calibration, filmed: a folder for "
+             "camwhisker experiment (videos, stage and pose logs, sensor.toml, truth)",
+    )
+    p.add_argument("--kind", required=True, choices=("wall", "cylinder"),
+                   help="the object swept at three heights")
+    p.add_argument("--dest", required=True, metavar="DIR", help="folder to write into")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulation and the renders")
+    p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
+    p.set_defaults(func=_run_space_experiment)
+
+
+def _run_space_experiment(args) -> int:
+    from camwhisker.sim.render.space import render_space_experiment
+
+    print(render_space_experiment(args.dest, args.kind, args.seed, jobs=args.jobs,
+                                  command=command_line(args)))  # fmt: skip
+    return 0
 
 
 def _run_experiment(args) -> int:

@@ -34,7 +34,7 @@ from camwhisker.sim.mechanics.experiment import (
 from camwhisker.sim.mechanics.objects import draw_sweep, turned_wall_run
 
 __all__ = ["HEIGHTS_MM", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "LiftedRun", "lifted_poses",
-           "simulate_space_sweep", "turned_wall_runs", "truth_in_world",
+           "simulate_space_sweep", "turned_wall_runs", "truth_in_world", "contact_in_world",
            "write_space_sweep"]  # fmt: skip
 
 #: Sweeps at these heights along the extrusion (mm): the axis is told by their spread.
@@ -73,18 +73,20 @@ def lifted_poses(stage: dict, pose: tuple, height_mm: float):
 
 
 class LiftedRun:
-    """One simulated run at one height: the run (signals, stage log, truth) and its poses."""
+    """One simulated run at one height: the run (signals, stage log, truth), its poses and
+    its stage frame's pose in the simulator's plane (x0_mm, y0_mm, angle_deg)."""
 
-    def __init__(self, run, height_mm: float, poses: tuple):
-        self.run, self.height_mm, self.poses = run, height_mm, poses
+    def __init__(self, run, height_mm: float, poses: tuple, pose: tuple):
+        self.run, self.height_mm, self.poses, self.pose = run, height_mm, poses, pose
 
     @property
     def name(self) -> str:
         return self.run.name
 
 
-def _at_heights(specs, rng, noise: NoiseModel, first: int = 0, quiet=None) -> list[LiftedRun]:
-    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM)
+def _at_heights(specs, rng, noise: NoiseModel, first: int = 0, quiet=None,
+                fps: float = StageProtocol.fps) -> list[LiftedRun]:  # fmt: skip
+    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM, fps=fps)
     runs = []
     for h in HEIGHTS_MM:
         for i, spec in enumerate(specs, start=first):
@@ -92,7 +94,7 @@ def _at_heights(specs, rng, noise: NoiseModel, first: int = 0, quiet=None) -> li
                                protocol=protocol, noise=noise, travel_sign=spec.travel_sign)
             if quiet is not None:
                 run.signals = quiet(run.signals, rng, noise)
-            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h)))
+            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h), spec.pose))
     return runs
 
 
@@ -105,14 +107,26 @@ def turned_wall_runs(sweep, turn_deg: float, rng, noise: NoiseModel = FRONT_END_
                        first=len(sweep.runs))  # fmt: skip
 
 
-def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, quiet=None):
+def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, quiet=None,
+                         fps: float = StageProtocol.fps):  # fmt: skip
     """An object of ``kind`` ("wall", "cylinder" or "none") and its runs at every height.
 
     ``quiet(signals, rng, noise)``, where given for "none", replaces the signals by the
     front end's noise alone (nothing touched).
     """
     sweep = draw_sweep(kind, rng)
-    return sweep, _at_heights(sweep.runs, rng, noise, quiet=quiet if kind == "none" else None)
+    return sweep, _at_heights(sweep.runs, rng, noise, quiet=quiet if kind == "none" else None,
+                              fps=fps)  # fmt: skip
+
+
+def contact_in_world(lr: LiftedRun) -> np.ndarray:
+    """The run's true contact points (camera frames, shape (N, 3)) in the world frame."""
+    x0, y0, angle = lr.pose
+    frame = _sim_frame(angle)
+    cx = np.asarray(lr.run.truth["contact_x_mm"], float)
+    cy = np.asarray(lr.run.truth["contact_y_mm"], float)
+    base = np.array([x0, lr.height_mm, y0])
+    return _to_world(base + np.outer(cx, frame[:, 0]) + np.outer(cy, frame[:, 2]))
 
 
 def truth_in_world(sweep) -> dict:
