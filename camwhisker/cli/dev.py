@@ -21,6 +21,7 @@ BENCH_SCRIPTS = {
     "texture-bench": ("texture", "smallest gap and amplitude resolved, per frame rate"),
     "learn-bench": ("learn", "the learned estimator: architecture, training, inference"),
     "solids-bench": ("solids", "objects in 3-D from sweeps lifted into space"),
+    "space-filmed-bench": ("space_filmed", "a sweep in space filmed: contact points, object"),
 }
 
 
