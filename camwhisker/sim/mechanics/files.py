@@ -8,6 +8,7 @@ from pathlib import Path
 from camwhisker import __version__
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.tables import write_csv
+from camwhisker.files.tomlfile import toml_string
 from camwhisker.io.forcelog import ForceLog, write_force_log
 from camwhisker.sim.mechanics.experiment import StageRun
 
@@ -15,10 +16,6 @@ __all__ = ["write_runs", "write_texture_run"]
 
 TRUTH_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_mm", "contact_x_mm",
                  "contact_y_mm", "in_contact", "slipping")
-
-
-def _toml_str(s: str) -> str:
-    return '"' + str(s).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: str = "",
@@ -37,12 +34,12 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
     lines = [
         "# Simulated stage experiment (camwhisker.sim.mechanics); the truth is in *_truth.csv.",
         "[provenance]",
-        f"package = {_toml_str('camwhisker')}",
-        f"version = {_toml_str(__version__)}",
-        f"created_utc = {_toml_str(now)}",
-        f"command = {_toml_str(command)}",
+        f"package = {toml_string('camwhisker')}",
+        f"version = {toml_string(__version__)}",
+        f"created_utc = {toml_string(now)}",
+        f"command = {toml_string(command)}",
         f"seed = {int(seed)}",
-        f"kind = {_toml_str(runs[0].kind if runs else '')}",
+        f"kind = {toml_string(runs[0].kind if runs else '')}",
         "",
     ]
     for i, run in enumerate(runs):
@@ -57,19 +54,19 @@ def write_runs(runs: list[StageRun], out_dir: str | Path, seed: int, command: st
                   digits=8)
         lines += [
             "[[runs]]",
-            f"name = {_toml_str(run.name)}",
-            f"stage = {_toml_str(run.name + '_stage.csv')}",
-            f"signals = {_toml_str(run.name + '_signals.csv')}",
-            f"truth = {_toml_str(run.name + '_truth.csv')}",
+            f"name = {toml_string(run.name)}",
+            f"stage = {toml_string(run.name + '_stage.csv')}",
+            f"signals = {toml_string(run.name + '_signals.csv')}",
+            f"truth = {toml_string(run.name + '_truth.csv')}",
             f"offset_s = {run.offset_s!r}",
-            f"scene = {_toml_str(repr(run.scene))}",
+            f"scene = {toml_string(repr(run.scene))}",
             f"steps = {int(run.info['n_steps'])}",
             f"x_first_contact_mm = {float(run.info['x_first_contact_mm'])!r}",
         ]
         if force_logs is not None:
             log, force_offset = force_logs[i]
             write_force_log(out / f"{run.name}_forces.csv", log)
-            lines += [f"forces = {_toml_str(run.name + '_forces.csv')}",
+            lines += [f"forces = {toml_string(run.name + '_forces.csv')}",
                       f"force_offset_s = {force_offset!r}"]
         lines.append("")
     manifest = out / "experiment.toml"

@@ -46,6 +46,7 @@ __all__ = [
     "EXPERIMENT_CRF",
     "ExperimentRun",
     "pose_track",
+    "render_run",
     "render_experiment",
     "read_experiment",
 ]
@@ -86,7 +87,9 @@ def pose_track(run) -> PoseTrack:
     return PoseTrack(t, dz, phi, theta, zeros, zeros.copy())
 
 
-def _render_one(args) -> dict:
+def render_run(args) -> dict:
+    """Film one stage run: ``args`` (role, run, dest, fps, artefacts, seed), a tuple for a
+    process pool; its manifest entry."""
     role, run, dest, fps, artefacts, seed = args
     stem = f"{role}_{run.name}"
     scenario = Scenario(
@@ -140,9 +143,9 @@ def render_experiment(
             work.append((role, run, dest, fps, artefacts, seed + 1000 * i + j))
     if jobs > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            entries = list(pool.map(_render_one, work))
+            entries = list(pool.map(render_run, work))
     else:
-        entries = [_render_one(w) for w in work]
+        entries = [render_run(w) for w in work]
     lines = [
         "# A simulated stage experiment, filmed (camwhisker.sim.render.experiment).",
         "# offset_s is the true clock offset (t_camera = t_stage + offset_s), for checking only.",

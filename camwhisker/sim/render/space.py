@@ -26,7 +26,7 @@ from camwhisker.files.tables import write_csv
 from camwhisker.sensor.file import Sensor, dump_sensor
 from camwhisker.sim.mechanics import StageProtocol, simulate_runs
 from camwhisker.sim.mechanics.space import contact_in_world, simulate_space_sweep, truth_in_world
-from camwhisker.sim.render.experiment import EXPERIMENT_CRF, EXPERIMENT_FPS, _render_one, pose_track
+from camwhisker.sim.render.experiment import EXPERIMENT_CRF, EXPERIMENT_FPS, pose_track, render_run
 from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, Scenario
 from camwhisker.sim.render.video import render_scenario
 
@@ -71,10 +71,10 @@ def render_space_experiment(dest: str | Path, kind: str, seed: int, fps: float =
     work = [(lr, dest, fps, artefacts, seed + 100 + k) for k, lr in enumerate(runs)]
     if jobs > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            list(pool.map(_render_one, cal))
+            list(pool.map(render_run, cal))
             entries = list(pool.map(_render_space_run, work))
     else:
-        [_render_one(c) for c in cal]
+        [render_run(c) for c in cal]
         entries = [_render_space_run(w) for w in work]
     atomic_write_text(dest / "sensor.toml", dump_sensor(Sensor()))
     record = {"camwhisker": __version__, "command": command, "kind": kind, "seed": seed,
