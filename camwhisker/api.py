@@ -204,34 +204,76 @@ def calibrate(runs: Sequence[tuple], *, sensor: str | Path | Sensor | None = Non
     return _calibrate(cal_runs, sensor.whisker.length_mm, sensor.source, "camwhisker.calibrate")[0]
 
 
-def contacts(signals, stage, calib: str | Path | Calibration, *, offset_s: float | None = None,
-            per: str = "frame") -> pd.DataFrame:  # fmt: skip
+def _pose_log(table, what: str, mount):
+    """A pose log from a path or DataFrame with the pose columns; None for a stage log."""
+    from camwhisker.io.poses import POSE_COLUMNS, PoseLog, pose_log_from_arrays, read_pose_log
+    from camwhisker.io.poses import Mount as _Mount
+
+    mount = _Mount.parse(mount) if isinstance(mount, str) else mount
+    if isinstance(table, PoseLog):
+        return table.mounted(mount)
+    if isinstance(table, (str, Path)):
+        from camwhisker.files.tables import read_header
+
+        return read_pose_log(table, mount) if "qw" in read_header(table) else None
+    if isinstance(table, StageLog) or "qw" not in table:
+        return None
+    missing = [c for c in POSE_COLUMNS if c not in table]
+    if missing:
+        raise ValueError(f"{what}: no column {missing[0]}")
+    p = np.column_stack([np.asarray(table[c], float) for c in POSE_COLUMNS[1:4]])
+    q = np.column_stack([np.asarray(table[c], float) for c in POSE_COLUMNS[4:]])
+    return pose_log_from_arrays(np.asarray(table["t_s"], float), p, q, what).mounted(mount)
+
+
+def contacts(signals, base, calib: str | Path | Calibration, *, offset_s: float | None = None,
+             per: str = "frame", mount=None) -> pd.DataFrame:  # fmt: skip
     """Contact distance and shape per signal row (eqs. 8-12), as ``camwhisker contact``.
 
     Parameters
     ----------
-    signals, stage : path or DataFrame
-        The run's signal table and stage log.
+    signals : path or DataFrame
+        The run's signal table.
+    base : path or DataFrame
+        Its stage log, or its pose log (docs/sensor.md section 9: the columns qw ...): then
+        the contact point and normal in the world frame are added (``px_mm`` ... ``nz``).
     calib : path or Calibration
     offset_s : float, optional
         Known clock offset; default: estimated.
     per : {"frame", "pause"}
         Estimates from each frame or from the medians of the frame's stage pause.
+    mount : str or camwhisker.io.poses.Mount, optional
+        ``X,Y,Z,QW,QX,QY,QZ``: where the pose log gives a carrier's pose.
 
     Returns
     -------
-    DataFrame, shape (rows, columns of docs/sensor.md section 7)
+    DataFrame, shape (rows, columns of docs/sensor.md sections 7 and 9)
     """
     from camwhisker.contact.pipeline import contact_rows
+    from camwhisker.contact.space import contact_rows_in_space
 
     calib = calib if isinstance(calib, Calibration) else read_calibration(calib)
-    cols, _ = contact_rows(_signals(signals, "<signals>"), _stage(stage, "<stage>"), calib,
-                           offset_s, mode=per)  # fmt: skip
+    rows = _signals(signals, "<signals>")
+    poses = _pose_log(base, "<poses>", mount)
+    if poses is not None:
+        cols, _, _ = contact_rows_in_space(rows, poses, calib, offset_s, mode=per)
+    else:
+        if mount is not None:
+            raise ValueError("mount goes with a pose log")
+        cols, _ = contact_rows(rows, _stage(base, "<stage>"), calib, offset_s, mode=per)
     return _pandas().DataFrame(cols)
 
 
+def _in_space(table) -> bool:
+    """Whether a contact table holds points in space (a path's header, a frame's columns)."""
+    from camwhisker.files.tables import read_header
+
+    return "px_mm" in (read_header(table) if isinstance(table, (str, Path)) else table)
+
+
 def perceive(contacts: Sequence, *, poses: Sequence | None = None) -> Percept:
-    """The object behind contact tables: wall, cylinder, box corner or nothing.
+    """The object behind contact tables: wall, cylinder, box corner or nothing; for tables
+    from a pose log (points in space), a plane, sphere, cylinder or nothing in their frame.
 
     Parameters
     ----------
@@ -245,6 +287,7 @@ def perceive(contacts: Sequence, *, poses: Sequence | None = None) -> Percept:
     Percept
         ``best`` with ``params`` and ``intervals`` (95 %), ``runner_up``, ``evidence_ratio``.
     """
+    from camwhisker.percept import solids
     from camwhisker.percept.percepts import perceive as _perceive
     from camwhisker.percept.surfels import (
         OPTIONAL_COLUMNS,
@@ -256,6 +299,15 @@ def perceive(contacts: Sequence, *, poses: Sequence | None = None) -> Percept:
         REQUIRED_COLUMNS as SURFEL_COLUMNS,
     )
 
+    if contacts and all(_in_space(c) for c in contacts):  # points in space: section 9's
+        if poses is not None:
+            raise ValueError("poses are for stage tables; tables in space carry their frame")
+        names = (*solids.REQUIRED_COLUMNS, *solids.OPTIONAL_COLUMNS)
+        tables = [read_columns(c, solids.REQUIRED_COLUMNS, solids.OPTIONAL_COLUMNS)
+                  if isinstance(c, (str, Path))
+                  else {k: np.asarray(c[k], float) for k in names if k in c}
+                  for c in contacts]  # fmt: skip
+        return solids.perceive_solid(solids.surfels_from_tables(tables))
     poses = list(poses) if poses is not None else [Pose()] * len(contacts)
     if len(poses) != len(contacts):
         raise ValueError(f"give one pose per contact table ({len(contacts)} tables, "

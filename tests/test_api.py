@@ -114,3 +114,22 @@ def test_a_pose_log_reads_as_a_dataframe_or_a_named_error(tmp_path):
     bad.write_text("t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0,0,0,2,0,0,0\n")
     with pytest.raises(PoseLogError, match="b.pose.csv: row 3, columns qw-qz"):
         cw.read_pose_log(bad)
+
+
+def test_contacts_and_perceive_in_space_from_dataframes():
+    # The bundled sweep in space: a pose log as the base gives the points in W, and the
+    # tables as DataFrames give the same cylinder as the percept command (README: 48.33 mm).
+    space = ROOT / "sample_frames" / "space"
+    tables = [cw.contacts(cw.read_signals(space / f"{n}.signals.csv"),
+                          cw.read_pose_log(space / f"{n}.pose.csv"), space / "calib.toml",
+                          per="pause")
+              for n in ("h-30run0", "h-30run1", "h+0run0", "h+0run1", "h+30run0", "h+30run1")]
+    assert all({"px_mm", "py_mm", "pz_mm", "nx", "ny", "nz"} <= set(t.columns) for t in tables)
+    p = cw.perceive(tables)
+    assert p.best.model == "cylinder"
+    # The command reads the tables as printed (6 digits); in memory they are exact.
+    assert abs(p.best.params["radius_mm"] - 48.33) < 0.05
+    with pytest.raises(ValueError, match="mount goes with a pose log"):
+        cw.contacts(cw.read_signals(space / "h+0run0.signals.csv"),
+                    ROOT / "sample_frames" / "experiment" / "bottle_left.stage.csv",
+                    space / "calib.toml", mount="0,0,0,1,0,0,0")

@@ -58,7 +58,7 @@ from camwhisker.percept.percepts import (
 
 __all__ = ["MODELS", "Surfels3", "surfels_from_tables", "read_surfels3",
            "fit_solid", "perceive_solid", "next_plane_run", "solid_record",
-           "MIN_SURFELS"]  # fmt: skip
+           "MIN_SURFELS", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]  # fmt: skip
 
 MODELS = ("plane", "sphere", "cylinder")
 #: Fewer contacts than this cannot tell a shape in 3-D: "none".
@@ -79,6 +79,9 @@ _WORLD = ("px_mm", "py_mm", "pz_mm")
 _NORMAL = ("nx", "ny", "nz")
 _SHAFT = ("ax", "ay", "az")
 _BASE = ("bx_mm", "by_mm", "bz_mm")
+#: What a contact table in space must have (docs/sensor.md section 9), and uses if present.
+REQUIRED_COLUMNS = _WORLD + _NORMAL
+OPTIONAL_COLUMNS = _SHAFT + _BASE
 
 
 @dataclass(frozen=True)
@@ -138,8 +141,7 @@ def _travel(cols: dict) -> np.ndarray:
 
 def read_surfels3(paths: list[str | Path]) -> Surfels3:
     """Surfels of contact table files (docs/sensor.md sections 7 and 9)."""
-    names = _WORLD + _NORMAL
-    tables = [read_columns(p, names, _SHAFT + _BASE) for p in paths]
+    tables = [read_columns(p, REQUIRED_COLUMNS, OPTIONAL_COLUMNS) for p in paths]
     return surfels_from_tables(tables, [str(p) for p in paths])
 
 
