@@ -30,8 +30,8 @@ from camwhisker.sim.mechanics.experiment import FRONT_END_NOISE, NoiseModel
 from camwhisker.sim.mechanics.space import simulate_space_sweep, truth_in_world, turned_wall_runs
 
 __all__ = ["KINDS", "MODEL_OF", "CALIB_SEED", "TUNING_SEEDS", "HELD_OUT_SEEDS",
-           "contact_tables", "run_solid_sweep", "run_campaign", "summarise", "format_summary",
-           "main"]  # fmt: skip
+           "contact_tables", "object_errors", "run_solid_sweep", "run_campaign", "summarise",
+           "format_summary", "main"]  # fmt: skip
 
 KINDS = ("wall", "cylinder", "none")
 MODEL_OF = {"wall": "plane", "cylinder": "cylinder", "none": "none"}
@@ -82,7 +82,9 @@ _AXIS = ("axis_x", "axis_y", "axis_z")
 _NORMAL = ("normal_x", "normal_y", "normal_z")
 
 
-def _errors(kind: str, truth: dict, params: dict) -> dict:
+def object_errors(kind: str, truth: dict, params: dict) -> dict:
+    """The fit's errors against the true object (section 9's names): axis, radius and centre
+    of a cylinder; normal and distance of a plane."""
     if kind == "cylinder":
         u, true_u = _vec(params, _AXIS), _vec(truth, _AXIS)
         off = _vec(params, _CENTER) - _vec(truth, _CENTER)
@@ -124,7 +126,7 @@ def run_solid_sweep(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> di
     right = p.fits.get(MODEL_OF[kind])
     if right is not None and kind != "none":
         truth = truth_in_world(sweep)
-        out.update(_errors(kind, truth, right.params))
+        out.update(object_errors(kind, truth, right.params))
         true = _true_params(kind, truth, right.params)
         cover = [lo <= true[k] <= hi for k, (lo, hi) in right.intervals.items()]
         out["covered"], out["checked"] = int(sum(cover)), len(cover)

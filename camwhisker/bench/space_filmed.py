@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.bench.solids import _errors
+from camwhisker.bench.solids import object_errors
 from camwhisker.files.tables import read_columns
 from camwhisker.run.experiment import run_experiment
 from camwhisker.sim.render.space import render_space_experiment
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.kind} seed {args.seed}: percept {space['model']} (truth {truth['model']}), "
           f"{space['contacts']} contacts")
     if space["model"] == truth["model"]:
-        errs = _errors(_KIND_OF[truth["model"]], truth, space["params"])
+        errs = object_errors(_KIND_OF[truth["model"]], truth, space["params"])
         print("  " + ", ".join(f"{k} {v:.3g}" for k, v in errs.items()))
     for part, v in points.items():
         print(f"  contact points, phi >= {MIN_PHI_DEG:g} deg, {part}: {v['n']} frames, median "

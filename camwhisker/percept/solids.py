@@ -51,6 +51,7 @@ from camwhisker.percept.percepts import (
     NONE_RESIDUAL,
     POINT_SIGMA_MM,
     RISE_DEG,
+    Z95,
     Fit,
     Percept,
     ar1_inflation,
@@ -70,8 +71,6 @@ _ACROSS_MIN = 0.1
 _GAUGE_MM = 1.0
 # Starting radii (mm) for spheres and cylinders, from a fingertip to a bin.
 _START_RADII_MM = (10.0, 30.0, 100.0, 300.0)
-# Two-sided 95 % normal quantile.
-Z95 = 1.959963984540054
 # Step of the reported parameters' numeric Jacobian.
 _STEP = 1e-6
 
