@@ -175,3 +175,34 @@ def test_next_plane_run_turns_the_sweep_until_the_plane_rises_steeply():
     assert [turn["about_x"], turn["about_y"], turn["about_z"]] == pytest.approx([0, -1, 0])
     # A sphere asks nothing; nor does a table without its base's travel.
     assert next_plane_run(perceive_solid(_sphere(np.random.default_rng(7))).best, s) is None
+
+
+def test_next_touch_goes_where_the_fit_learns_most():
+    from camwhisker.percept.solids import next_touch
+
+    rng = np.random.default_rng(7)
+    s = _sphere(rng)
+    p = perceive_solid(s)
+    touch = next_touch(p.best, s)
+    n = np.array([touch[f"normal_{k}"] for k in "xyz"])
+    cap = s.normal.mean(axis=0) / np.linalg.norm(s.normal.mean(axis=0))
+    # Contacts on one cap confound the radius with the centre along the cap's axis: the
+    # far side separates them (at least 90 deg from the cap's mean normal).
+    assert n @ cap < 0.0
+    centre = np.array([10.0, -20.0, 150.0])
+
+    def radius_width(normal):
+        """The radius interval's width after 8 more contacts near the point with ``normal``."""
+        d = normal + rng.normal(scale=0.05, size=(8, 3))
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        more = _whisker_surfels(rng, centre + 40.0 * d, d, 8)
+        both = Surfels3(*(np.concatenate([a, b]) for a, b in zip(
+            (s.p_mm, s.normal, s.shaft, s.table), (more.p_mm, more.normal, more.shaft,
+                                                   more.table), strict=True)))  # fmt: skip
+        lo, hi = perceive_solid(both).best.intervals["radius_mm"]
+        return hi - lo
+
+    # The suggested touch must beat more of the same (the cap's centre) by a clear margin.
+    assert radius_width(n) < 0.7 * radius_width(cap)
+    assert 0.0 < touch["shrink"] < 1.0
+    assert next_touch(perceive_solid(_plane(rng)[0]).best, s) is None

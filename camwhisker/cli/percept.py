@@ -85,6 +85,13 @@ def _run_percept_in_space(args) -> int:
         print(f"for a run over which the plane rises at {RISE_DEG:g} deg: turn the first run's "
               f"travel and shaft by {r['turn_deg']:.1f} deg about ({r['about_x']:.3f}, "
               f"{r['about_y']:.3f}, {r['about_z']:.3f})")
+    if record["next_touch"] is not None:
+        t = record["next_touch"]
+        point = ", ".join(f"{t[f'point_{k}_mm']:.1f}" for k in "xyz")
+        normal = ", ".join(f"{t[f'normal_{k}']:.3f}" for k in "xyz")
+        print(f"next touch, to shrink the {p.best.model}'s confidence region to "
+              f"{t['shrink']:.2f} of its volume: the point ({point}) mm, moving along "
+              f"-({normal})")
     print(f"wrote {args.out}")
     return 0
 

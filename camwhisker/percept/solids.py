@@ -58,7 +58,7 @@ from camwhisker.percept.percepts import (
 )
 
 __all__ = ["MODELS", "Surfels3", "surfels_from_tables", "read_surfels3",
-           "fit_solid", "perceive_solid", "next_plane_run", "solid_record",
+           "fit_solid", "perceive_solid", "next_plane_run", "next_touch", "solid_record",
            "MIN_SURFELS", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]  # fmt: skip
 
 MODELS = ("plane", "sphere", "cylinder")
@@ -73,6 +73,13 @@ _GAUGE_MM = 1.0
 _START_RADII_MM = (10.0, 30.0, 100.0, 300.0)
 # Step of the reported parameters' numeric Jacobian.
 _STEP = 1e-6
+# Candidate touches on a sphere (a Fibonacci lattice) and, on a cylinder, around its axis by
+# along it: a touch every 3-4 deg of a sphere, every 15 deg of a cylinder's round.
+_SPHERE_CANDIDATES = 2000
+_ROUND_CANDIDATES, _AXIAL_CANDIDATES = 24, 21
+# A next touch along a cylinder's axis stays within the contacts' span plus this many radii:
+# further out the axis's extent is unknown.
+_AXIAL_REACH_RADII = 0.5
 
 _WORLD = ("px_mm", "py_mm", "pz_mm")
 _NORMAL = ("nx", "ny", "nz")
@@ -365,13 +372,74 @@ def next_plane_run(fit: Fit, s: Surfels3, rise_deg: float = RISE_DEG) -> dict | 
     return {"turn_deg": turn, "about_x": about[0], "about_y": about[1], "about_z": about[2]}
 
 
+def _touch_candidates(fit: Fit, s: Surfels3) -> tuple[np.ndarray, np.ndarray]:
+    """Points of a fitted sphere's or cylinder's surface (M, 3) and their outward normals."""
+    r = fit.params["radius_mm"]
+    c = np.array([fit.params[f"center_{k}_mm"] for k in "xyz"])
+    if fit.model == "sphere":
+        i = np.arange(_SPHERE_CANDIDATES) + 0.5
+        polar = np.arccos(1.0 - 2.0 * i / _SPHERE_CANDIDATES)
+        azimuth = math.pi * (1.0 + math.sqrt(5.0)) * i
+        n = np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth),
+                             np.cos(polar)])  # fmt: skip
+        return c + r * n, n
+    u = np.array([fit.params[f"axis_{k}"] for k in "xyz"])
+    e1 = np.linalg.svd(u[None, :])[2][1]
+    e2 = np.cross(u, e1)
+    along = (s.p_mm - c) @ u
+    reach = _AXIAL_REACH_RADII * r
+    t = np.linspace(along.min() - reach, along.max() + reach, _AXIAL_CANDIDATES)
+    a = np.linspace(0.0, 2.0 * math.pi, _ROUND_CANDIDATES, endpoint=False)
+    n = np.repeat(np.cos(a)[:, None] * e1 + np.sin(a)[:, None] * e2, t.size, axis=0)
+    return c + np.tile(t, a.size)[:, None] * u + r * n, n
+
+
+def next_touch(fit: Fit, s: Surfels3) -> dict | None:
+    """Active sensing for a sphere or cylinder: the point of the fitted surface where one
+    more contact shrinks the parameters' confidence region most, and the outward normal
+    there (touch it moving along -normal).
+
+    D-optimal design: with J the fit's residual Jacobian and j the gradient of a contact's
+    distance residual at a candidate point, a contact there shrinks the region's volume by
+    1 / sqrt(1 + j^T (J^T J)^-1 j) (``shrink``); the candidate with the largest such term wins.
+    The fit's Gauss-Newton information, without the Cauchy loss's weights. None for other
+    models or a singular fit.
+    """
+    if fit.model not in ("sphere", "cylinder") or fit.x is None or not s.n:
+        return None
+    centroid = s.p_mm.mean(axis=0)
+    q, n = _touch_candidates(fit, s)
+    jac = np.empty((_residuals(fit.x, fit.model, s, centroid).size, fit.x.size))
+    grad = np.empty((q.shape[0], fit.x.size))
+    for i in range(fit.x.size):
+        h = np.zeros(fit.x.size)
+        h[i] = _STEP * max(1.0, abs(fit.x[i]))
+        jac[:, i] = (_residuals(fit.x + h, fit.model, s, centroid)
+                     - _residuals(fit.x - h, fit.model, s, centroid)) / (2 * h[i])  # fmt: skip
+        grad[:, i] = (_geometry(fit.model, fit.x + h, q)[0]
+                      - _geometry(fit.model, fit.x - h, q)[0]) / (2 * h[i] * POINT_SIGMA_MM)
+    try:
+        cov = np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        return None
+    gain = np.einsum("ij,jk,ik->i", grad, cov, grad)
+    if not np.isfinite(gain).any():
+        return None
+    best = int(np.nanargmax(gain))
+    names = ("point_x_mm", "point_y_mm", "point_z_mm", "normal_x", "normal_y", "normal_z")
+    return {**dict(zip(names, map(float, [*q[best], *n[best]]), strict=True)),
+            "shrink": 1.0 / math.sqrt(1.0 + float(gain[best]))}
+
+
 def solid_record(p: Percept, s: Surfels3 | None = None) -> dict:
     """The percept as plain data (docs/sensor.md section 9): model, params, intervals_95,
     runner-up, evidence ratio, for a plane the turn of a steeper next run
-    (:func:`next_plane_run`, from the surfels ``s``), and every candidate's BIC."""
+    (:func:`next_plane_run`, from the surfels ``s``), for a sphere or cylinder the next
+    touch (:func:`next_touch`), and every candidate's BIC."""
     return {"model": p.best.model, "params": p.best.params, "intervals_95": p.best.intervals,
             "runner_up": p.runner_up, "evidence_ratio": p.evidence_ratio,
             "n_surfels": p.n_surfels,
             "next_run": next_plane_run(p.best, s) if s is not None else None,
+            "next_touch": next_touch(p.best, s) if s is not None else None,
             "candidates": {m: {"bic": f.bic, "cost": f.cost, "params": f.params}
                            for m, f in p.fits.items()}}  # fmt: skip
