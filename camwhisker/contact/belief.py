@@ -19,7 +19,9 @@ paper does not give.
 eta comes from the recording's own rest frames (the rest segment the stream
 averaged for its reference, recorded in the sidecar): ``ETA_FACTOR`` times the
 ``ETA_QUANTILE`` quantile of |d| over them, the paper's "peak plus 50 %" made
-robust to one bad frame.
+robust to one bad frame, and never under ``ETA_FLOOR_DEG``: a whisker back from a
+contact settles a little off its rest (the springs' hysteresis), and a short or very
+quiet rest would otherwise put eta under that level, so the contact would never end.
 
 Contact (per frame, causal, so live can use it): entered where b reaches 1 and
 left where b falls back to 0, a hysteresis over eq. 1's whole band, so noise
@@ -47,8 +49,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "ETA_QUANTILE", "ETA_FACTOR", "MIN_REST_FRAMES", "Onset", "contact_belief", "eta_from_rest",
-    "next_contact", "contact_flag", "find_onsets",
+    "ETA_QUANTILE", "ETA_FACTOR", "ETA_FLOOR_DEG", "MIN_REST_FRAMES", "Onset", "contact_belief",
+    "eta_from_rest", "eta_source", "next_contact", "contact_flag", "find_onsets",
 ]  # fmt: skip
 
 #: Quantile of the rest frames' |d| taken as their "peak": over a 1 s rest (30 frames)
@@ -56,8 +58,12 @@ __all__ = [
 ETA_QUANTILE = 0.95
 #: The paper's "plus about 50 %" over the no-contact peak.
 ETA_FACTOR = 1.5
-#: Fewest trusted rest frames whose quantile means anything (a 1 s rest gives 30).
+#: Fewest trusted rest frames whose quantile stands alone (a 1 s rest gives 30); with
+#: fewer, eta is their quantile all the same, and the floor below carries it.
 MIN_REST_FRAMES = 5
+#: Least eta (deg): twice the 0.01 deg off rest at which a hand-made build's whisker
+#: settled after a contact, so that it reads as rest, not contact.
+ETA_FLOOR_DEG = 0.02
 
 
 @dataclass(frozen=True)
@@ -96,22 +102,30 @@ def contact_belief(d: np.ndarray, eta: float) -> np.ndarray:
 
 
 def eta_from_rest(d_rest: np.ndarray) -> float:
-    """eta from the rest frames' deflection: ETA_FACTOR times its ETA_QUANTILE quantile.
+    """eta from the rest frames' deflection (deg): ETA_FACTOR times its ETA_QUANTILE
+    quantile, at least :data:`ETA_FLOOR_DEG`.
 
     Raises
     ------
     ValueError
-        Fewer than MIN_REST_FRAMES trusted (finite) frames, or no noise at all.
+        No trusted (finite) rest frame.
     """
     d = np.abs(np.asarray(d_rest, float))
     d = d[np.isfinite(d)]
-    if d.size < MIN_REST_FRAMES:
-        raise ValueError(f"{d.size} trusted rest frame(s), need >= {MIN_REST_FRAMES} "
-                         f"to measure the no-contact noise")  # fmt: skip
-    eta = ETA_FACTOR * float(np.quantile(d, ETA_QUANTILE))
-    if not eta > 0:
-        raise ValueError("the rest frames show no noise at all (|d| = 0): no scale for eta")
-    return eta
+    if not d.size:
+        raise ValueError("no trusted rest frame to measure the no-contact noise")
+    return max(ETA_FACTOR * float(np.quantile(d, ETA_QUANTILE)), ETA_FLOOR_DEG)
+
+
+def eta_source(d_rest: np.ndarray, eta: float) -> str:
+    """How :func:`eta_from_rest` got ``eta`` from these rest frames, in words."""
+    n = int(np.isfinite(np.asarray(d_rest, float)).sum())
+    how = f"{ETA_FACTOR:g} x the {ETA_QUANTILE:g} quantile of phi_deg over {n} rest frame(s)"
+    if eta == ETA_FLOOR_DEG:
+        how = f"the floor {ETA_FLOOR_DEG:g} deg, above {how}"
+    if n < MIN_REST_FRAMES:
+        how += f"; fewer than {MIN_REST_FRAMES}: give --rest-frames N or --eta-deg X"
+    return how
 
 
 def next_contact(state: bool, b: float) -> bool:

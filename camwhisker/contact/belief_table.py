@@ -22,9 +22,11 @@ import numpy as np
 from camwhisker import __version__
 from camwhisker.contact.belief import (
     ETA_FACTOR,
+    ETA_FLOOR_DEG,
     ETA_QUANTILE,
     Onset,
     eta_from_rest,
+    eta_source,
     find_onsets,
 )
 from camwhisker.files import jsonfile
@@ -115,8 +117,7 @@ def table_belief(
         except ValueError as exc:
             raise SignalTableError(f"{path}: rest rows {rows[0] + 2}-{rows[-1] + 2}, "
                                    f"column phi_deg: {exc}") from None  # fmt: skip
-        eta_from = (f"{ETA_FACTOR:g} x the {ETA_QUANTILE:g} quantile of phi_deg over "
-                    f"{rows.size} rest frames")  # fmt: skip
+        eta_from = eta_source(d[rows], eta)
     b, flag, onsets = find_onsets(d, eta)
     return TableBelief(str(path), eta, eta_from, rows, table["t_s"], b, flag, onsets)
 
@@ -148,7 +149,8 @@ def write_belief_table(belief: TableBelief, out: str | Path) -> Path:
         "rest_rows": [int(belief.rest_rows[0]), int(belief.rest_rows[-1])]
         if belief.rest_rows.size
         else None,  # 0-based, first and last
-        "constants": {"ETA_QUANTILE": ETA_QUANTILE, "ETA_FACTOR": ETA_FACTOR},
+        "constants": {"ETA_QUANTILE": ETA_QUANTILE, "ETA_FACTOR": ETA_FACTOR,
+                      "ETA_FLOOR_DEG": ETA_FLOOR_DEG},
         "frames": int(belief.b.size),
         "frames_in_contact": int(belief.flag.sum()),
         "onsets": [o.as_dict(belief.t_s) for o in belief.onsets],
