@@ -94,6 +94,30 @@ def test_bottle_swept_from_both_sides(chain):
         assert x_hat.size >= 20 and np.all(side * x_hat > 35.0), name
 
 
+def test_percepts_name_the_box_face_and_the_bottle(chain):
+    """The box: one face touched (rising at 78 deg from its corner at (0, 40)), so a wall,
+    not a corner whose second face runs where the box is not; the bottle: a cylinder of
+    45 mm at (0, 55). Each within its 95 % interval."""
+    from camwhisker.percept.percepts import perceive
+    from camwhisker.percept.surfels import read_surfels
+
+    _, out = chain
+    box = perceive(read_surfels([out / "contact" / "box_box.csv"])).best
+    assert box.model == "line"
+    lo, hi = box.intervals["angle_deg"]
+    assert lo <= 78.0 <= hi and hi - lo < 15.0
+    # The face's line through (0, 40) at 78 deg lies 40 cos(78 deg) = 8.32 mm from the origin.
+    lo, hi = box.intervals["distance_mm"]
+    assert lo <= 40.0 * np.cos(np.radians(78.0)) <= hi
+    sides = [out / "contact" / f"bottle_{s}.csv" for s in ("left", "right")]
+    bottle = perceive(read_surfels(sides)).best
+    assert bottle.model == "circle"
+    # Two sweeps of ~50 contacts: the radius to 0.5 mm, within its interval.
+    assert abs(bottle.params["radius_mm"] - 45.0) < 0.5
+    lo, hi = bottle.intervals["radius_mm"]
+    assert lo <= 45.0 <= hi
+
+
 def test_outputs_say_how_they_were_made_and_summary_matches(chain):
     s, out = chain
     for name in (

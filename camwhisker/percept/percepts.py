@@ -18,7 +18,9 @@ Models (common frame, mm; the solid is on the side away from the free space):
 - ``corner`` (two faces from an apex): apex (ax, ay), face direction a1 and
   the opening, face 2 at a1 - opening; the solid is the wedge between them,
   its opening held within :data:`CORNER_OPENING_DEG` (narrower, the two faces
-  are one wall with a kink in its contact points).
+  are one wall with a kink in its contact points), and a candidate only where the
+  contacts nearest each face span :data:`CORNER_FACE_MIN_MM` of it (a face touched over
+  a few millimetres is a bend in one face's contacts, not a second face).
 
 A wall's contact slides at a phi its face's angle and friction set, as low as 1-3 deg,
 where MF's r scatters by tens of mm; :func:`steep_turn_deg` gives the stage angle of a
@@ -47,7 +49,8 @@ from scipy.optimize import least_squares
 from camwhisker.percept.surfels import Surfels
 
 __all__ = ["MODELS", "OBJECT_OF", "Fit", "Percept", "fit_model", "perceive", "object_of", "outline",
-           "percept_record", "steep_turn_deg", "RISE_DEG", "BLIND_TURN_DEG", "POINT_SIGMA_MM",
+           "percept_record", "steep_turn_deg", "corner_face_spans", "RISE_DEG", "BLIND_TURN_DEG",
+           "POINT_SIGMA_MM",
            "DIR_SIGMA_RAD", "NONE_RESIDUAL", "MIN_SURFELS", "ar1_inflation"]
 
 MODELS = ("line", "circle", "corner")
@@ -69,6 +72,10 @@ MIN_SURFELS = 4
 MAX_AUTOCORR = 0.95
 # A box corner opens this far (deg): from a sharp wedge to a blunt edge.
 CORNER_OPENING_DEG = (30.0, 150.0)
+# A corner is a candidate only where the contacts nearest each face span this much of it
+# (mm): the simulated corners' faces span 23-63 mm (tuning seeds 0-99), the stray second
+# face of a slide past MF's table (the bundled box) 6.9 mm.
+CORNER_FACE_MIN_MM = 15.0
 # A wall's next run is turned so that the face rises this steeply: faces at 82-86 deg
 # slide at phi 12-26 deg (friction 0.4-0.6), not the 2-18 deg of faces at 70-78, and MF's
 # r is sharper there. Steeper, the approach's first base positions lie behind the line's
@@ -355,6 +362,17 @@ def _intervals(model, x, jac, fun, k, n_points, m):
     return {name: [pub[name] - w, pub[name] + w] for name, w in zip(names, widths, strict=True)}
 
 
+def corner_face_spans(x, p) -> tuple[float, float]:
+    """The extent (mm) along each face of a corner ``x`` of the points ``p`` nearest it."""
+    ax, ay, a1, opening = x
+    d1, d2 = _face_distances(x, p)
+    spans = []
+    for near, a in ((d1 <= d2, a1), (d2 < d1, a1 - opening)):
+        t = (p[near] - [ax, ay]) @ [math.cos(a), math.sin(a)]
+        spans.append(float(np.ptp(t)) if t.size else 0.0)
+    return spans[0], spans[1]
+
+
 def fit_model(model: str, s: Surfels) -> Fit | None:
     """Robust least-squares fit of one model to the surfels; None without a starting point."""
     if model not in _SD:
@@ -397,8 +415,11 @@ def perceive(s: Surfels, models=MODELS) -> Percept:
     if s.n >= MIN_SURFELS:
         for model in models:
             f = fit_model(model, s)
-            if f is not None:
-                fits[model] = f
+            # Two faces where only one was touched would invent the other.
+            if f is None or (model == "corner"
+                             and min(corner_face_spans(f.x, s.xy_mm)) < CORNER_FACE_MIN_MM):
+                continue
+            fits[model] = f
     ranked = sorted(fits.values(), key=lambda f: f.bic)
     best = ranked[0]
     runner = ranked[1] if len(ranked) > 1 else None
