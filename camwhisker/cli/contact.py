@@ -228,7 +228,8 @@ def _run_contact(args) -> int:
         how = ("estimated from motion, not pinned: the base changes speed only out of contact; "
                "any offset moves every x alike, and GM's travel not at all")
     print(f"offset {run.offset_s:+.3f} s ({how}), "
-          f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate; wrote {args.out}")
+          f"{onset}; {defined} of {cols['t_s'].size} rows with an estimate (per {args.per}); "
+          f"wrote {args.out}")
     if defined == 0:
         print(f"camwhisker contact: problem: {args.signals}: no row has a contact estimate "
               f"({onset} in {args.stage or args.pose})", file=sys.stderr)
