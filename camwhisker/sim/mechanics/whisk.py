@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from camwhisker.files.tables import write_csv
 from camwhisker.sim.mechanics.experiment import (
     FRONT_END_NOISE,
     THETA_TRUE_DEG,
@@ -46,7 +47,8 @@ from camwhisker.sim.mechanics.scenes import BoxScene, CircleScene, PegScene, _so
 from camwhisker.sim.mechanics.whisker import ElasticaError, WhiskerMechanics
 
 __all__ = ["WHISK_KINDS", "PHI_STOP_DEG", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "WhiskProtocol",
-           "WhiskObject", "WhiskRun", "draw_whisk_object", "simulate_whisk"]  # fmt: skip
+           "WhiskObject", "WhiskRun", "draw_whisk_object", "simulate_whisk",
+           "write_whisk"]  # fmt: skip
 
 WHISK_KINDS = ("wall", "cylinder")
 #: The whisk ends where phi reaches this (deg): inside the calibration's range.
@@ -256,3 +258,25 @@ def simulate_whisk(name: str, obj: WhiskObject, rng, mech: WhiskerMechanics | No
                                    np.nan)}  # fmt: skip
     info = {"whisk_deg": float(grid[-1]), "steps": int(n_whisk), "kind": obj.kind}
     return WhiskRun(name, obj, offset_s, signals, (t_true - offset_s, p, q), truth, info)
+
+
+def write_whisk(dest, kind: str, seed: int, protocol: WhiskProtocol | None = None) -> WhiskRun:
+    """Simulate a whisk of a ``kind`` object drawn from ``seed`` and write NAME.signals.csv,
+    NAME.pose.csv (pose clock) and NAME.truth.csv (the true contact in W, camera clock),
+    NAME = f"{kind}{seed}", into the folder ``dest``; the true offset is in the run."""
+    from pathlib import Path
+
+    out = Path(dest)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    run = simulate_whisk(f"{kind}{seed}", draw_whisk_object(kind, rng), rng, protocol=protocol)
+    t, p, q = run.poses
+    sig = {k: run.signals[k] for k in ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")}
+    write_csv(out / f"{run.name}.signals.csv", sig, digits=8)
+    write_csv(out / f"{run.name}.pose.csv", {"t_s": t, "x_mm": p[:, 0], "y_mm": p[:, 1],
+                                             "z_mm": p[:, 2], "qw": q[:, 0], "qx": q[:, 1],
+                                             "qy": q[:, 2], "qz": q[:, 3]}, digits=9)
+    c = run.truth["contact_w"]
+    write_csv(out / f"{run.name}.truth.csv", {"t_s": run.truth["t_s"], "cx_mm": c[:, 0],
+                                              "cy_mm": c[:, 1], "cz_mm": c[:, 2]}, digits=9)
+    return run
