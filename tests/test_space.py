@@ -22,6 +22,7 @@ from camwhisker.contact.space import (
     SpaceError,
     contact_rows_in_space,
     pressing_theta_deg,
+    travel_log,
 )
 from camwhisker.contact.stage import read_stage_log
 from camwhisker.files.tables import read_columns
@@ -186,15 +187,19 @@ def test_a_base_that_never_crosses_the_shaft_says_so(sim):
         contact_rows_in_space(signals, poses, calib)
 
 
-def test_a_base_that_turns_says_so(sim):
-    calib = read_calibration(sim / "calib.toml")
-    signals = read_signal_table(sim / "run" / "r60_signals.csv")
+def test_a_base_along_theta_alone_keeps_the_one_axis_path(sim):
+    # The stage run's poses move along x_S only: the travel log carries no 3-D motion, so
+    # pauses, clock and estimates are the one-axis stage's digit for digit; a base that
+    # also moves along the shaft carries it (its pauses are found in 3-D).
     log = read_stage_log(sim / "run" / "r60_stage.csv")
-    p, _ = _in_world(log)
-    turn = Rotation.from_euler("y", np.linspace(0.0, 5.0, log.t_s.size)[:, None], degrees=True)
-    q = (R0 * turn).as_quat(scalar_first=True)
-    with pytest.raises(SpaceError, match="turns.csv: the base turns by 5.00 deg"):
-        contact_rows_in_space(signals, pose_log_from_arrays(log.t_s, p, q, "turns.csv"), calib)
+    p, q = _in_world(log)
+    assert travel_log(pose_log_from_arrays(log.t_s, p, q), 0.0).motion_mm is None
+    along = p + R0.apply([0.0, 0.0, 1.0]) * (log.t_s - log.t_s[0])[:, None] * 0.1
+    moved = travel_log(pose_log_from_arrays(log.t_s, along, q), 0.0)
+    assert moved.motion_mm.shape == (log.t_s.size - 1, 6)
+    # Along the shaft is across theta: the travel is the same to the rounding of R0.
+    np.testing.assert_allclose(moved.x_mm, travel_log(pose_log_from_arrays(log.t_s, p, q),
+                                                      0.0).x_mm, atol=1e-12)  # fmt: skip
 
 
 def test_contact_command_with_a_pose_log_and_a_mount(sim, tmp_path, capsys):

@@ -206,6 +206,11 @@ def _run_contact(args) -> int:
         cols, run, theta = contact_rows_in_space(signals, poses, calib, args.offset_s,
                                                  mode=args.per)  # fmt: skip
         print(f"the base pressed toward theta {theta:.1f} deg")
+        from camwhisker.contact.space import STILL_TURN_DEG
+
+        if poses.turn_deg() > STILL_TURN_DEG:
+            print(f"the base turns by {poses.turn_deg():.1f} deg: the travel is the shaft's "
+                  "point's at the contact's r, solved for")
     else:
         cols, run = contact_rows(signals, read_stage_log(args.stage), calib, args.offset_s,
                                  mode=args.per)  # fmt: skip

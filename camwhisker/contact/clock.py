@@ -141,10 +141,23 @@ class _SplineCost:
         return self.rss(offset_s) / self.var
 
 
+def _velocity(log: StageLog) -> np.ndarray:
+    """The base's velocity per interval (mm/s): (N - 1,) along x, or (N - 1, k) in 3-D."""
+    if log.motion_mm is None:
+        return np.diff(log.x_mm) / np.diff(log.t_s)
+    return log.motion_mm / np.diff(log.t_s)[:, None]
+
+
+def _size(v: np.ndarray) -> np.ndarray:
+    """|v| per row: a speed along x, or a 3-D velocity's norm."""
+    return np.abs(v) if v.ndim == 1 else np.linalg.norm(v, axis=1)
+
+
 def motion_events(log: StageLog) -> np.ndarray:
-    """Stage times (s) where the base's speed changes: starts, stops, changes of speed."""
-    v = np.diff(log.x_mm) / np.diff(log.t_s)
-    change = np.abs(np.diff(v)) > EVENT_DV_MM_S
+    """Stage times (s) where the base's speed changes: starts, stops, changes of speed
+    (in 3-D with the log's ``motion_mm``: a turn of its direction too)."""
+    v = _velocity(log)
+    change = _size(np.diff(v, axis=0)) > EVENT_DV_MM_S
     idx = np.flatnonzero(change) + 1
     if idx.size == 0:
         return np.empty(0)
@@ -155,7 +168,7 @@ def motion_events(log: StageLog) -> np.ndarray:
 
 def event_speeds(log: StageLog, events) -> np.ndarray:
     """The base's larger speed (mm/s) either side of each event, one stage sample away."""
-    v = np.abs(np.diff(log.x_mm) / np.diff(log.t_s))
+    v = _size(_velocity(log))
     out = []
     for tau in np.atleast_1d(events):
         k = np.searchsorted(log.t_s, tau)

@@ -10,33 +10,55 @@ the frame (:func:`contact_rows_in_space`).
 
 In S (section 9): the whisker at rest lies along z_S; a tilt toward psi = theta + 180 deg
 is the object's push, so (cos psi, sin psi, 0) is the estimate of the surface normal.
-The base must keep its orientation over a run (within :data:`MAX_TURN_DEG`): a turning
-base moves each point of the shaft differently, which GM's single travel cannot hold.
+
+A base that turns (a robot's wrist, a whisking actuator) moves each point of the shaft
+differently: with the contact stuck at c in W, the object displaces the shaft's point at
+r across the shaft, in S, by x(t; r) = d_w(t) . (p(t) - c), c = p(t0) + r R(t0) e_z at
+first contact t0 and d_w(t) = R(t) d_s the pressing direction in W at t. That travel is
+the stage position, and r is solved for: the run's stuck r_hat from the travel at r must
+be r (:func:`_turning_rows`). A base that keeps its orientation gives the base's own
+travel (r drops out). The clock offset is found from the base's 3-D motion (translation
+and turn, :meth:`~camwhisker.io.poses.PoseLog.motion_mm`): its pauses and changes of speed
+wherever it moves, not only across the shaft.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from camwhisker.contact.pipeline import CONTACT_COLUMNS, Calibration, RunAnalysis, contact_rows
-from camwhisker.contact.stage import CONTACT_PHI_DEG, StageLog, stage_log_from_arrays
+from camwhisker.contact.stage import (
+    CONTACT_PHI_DEG,
+    STATIONARY_TOL_MM,
+    StageLog,
+    stage_log_from_arrays,
+)
 from camwhisker.io.poses import MAX_GAP_S, PoseLog
 
-__all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "MAX_TURN_DEG", "MIN_TRAVEL_MM", "SpaceError",
-           "pressing_theta_deg", "travel_log", "contact_rows_in_space"]  # fmt: skip
+__all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "STILL_TURN_DEG", "MIN_TRAVEL_MM", "MIN_CLOCK_SCORE",
+           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space"]  # fmt: skip
 
 #: The contact point and the surface normal's estimate in W, after the section 7 columns.
 WORLD_COLUMNS = ("px_mm", "py_mm", "pz_mm", "nx", "ny", "nz")
 #: Written after them: the base (S's origin) in W and the shaft's rest direction (z_S), for
 #: the free space the base moved through and the normal's component along the shaft.
 BASE_COLUMNS = ("bx_mm", "by_mm", "bz_mm", "ax", "ay", "az")
-#: Largest turn of the base over a run (deg): at the whisker's 100 mm it moves the shaft's
-#: point by 0.9 mm, about GM's spread; more needs the turning base's own model.
-MAX_TURN_DEG = 0.5
+#: A base that turns less than this over a run (deg) keeps its orientation: at the
+#: whisker's 150 mm it moves the shaft's point by 3 um, the pause tolerance's order.
+STILL_TURN_DEG = 1e-3
 #: Least range of the base's travel across the shaft (mm): one of the calibration's steps.
 MIN_TRAVEL_MM = 1.0
+#: Least share of the signals that the pauses' model explains at the estimated offset: the
+#: motion estimator's own floor (contact.clock); under it no clock is aligned.
+MIN_CLOCK_SCORE = 0.5
+#: r (mm) is solved for to this (far under GM's spread), in at most R_STEPS passes ...
+R_TOL_MM = 0.1
+R_STEPS = 8
+#: ... and a run whose r_hat still misses r by more than this (mm) is refused.
+R_SETTLE_MM = 2.0
 
 
 class SpaceError(ValueError):
@@ -62,28 +84,137 @@ def _direction_s(theta_deg: float) -> np.ndarray:
     return np.array([math.cos(th), math.sin(th), 0.0])
 
 
-def travel_log(poses: PoseLog, theta_deg: float) -> StageLog:
-    """The base's position along theta, across the shaft, as a one-axis stage log.
+def _motion(poses: PoseLog, x: np.ndarray, d_w: np.ndarray, turning: bool, reach_mm: float):
+    """The base's 3-D motion for the pauses (:meth:`PoseLog.motion_mm`), or None where it
+    moves along d_w alone and its travel says all (the one-axis stage's path, digit for
+    digit)."""
+    off = (poses.p_mm - poses.p_mm[0]) - np.outer(x, d_w)
+    if not turning and np.max(np.linalg.norm(off, axis=1)) <= STATIONARY_TOL_MM:
+        return None
+    return poses.motion_mm(reach_mm)
+
+
+def travel_log(poses: PoseLog, theta_deg: float, r_mm: float = 0.0,
+               t_ref_s: float | None = None, reach_mm: float = 150.0) -> StageLog:  # fmt: skip
+    """The travel across the shaft toward theta as a one-axis stage log.
+
+    For a base that keeps its orientation (within :data:`STILL_TURN_DEG`), the base's
+    position along theta from its first pose. For one that turns, that of the shaft's point
+    at ``r_mm`` against a contact stuck where it was at ``t_ref_s`` (pose clock; default:
+    the first pose): x(t) = d_w(t) . (p(t) - c) (module docstring), 0 at ``t_ref_s``. The
+    log carries the base's 3-D motion (``reach_mm``: the whisker's length, at which a turn
+    counts) wherever the base moves other than along theta.
 
     Raises
     ------
     SpaceError
-        The base turns by more than :data:`MAX_TURN_DEG`, or never moves across the
-        shaft toward theta by :data:`MIN_TRAVEL_MM`.
+        The base (or the shaft's point at ``r_mm``) never moves across the shaft toward
+        theta by :data:`MIN_TRAVEL_MM`.
     """
-    turn = poses.turn_deg()
-    if turn > MAX_TURN_DEG:
-        raise SpaceError(f"{poses.source}: the base turns by {turn:.2f} deg over the run; "
-                         f"contact is placed for a base that keeps its orientation (within "
-                         f"{MAX_TURN_DEG:g} deg)")  # fmt: skip
-    d_w = poses.rotations[0].apply(_direction_s(theta_deg))
-    x = (poses.p_mm - poses.p_mm[0]) @ d_w
+    d_s = _direction_s(theta_deg)
+    turning = poses.turn_deg() > STILL_TURN_DEG
+    if not turning:
+        d_w = poses.rotations[0].apply(d_s)
+        x = (poses.p_mm - poses.p_mm[0]) @ d_w
+        what, d_ref = "the base", d_w
+    else:
+        p_ref, m_ref = poses.at(poses.t_s[0] if t_ref_s is None else t_ref_s)
+        c = p_ref[0] + r_mm * m_ref[0][:, 2]
+        x = np.einsum("ni,ni->n", poses.rotations.apply(d_s), poses.p_mm - c)
+        what, d_ref = f"the shaft's point at r = {r_mm:.1f} mm", poses.rotations[0].apply(d_s)
     if np.ptp(x) < MIN_TRAVEL_MM:
-        raise SpaceError(f"{poses.source}: the base never moves across the shaft toward "
+        raise SpaceError(f"{poses.source}: {what} never moves across the shaft toward "
                          f"theta {theta_deg:.1f} deg (it travels {np.ptp(x):.2f} mm that way, "
                          f"less than {MIN_TRAVEL_MM:g} mm): GM has no travel to work from")
     return stage_log_from_arrays(poses.t_s, x, source=f"{poses.source} (travel toward theta)",
-                                 max_gap_s=MAX_GAP_S, first_row=2)  # fmt: skip
+                                 max_gap_s=MAX_GAP_S, first_row=2,
+                                 motion_mm=_motion(poses, x, d_ref, turning, reach_mm))
+
+
+def _check_clock(run: RunAnalysis, poses: PoseLog) -> None:
+    """Refuse an offset estimated from pauses that explain too little of the signals."""
+    if run.offset_estimated and run.paused and not run.offset_score >= MIN_CLOCK_SCORE:
+        raise SpaceError(f"{poses.source}: a clock that cannot be aligned: at the best offset "
+                         f"({run.offset_s:+.3f} s) the base's pauses explain "
+                         f"{run.offset_score:.2f} of the signals (less than "
+                         f"{MIN_CLOCK_SCORE:g}); give it with --offset-s")
+
+
+def _run_medians(cols: dict) -> tuple[float, float]:
+    """The run's r_GM and r_MF, less dz (the calibration's r is from the base pushed back
+    by dz, the travel's from S's origin): medians where phi >= 2 CONTACT_PHI_DEG (GM's
+    travel is short against its onset's error below), else wherever there is one."""
+    phi = np.asarray(cols["phi_deg"], float)
+    dz = np.asarray(cols["dz_mm"], float)
+    out = []
+    for name in ("r_gm_mm", "r_mf_mm"):
+        v = np.asarray(cols[name], float) - dz
+        use = np.isfinite(v) & (phi >= 2.0 * CONTACT_PHI_DEG)
+        use = use if use.any() else np.isfinite(v)
+        out.append(float(np.median(v[use])) if use.any() else math.nan)
+    return tuple(out)
+
+
+def _solve_r(seen: list, r_mf: float) -> float:
+    """The next r: MF's (less dz) where the run has one, else GM's self-consistent root
+    (r_GM(r) = r, r_GM a line through the last two passes; a fixed-point step first).
+
+    A base turning about itself tilts the plate by about its own turn whatever r is: r_GM
+    follows the r of the travel (slope 0.65-0.95 on the simulator's whisks, pivots 0-30
+    mm behind the base), and its model's bias of +0.1-0.9 mm at the true r puts its root
+    1-6 mm out; MF's run median, from dz, is within 2.4 mm there (tuning seeds 0-9 of
+    tests/test_space_turning.py's whisks). GM's own r_hat per frame still goes through
+    the fusion at that r.
+    """
+    if math.isfinite(r_mf):
+        return r_mf
+    (r1, g1), (r2, g2) = seen[-2] if len(seen) > 1 else (math.nan, math.nan), seen[-1]
+    slope = (g2 - g1) / (r2 - r1) if len(seen) > 1 and r2 != r1 else math.nan
+    if not (math.isfinite(slope) and slope < 1.0):
+        return g2
+    return r2 + (g2 - r2) / (1.0 - slope)
+
+
+def _onset_pose_time(log: StageLog, run: RunAnalysis, t_ref_s: float) -> float:
+    """The pose-clock time at which the travel first passes the run's contact onset."""
+    if not math.isfinite(run.x_contact_mm):
+        return t_ref_s
+    past = np.flatnonzero(run.travel_sign * (log.x_mm - run.x_contact_mm) > 0)
+    if past.size == 0 or past[0] == 0:
+        return t_ref_s
+    k = past[0]
+    x0, x1 = log.x_mm[k - 1], log.x_mm[k]
+    share = (run.x_contact_mm - x0) / (x1 - x0) if x1 != x0 else 1.0
+    return float(log.t_s[k - 1] + share * (log.t_s[k] - log.t_s[k - 1]))
+
+
+def _turning_rows(signals: dict, poses: PoseLog, calib: Calibration, offset_s, mode: str,
+                  theta: float) -> tuple[dict, RunAnalysis]:  # fmt: skip
+    """contact_rows on the travel at r, r solved for (:func:`_solve_r`) from r = l_w / 2,
+    the onset's pose re-read each pass; the clock is estimated on the first pass and kept."""
+    r, t_ref, first, seen = 0.5 * calib.l_w_mm, float(poses.t_s[0]), None, []
+    for _ in range(R_STEPS):
+        log = travel_log(poses, theta, r, t_ref, calib.l_w_mm)
+        cols, run = contact_rows(signals, log, calib, offset_s, mode)
+        if first is None:
+            _check_clock(run, poses)
+            first, offset_s = run, run.offset_s
+        t_ref = _onset_pose_time(log, run, t_ref)
+        r_gm, r_mf = _run_medians(cols)
+        if not (math.isfinite(r_gm) or math.isfinite(r_mf)):
+            raise SpaceError(f"{poses.source}: no row has a contact estimate on the turning "
+                             f"base's travel at r = {r:.1f} mm: its contact distance is unknown")
+        seen.append((r, r_gm))
+        new = float(np.clip(_solve_r(seen, r_mf), 0.1 * calib.l_w_mm, calib.l_w_mm))
+        if abs(new - r) < R_TOL_MM:
+            break
+        r = new
+    if abs(new - r) > R_SETTLE_MM:
+        raise SpaceError(f"{poses.source}: the turning base's contact distance does not settle "
+                         f"(r = {r:.1f} mm, then {new:.1f} mm after {R_STEPS} passes): a "
+                         "contact that slides or is lost cannot be placed")
+    return cols, replace(run, offset_estimated=first.offset_estimated,
+                         offset_score=first.offset_score, offset_se_s=first.offset_se_s)
 
 
 def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
@@ -91,22 +222,34 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
                           ) -> tuple[dict, RunAnalysis, float]:  # fmt: skip
     """The contact table of a run whose base moves in space, with :data:`WORLD_COLUMNS`.
 
-    ``x_mm`` is the base's position along theta (from its first pose) and ``dx_mm`` its
-    travel since first contact; ``offset_s`` is the pose clock's (t_camera = t_pose +
-    offset), estimated from the base's pauses unless given. Returns the columns, the run's
-    analysis and the pressing direction theta (deg).
+    ``x_mm`` is the travel along theta (the base's from its first pose; for a base that
+    turns, the shaft's point's at the solved r from first contact) and ``dx_mm`` the travel
+    since first contact; ``offset_s`` is the pose clock's (t_camera = t_pose + offset),
+    estimated from the base's 3-D pauses (or motion) unless given. Returns the columns, the
+    run's analysis and the pressing direction theta (deg).
 
     Raises
     ------
     SpaceError
-        No trusted row in contact (theta unknown), or see :func:`travel_log`.
+        No trusted row in contact (theta unknown), a clock that cannot be aligned, a turning
+        base whose r does not settle, or see :func:`travel_log`.
     """
     theta = pressing_theta_deg(signals)
     if not math.isfinite(theta):
         raise SpaceError(f"{signals.get('source', '<signals>')}: no trusted row with phi >= "
                          f"{CONTACT_PHI_DEG:g} deg: the direction the base pressed in is "
                          "unknown")  # fmt: skip
-    cols, run = contact_rows(signals, travel_log(poses, theta), calib, offset_s, mode)
+    if poses.turn_deg() > STILL_TURN_DEG:
+        cols, run = _turning_rows(signals, poses, calib, offset_s, mode, theta)
+    else:
+        cols, run = contact_rows(signals, travel_log(poses, theta, reach_mm=calib.l_w_mm),
+                                 calib, offset_s, mode)  # fmt: skip
+        _check_clock(run, poses)
+    return _placed(cols, run, poses, theta), run, theta
+
+
+def _placed(cols: dict, run: RunAnalysis, poses: PoseLog, theta: float) -> dict:
+    """The contact table with eq. 12's point and the normal placed in W by each frame's pose."""
     p, m = poses.at(np.asarray(cols["t_s"], float) - run.offset_s)
     d_s = _direction_s(theta)
     lateral = np.asarray(cols["x_hat_mm"], float) - np.asarray(cols["x_mm"], float)
@@ -120,5 +263,4 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
                      strict=True))  # fmt: skip
     n = len(CONTACT_COLUMNS)
     names = list(cols)
-    return {**{k: cols[k] for k in names[:n]}, **world,
-            **{k: cols[k] for k in names[n:]}}, run, theta  # fmt: skip
+    return {**{k: cols[k] for k in names[:n]}, **world, **{k: cols[k] for k in names[n:]}}

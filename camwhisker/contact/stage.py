@@ -76,6 +76,9 @@ class StageLog:
     r_mm: np.ndarray | None
     source: str
     dz_mm: np.ndarray | None = None
+    # The base's motion per interval (N - 1, k) in mm where it moves in more than x (a
+    # pose log's base in 3-D): its pauses and changes of speed are found from it.
+    motion_mm: np.ndarray | None = None
 
     @property
     def travel_sign(self) -> float:
@@ -114,8 +117,11 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
 
 
 def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN_PAUSE_S,
-                          first_row=0, dz_mm=None) -> StageLog:
-    """Validate arrays as a stage log (see :func:`read_stage_log`); rows counted from first_row."""
+                          first_row=0, dz_mm=None, motion_mm=None) -> StageLog:
+    """Validate arrays as a stage log (see :func:`read_stage_log`); rows counted from first_row.
+
+    ``motion_mm`` (N - 1, k), optional: the base's motion per interval where x is only its
+    projection (:attr:`StageLog.motion_mm`)."""
     t = np.asarray(t_s, float)
     x = np.asarray(x_mm, float)
     if t.size < 2:
@@ -144,7 +150,8 @@ def stage_log_from_arrays(t_s, x_mm, r_mm=None, source="<arrays>", max_gap_s=MIN
         )
     r = None if r_mm is None else np.asarray(r_mm, float)
     dz = None if dz_mm is None else np.asarray(dz_mm, float)
-    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source, dz_mm=dz)
+    motion = None if motion_mm is None else np.asarray(motion_mm, float).reshape(t.size - 1, -1)
+    return StageLog(t_s=t, x_mm=x, r_mm=r, source=source, dz_mm=dz, motion_mm=motion)
 
 
 @dataclass(frozen=True)
@@ -161,9 +168,13 @@ def detect_pauses(log: StageLog, min_pause_s: float = MIN_PAUSE_S,
     """Intervals where the stage stands still for at least ``min_pause_s``.
 
     Consecutive samples closer than ``tol_mm`` belong to the same stationary run;
-    a run's duration is from its first to its last sample.
+    a run's duration is from its first to its last sample. With the log's ``motion_mm``
+    the base stands still where that motion is under ``tol_mm``, not only x.
     """
-    moving = np.abs(np.diff(log.x_mm)) > tol_mm
+    if log.motion_mm is None:
+        moving = np.abs(np.diff(log.x_mm)) > tol_mm
+    else:
+        moving = np.linalg.norm(log.motion_mm, axis=1) > tol_mm
     # Run boundaries: a new run starts after every moving interval.
     starts, ends = [], []
     i = 0

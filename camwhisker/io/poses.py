@@ -96,6 +96,14 @@ class PoseLog:
             m[inside] = Slerp(self.t_s, self.rotations)(ti).as_matrix()
         return p, m
 
+    def motion_mm(self, reach_mm: float) -> np.ndarray:
+        """The base's motion per interval (N - 1, 6), mm: its translation in W, then its
+        turn (a rotation vector in S) times ``reach_mm``, the path of a shaft's point that
+        far out; a pause is where both stand still."""
+        r = self.rotations
+        turn = (r[:-1].inv() * r[1:]).as_rotvec()
+        return np.column_stack([np.diff(self.p_mm, axis=0), reach_mm * turn])
+
     def turn_deg(self) -> float:
         """The largest angle (deg) between the first sample's orientation and any other's."""
         rel = self.rotations[0].inv() * self.rotations
