@@ -27,6 +27,7 @@ import numpy as np
 from camwhisker import __version__
 from camwhisker.bench.contact import BAD_GM_ERROR_MM, evaluate_run, pool, summary
 from camwhisker.contact.calibrate import write_calibration
+from camwhisker.contact.fusion import gm_error_score
 from camwhisker.contact.pipeline import contact_rows
 from camwhisker.contact.stage import read_stage_log
 from camwhisker.contact.zscore import flag_rates, roc_auc
@@ -52,6 +53,9 @@ FLAG_Z = 1.0
 SHAPE_TOL_MM = 3.0
 #: The paper's data points: each stage pause's medians.
 CONTACT_PER = "pause"
+#: The flags the summary scores, as it names them; gm_error is the one to use.
+FLAG_NAMES = {"z_score": "eq. 11 Z > 1", "z_combined": "z_combined > 1",
+              "gm_error": "recommended"}
 
 
 #: Every term of the summary, defined once: printed above it and kept in summary.json.
@@ -71,6 +75,9 @@ TERMS = {
     "false flags": "share of the good estimates that are flagged",
     "AUC": "chance that a bad estimate has a higher Z than a good one (1: Z tells them "
            "apart always, 0.5: no better than chance)",
+    "recommended": "the flag to use: GM may be off by more than E where |gm_bias_mm| (the "
+                   "fusion's estimate of GM's bias, a contact table column) exceeds E less "
+                   "MF's per-contact systematic error (the calibration's floor, 2 mm)",
     "n/a": "nothing to compute it on (no bad estimate, or no point)",
     "separation": "(summary.json only) Z against the cause rather than the error: slipping "
                   "or compliant contact against rigid contact held still",
@@ -165,6 +172,30 @@ def _contact(out: Path, runs, calib, signals: dict, logs: dict) -> tuple[dict, l
     return {role: pool(parts) for role, parts in evaluations.items()}, front_end
 
 
+def _flags(p: dict, defined, calib) -> dict:
+    """Eq. 11 as printed (Z > 1), z_combined > 1 and the recommended flag
+    (:func:`~camwhisker.contact.fusion.gm_error_score`) against GM errors over the summary's
+    bad (TERMS["bad"], the paper's 15 mm) and over 3 sigma_GM."""
+    err = np.abs(p["r_true_mm"] - p["r_gm_mm"])
+    # The summary's one definition of a bad estimate (TERMS["bad"]).
+    bad = err > BAD_GM_ERROR_MM
+    z = np.where(defined, p["z_score"], np.nan)
+    hit, false = flag_rates(z, bad, FLAG_Z)
+    out = {"n": int(defined.sum()), "n_bad": int((bad & defined).sum()), "auc": roc_auc(z, bad),
+           "hit": hit, "false_flags": false}
+    floor = calib.mf_bias_floor_mm
+    for level, limit in (("15mm", BAD_GM_ERROR_MM), ("3sigma", 3.0 * p["sigma_gm_mm"])):
+        off = err > limit
+        scores = {"z_score": (z, FLAG_Z),
+                  "z_combined": (np.where(defined, p["z_combined"], np.nan), FLAG_Z),
+                  "gm_error": (np.where(defined, gm_error_score(p["gm_bias_mm"], limit, floor),
+                                        np.nan), 0.0)}  # fmt: skip
+        out[level] = {"n_bad": int((off & defined).sum()),
+                      **{name: dict(zip(("hit", "false_flags"), flag_rates(s, off, t),
+                                        strict=True)) for name, (s, t) in scores.items()}}
+    return out
+
+
 def _evaluate(calib, ev: dict, front_end: list) -> dict:
     eq8 = calib.gm.alternatives["eq8"]
     lo, hi = eq8.ci["c"]
@@ -210,12 +241,7 @@ def _evaluate(calib, ev: dict, front_end: list) -> dict:
             s = np.where(defined, p[name], np.nan)
             hit, false = flag_rates(s, doubtful, FLAG_Z)
             out["separation"][name] = {"auc": roc_auc(s, doubtful), "hit": hit, "false": false}
-        # The summary's one definition of a bad estimate (TERMS["bad"]).
-        bad = np.abs(p["r_true_mm"] - p["r_gm_mm"]) > BAD_GM_ERROR_MM
-        s = np.where(defined, p["z_score"], np.nan)
-        hit, false = flag_rates(s, bad, FLAG_Z)
-        out["z_flags"] = {"n": int(defined.sum()), "n_bad": int((bad & defined).sum()),
-                          "auc": roc_auc(s, bad), "hit": hit, "false_flags": false}
+        out["z_flags"] = _flags(p, defined, calib)
     # Shapes: low-score points of the box and bottle against the true profile.
     out["shapes"] = {}
     for role in ("box", "bottle"):
@@ -317,6 +343,14 @@ def format_summary(s: dict) -> str:
             f"{_num(z['auc'], '.3f')}, hit {_num(z['hit'], '.2f')}, false flags "
             f"{_num(z['false_flags'], '.2f')} (the paper's: 0.26)"
         )
+        for level, what in (("15mm", f"GM off by > {BAD_GM_ERROR_MM:g} mm (bad)"),
+                            ("3sigma", "GM off by > 3 sigma_GM")):  # fmt: skip
+            f = z[level]
+            lines.append(
+                f"  {what}, {f['n_bad']} of {z['n']}: hit / false "
+                "flags: " + "; ".join(f"{FLAG_NAMES[k]} {_num(v['hit'], '.2f')} / "
+                                      f"{_num(v['false_flags'], '.2f')}"
+                                      for k, v in f.items() if k != "n_bad"))
     for role, sh in s["shapes"].items():
         trusted = (f"{sh['n_low_z']} trusted, {sh['within_tol']} of them within "
                    f"{SHAPE_TOL_MM:g} mm (max {_num(sh['max_dist_mm'], '.2f')} mm)"

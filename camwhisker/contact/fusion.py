@@ -41,7 +41,7 @@ from scipy.signal import lfilter
 from camwhisker.contact.mf import SAME_RADIUS_MM
 
 __all__ = ["PRIOR_GM_GOOD", "MEMORY_SAMPLES", "MF_BIAS_FLOOR_MM", "KEEP_GM_POSTERIOR",
-           "mf_bias_floor_mm", "segment_start", "fuse", "OnlineFusion"]
+           "mf_bias_floor_mm", "segment_start", "fuse", "gm_error_score", "OnlineFusion"]
 
 # Prior share of good GM estimates: rigid, non-slipping contact is the common case,
 # and a 3 % prior of failure lets a consistent bias of a few sigma overturn it.
@@ -190,6 +190,18 @@ def _posterior(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, 
     fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)
     fused = np.where(~np.isfinite(r_gm) & np.isfinite(r_mf), r_mf, fused)
     return fused, p_good, m
+
+
+def gm_error_score(gm_bias_mm, error_mm, floor_mm: float = MF_BIAS_FLOOR_MM) -> np.ndarray:
+    """The flag "GM may be off by more than ``error_mm``" as a score, flagged where > 0.
+
+    The fusion's estimate m of GM's bias (``gm_bias_mm``) is known to MF's per-contact
+    systematic error ``floor_mm`` at best, so GM may be off by ``error_mm`` where
+    |m| > error_mm - floor_mm: the score is |m| - (error_mm - floor_mm), NaN where m is.
+    ``error_mm``: a scalar (the paper's 15 mm) or per sample (3 sigma_GM).
+    """
+    m = np.abs(np.asarray(gm_bias_mm, float))
+    return m - (np.asarray(error_mm, float) - floor_mm)
 
 
 class OnlineFusion:

@@ -209,12 +209,12 @@ CONTACT_COLUMNS = ("t_s", "x_mm", "dx_mm", "phi_deg", "dz_mm", "r_gm_mm", "r_mf_
                    "x_hat_mm", "r_hat_mm")
 #: Diagnostics written after the contract's columns.
 EXTRA_COLUMNS = ("y_hat_mm", "x_mf_mm", "y_mf_mm", "z_combined", "r_fused_mm", "p_gm_good",
-                 "sigma_gm_mm", "sigma_mf_mm", "mf_outside", "phi_pause_deg", "dz_pause_mm",
-                 "r_hat_pause_mm", "pause", "speed_mm_s", "doubt", "ok")
+                 "gm_bias_mm", "sigma_gm_mm", "sigma_mf_mm", "mf_outside", "phi_pause_deg",
+                 "dz_pause_mm", "r_hat_pause_mm", "pause", "speed_mm_s", "doubt", "ok")
 # Estimates that a frame takes from the stage pause it lies in.
 _PER_PAUSE = ("r_gm_mm", "r_mf_mm", "z_score", "x_hat_mm", "r_hat_mm", "y_hat_mm", "x_mf_mm",
-              "y_mf_mm", "z_combined", "r_fused_mm", "p_gm_good", "sigma_gm_mm", "sigma_mf_mm",
-              "slipping")
+              "y_mf_mm", "z_combined", "r_fused_mm", "p_gm_good", "gm_bias_mm", "sigma_gm_mm",
+              "sigma_mf_mm", "slipping")
 #: How the estimates of a row are made: from the frame itself, or from its pause's medians.
 MODES = ("frame", "pause")
 # Base travel per frame above which a row is "fast": a clock error of one frame
