@@ -67,7 +67,7 @@ __all__ = ["OBJECTS", "FACE_DEG", "MU", "TOP_MM", "PHI_STOP_DEG", "MAX_PRESS_MM"
            "Tap", "TapError", "TapRun",
            "tap_on", "simulate_tap", "object_record", "write_taps", "PAPER_SPHERE_RADII_MM",
            "STIMULI", "LOCATIONS_MM", "Mount", "RIG", "Trial", "protocol_trial",
-           "simulate_trial"]  # fmt: skip
+           "simulate_trial", "object_taps", "write_object_taps"]  # fmt: skip
 
 OBJECTS = ("sphere", "plane", "cylinder")
 #: A plate's face rises this steeply from the travel (the objects' walls: shallower or more
@@ -381,30 +381,76 @@ class Trial:
     sensors: list
 
 
+def _rig_taps(obj, top, carrier: Rotation, location_mm: float, rng, rig) -> list[Tap]:
+    """A tap per sensor of ``rig``: the carrier (``carrier``: its orientation in W, y_c away
+    from the object) brought STANDOFF_MM out from ``top`` and ``location_mm`` across, then
+    moved so that each sensor taps the side of the object facing it (a plate: its rim)."""
+    x_c, y_c, _ = carrier.as_matrix().T
+    origin = top + STANDOFF_MM * y_c + location_mm * x_c
+    depths = SPHERE_DEPTH_MM if obj.kind == "sphere" else PLATE_DEPTH_MM
+    return [tap_on(obj, carrier * m.rotation, origin + carrier.apply(m.translation),
+                   rng.uniform(*depths), mu=rng.uniform(*MU)) for m in rig]  # fmt: skip
+
+
 def protocol_trial(seed: int, rig=RIG) -> Trial:
     """Seed 000's trial ``seed``: stimulus seed % 4 (:data:`STIMULI`) at location
     (seed // 4) % 10 (:data:`LOCATIONS_MM`); the carrier's orientation, the stimulus's
-    place, each tap's depth and a plate's friction drawn from the seed. The arm brings the
-    carrier out from the stimulus and across to the location, then, for each sensor, moves
-    it so that sensor taps the side of the stimulus facing it (a plate: its rim)."""
+    place, each tap's depth and a plate's friction drawn from the seed (:func:`_rig_taps`)."""
     rng = np.random.default_rng(seed)
     stimulus, location = seed % len(STIMULI), (seed // len(STIMULI)) % len(LOCATIONS_MM)
     kind, radius = STIMULI[stimulus]
     carrier = Rotation.random(random_state=rng)
-    x_c, y_c, _ = carrier.as_matrix().T
+    y_c = carrier.apply([0.0, 1.0, 0.0])
     q = rng.uniform(-200.0, 200.0, 3)
     if kind == "sphere":
         obj, top = Sphere(tuple(q), radius), q + radius * y_c
     else:
         obj, top = Plane(tuple(y_c), float(y_c @ q)), q
-    origin = top + STANDOFF_MM * y_c + LOCATIONS_MM[location] * x_c
-    taps, sensors = [], []
-    for m in rig:
-        toward = origin + carrier.apply(m.translation)
-        depth = rng.uniform(*(SPHERE_DEPTH_MM if kind == "sphere" else PLATE_DEPTH_MM))
-        taps.append(tap_on(obj, carrier * m.rotation, toward, depth, mu=rng.uniform(*MU)))
-        sensors.append(m.name)
-    return Trial(seed, stimulus, location, obj, taps, sensors)
+    taps = _rig_taps(obj, top, carrier, LOCATIONS_MM[location], rng, rig)
+    return Trial(seed, stimulus, location, obj, taps, [m.name for m in rig])
+
+
+def _cylinder_taps(obj: Cylinder, rng, n: int) -> list[Tap]:
+    """``n`` taps with the shaft across the axis: at points spread along it and around it,
+    each sensor rolled at random about its shaft."""
+    u = _unit(obj.axis)
+    e1 = _across(rng.standard_normal(3), u)
+    taps = []
+    for k in range(n):
+        b = 2.0 * math.pi * k / n + rng.uniform(-0.3, 0.3)
+        out = math.cos(b) * e1 + math.sin(b) * np.cross(u, e1)  # the side tapped
+        a = np.cross(u, out)  # the shaft: across the axis and along the surface
+        x0 = _across(rng.standard_normal(3), a)
+        frame = np.column_stack([x0, np.cross(a, x0), a])
+        toward = np.asarray(obj.center) + rng.uniform(-60.0, 60.0) * u + 2.0 * obj.radius_mm * out
+        taps.append(tap_on(obj, Rotation.from_matrix(frame), toward,
+                           rng.uniform(*SPHERE_DEPTH_MM)))  # fmt: skip
+    return taps
+
+
+def object_taps(kind: str, seed: int, n_cylinder: int = 6) -> Trial:
+    """Taps on one object of ``kind`` (:data:`OBJECTS`) drawn from ``seed``: a sphere
+    (radius 50-300 mm) or a plate tapped by the rig at a random location; a cylinder
+    (radius 30-150 mm) tapped ``n_cylinder`` times by one sensor with its shaft across the
+    axis."""
+    if kind not in OBJECTS:
+        raise ValueError(f"unknown object {kind!r} (known: {', '.join(OBJECTS)})")
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-200.0, 200.0, 3)
+    if kind == "cylinder":
+        obj = Cylinder(tuple(q), tuple(_unit(rng.standard_normal(3))), rng.uniform(30.0, 150.0))
+        taps = _cylinder_taps(obj, rng, n_cylinder)
+        return Trial(seed, -1, -1, obj, taps, [f"t{k + 1}" for k in range(len(taps))])
+    carrier = Rotation.random(random_state=rng)
+    y_c = carrier.apply([0.0, 1.0, 0.0])
+    location = int(rng.integers(len(LOCATIONS_MM)))
+    if kind == "sphere":
+        obj = Sphere(tuple(q), rng.uniform(50.0, 300.0))
+        top = q + obj.radius_mm * y_c
+    else:
+        obj, top = Plane(tuple(y_c), float(y_c @ q)), q
+    taps = _rig_taps(obj, top, carrier, LOCATIONS_MM[location], rng, RIG)
+    return Trial(seed, -1, location, obj, taps, [m.name for m in RIG])
 
 
 def simulate_trial(trial: Trial, noise: NoiseModel = FRONT_END_NOISE) -> list[TapRun]:
@@ -412,8 +458,16 @@ def simulate_trial(trial: Trial, noise: NoiseModel = FRONT_END_NOISE) -> list[Ta
     children = np.random.SeedSequence([trial.seed, 7]).spawn(len(trial.taps))
     runs = []
     for tap, name, child in zip(trial.taps, trial.sensors, children, strict=True):
-        tr = simulate_tap(tap, np.random.default_rng(child), f"L{trial.location + 1}{name}",
-                          noise)  # fmt: skip
+        where = f"L{trial.location + 1}" if trial.location >= 0 else ""
+        tr = simulate_tap(tap, np.random.default_rng(child), f"{where}{name}", noise)
         tr.run.info["sensor"] = {"sensor": name, "depth_mm": tap.depth_mm}
         runs.append(tr)
     return runs
+
+
+def write_object_taps(dest: str | Path, kind: str, seed: int, command: str = "",
+                      noise: NoiseModel = FRONT_END_NOISE) -> list[Path]:  # fmt: skip
+    """Simulate :func:`object_taps` and write them with :func:`write_taps`."""
+    trial = object_taps(kind, seed)
+    return write_taps(dest, trial.obj, simulate_trial(trial, noise),
+                      {"command": command, "kind": kind, "seed": seed})  # fmt: skip
