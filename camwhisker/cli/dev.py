@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-__all__ = ["BENCH_SCRIPTS", "add_bench_scripts"]
+__all__ = ["BENCH_SCRIPTS", "add_bench_scripts", "add_simulate_taps"]
 
 #: ``camwhisker dev NAME-bench`` -> (module under camwhisker.bench, what it measures).
 BENCH_SCRIPTS = {
@@ -22,10 +22,35 @@ BENCH_SCRIPTS = {
     "learn-bench": ("learn", "the learned estimator: architecture, training, inference"),
     "solids-bench": ("solids", "objects in 3-D from sweeps lifted into space"),
     "space-filmed-bench": ("space_filmed", "a sweep in space filmed: contact points, object"),
+    "taps-bench": ("taps", "seed 000's spheres and plane tapped by a rig: identification, error"),
 }
 
 
+def add_simulate_taps(sub) -> None:
+    p = sub.add_parser("simulate-taps",
+                       help="taps in 3-D on a sphere, a plate or a cylinder: signal tables, pose "
+                            "logs and the true contact points, with the object")
+    p.add_argument("--object", required=True, choices=("sphere", "plane", "cylinder"),
+                   help="a sphere or a plate tapped by a rig of five sensors; a cylinder tapped "
+                        "six times with the shaft across its axis")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for NAME.signals.csv, NAME.pose.csv, NAME.contact_truth.csv "
+                        "and object.json (the object in W, the true clock offsets)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the object and the taps")
+    p.set_defaults(func=_run_simulate_taps)
+
+
+def _run_simulate_taps(args: argparse.Namespace) -> int:
+    from camwhisker.cli.common import command_line
+    from camwhisker.sim.mechanics.taps import write_object_taps
+
+    paths = write_object_taps(args.out, args.object, args.seed, command_line(args))
+    print(f"wrote {len(paths)} files to {args.out} (object.json: the object and the offsets)")
+    return 0
+
+
 def add_bench_scripts(sub) -> None:
+    add_simulate_taps(sub)  # the last simulator, before the benchmark scripts
     for name, (module, what) in BENCH_SCRIPTS.items():
         p = sub.add_parser(name, help=what, add_help=False,
                            description=f"{what}. Options: `camwhisker dev {name} -h`.")
