@@ -34,9 +34,9 @@ def test_every_option_has_help_and_its_default_shown():
             shown = any(a.default is v for v in (None, False)) or "default" in (a.help or "")
             if not shown and f"(default: {a.default})" not in text:
                 no_default.append(f"{name} {flag}")
-    assert len(commands) == 31  # with calibrate-springs, percept, percept-bench, belief,
+    assert len(commands) == 32  # with calibrate-springs, percept, percept-bench, belief,
     # simulate-texture, texture, learn, predict, experiment, map, simulate-space,
-    # make-space-experiment, simulate-taps
+    # make-space-experiment, simulate-taps, simulate-whisk
     assert missing == [] and no_default == []
 
 

@@ -13,8 +13,8 @@ USER_ORDER = ["batch", "overlay", "live", "replay", "list-cameras", "calibrate-s
               "percept", "map", "texture", "learn", "predict", "dev"]  # fmt: skip
 DEV = ["render", "bound", "make-samples", "describe", "make-experiment",
        "make-space-experiment", "simulate-stage",
-       "simulate-space", "simulate-texture", "chain", "bench", "contact-bench",
-       "percept-bench", "simulate-taps"]  # fmt: skip
+       "simulate-space", "simulate-taps", "simulate-whisk", "simulate-texture", "chain",
+       "bench", "contact-bench", "percept-bench"]  # fmt: skip
 
 
 def _commands(parser) -> list[str]:

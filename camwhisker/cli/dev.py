@@ -1,11 +1,12 @@
-"""The benchmark scripts as ``camwhisker dev NAME-bench``: each parses its own options."""
+"""``camwhisker dev``: the 3-D simulators of taps and whisks, and the benchmark scripts as
+``camwhisker dev NAME-bench`` (each parses its own options)."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
 
-__all__ = ["BENCH_SCRIPTS", "add_bench_scripts", "add_simulate_taps"]
+__all__ = ["BENCH_SCRIPTS", "add_bench_scripts", "add_simulate_taps", "add_simulate_whisk"]
 
 #: ``camwhisker dev NAME-bench`` -> (module under camwhisker.bench, what it measures).
 BENCH_SCRIPTS = {
@@ -49,8 +50,29 @@ def _run_simulate_taps(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_simulate_whisk(sub) -> None:
+    p = sub.add_parser("simulate-whisk",
+                       help="a base that turns (a wrist, a whisking actuator) against a wall or "
+                            "a cylinder: signal table, pose log and the true contact point")
+    p.add_argument("--kind", required=True, choices=("wall", "cylinder"),
+                   help="a wall holds the contact stuck; a cylinder lets it roll a little")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for NAME.signals.csv, NAME.pose.csv (on its own clock) and "
+                        "NAME.truth.csv (the true contact in W, camera clock)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the object and the whisk")
+    p.set_defaults(func=_run_simulate_whisk)
+
+
+def _run_simulate_whisk(args: argparse.Namespace) -> int:
+    from camwhisker.sim.mechanics.whisk import write_whisk
+
+    run = write_whisk(args.out, args.kind, args.seed)
+    print(f"wrote {run.name}.signals.csv, .pose.csv and .truth.csv to {args.out}; the pose "
+          f"clock's true offset: {run.offset_s:+.4f} s (t_camera = t_pose + offset)")
+    return 0
+
+
 def add_bench_scripts(sub) -> None:
-    add_simulate_taps(sub)  # the last simulator, before the benchmark scripts
     for name, (module, what) in BENCH_SCRIPTS.items():
         p = sub.add_parser(name, help=what, add_help=False,
                            description=f"{what}. Options: `camwhisker dev {name} -h`.")

@@ -59,6 +59,8 @@ _DEV_COMMANDS = [
     synth.add_space_experiment,
     contact.add_simulate_stage,
     contact.add_simulate_space,
+    dev.add_simulate_taps,
+    dev.add_simulate_whisk,
     texture.add_simulate_texture,
     bench.add_chain,
     bench.add_bench,
