@@ -397,7 +397,7 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
 
     from camwhisker.sensor.file import load_sensor
 
-    out, _, _ = calibrated
+    out, _, sweep = calibrated
     report = json.loads(out.with_name("build.report.json").read_text())
     assert out.with_name("build.report.png").stat().st_size > 0
     params = {p["name"]: p for p in report["parameters"]}
@@ -409,6 +409,9 @@ def test_calibrate_sensor_on_a_sweep_video_finds_the_build(calibrated, build):
     assert report["tip_edge_blur_px"] == pytest.approx(math.hypot(1.4, 12**-0.5), abs=0.1)
     assert len(report["residual_rms_px"]["per_frame"]) == SWEEP_FRAMES
     assert report["frames"]["rest"] >= 8 and report["frames"]["used"] == SWEEP_FRAMES
+    # Provenance is the command as typed, one a shell runs again ("--quiet", not "False").
+    assert report["command"] == (f"camwhisker calibrate-sensor {sweep['video']} --square-side-mm "
+                                 f"{build.plate.square_side_mm} --out {out} --rounds 3 --quiet")
     fitted = load_sensor(out)
     truth = dict(zip(GEOMETRY_NAMES, geometry_vector(build), strict=True))
     assert geometry_vector(fitted) == pytest.approx([params[n]["fitted"] for n in GEOMETRY_NAMES])

@@ -113,7 +113,8 @@ def plot_calibration(cal: SensorFit, nominal: Sensor, path: str | Path, how: str
     from camwhisker.files.figures import new_figure, save_figure
 
     adj = cal.adjustment
-    fig, axes = new_figure((7.5, 8.5), nrows=3, ncols=1)
+    fig, axes = new_figure((7.5, 11.0), nrows=3, ncols=1,
+                           gridspec_kw={"height_ratios": (1.0, 1.0, 2.2)})
     ax = axes[0]
     ax.bar(range(len(POINT_NAMES)), adj.rms_per_point_px(), color="C0")
     ax.set_xticks(range(len(POINT_NAMES)), POINT_NAMES, rotation=45, ha="right", fontsize=7)
@@ -127,14 +128,19 @@ def plot_calibration(cal: SensorFit, nominal: Sensor, path: str | Path, how: str
     ax = axes[2]
     free = np.flatnonzero(np.isfinite(adj.se))
     shift = (adj.value - geometry_vector(nominal))[free] / adj.se[free]
-    ax.barh(range(len(free)), shift, color=np.where(np.abs(shift) > 3, "C3", "C0"))
+    far = np.abs(shift) > 3
+    for mask, colour, label in ((~far, "C0", "within 3 SE of nominal"),
+                                (far, "C3", "more than 3 SE from nominal")):  # fmt: skip
+        ax.barh(np.flatnonzero(mask), shift[mask], color=colour, label=label)
     ax.set_yticks(range(len(free)), [GEOMETRY_NAMES[i] for i in free], fontsize=7)
+    ax.set_ylim(-0.7, len(free) - 0.3)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=2)
     ax.axvline(0, color="0.5", lw=0.8)
     ax.set_xscale("symlog", linthresh=3)
     ax.set_xlabel("fitted - nominal (SE)")
     held = ", ".join(n.split(".")[1] for n in adj.held) or "none"
-    ax.set_title(f"parameter shifts; held: {held}; phi at 20 deg: SE "
-                 f"{adj.phi_se_deg():.3f} deg", fontsize=9)
+    ax.set_title(f"parameter shifts (phi at 20 deg read with the fit: SE "
+                 f"{adj.phi_se_deg():.3f} deg)\nheld at nominal: {held}", fontsize=9)
     save_figure(fig, path, how)
 
 

@@ -117,6 +117,10 @@ def _run_calibrate_sensor(args) -> int:
     try:
         cal = calibrate_sensor(args.videos, sensor, args.square_side_mm, intrinsics,
                                args.rounds, bar.update, on_round, options, dz_steps)  # fmt: skip
+        # The fit may settle before the last round: the bar ends where the work did.
+        bar.set_description(f"calibrate-sensor, {len(cal.ok_fraction)} rounds")
+        bar.total = bar.n
+        bar.refresh()
     finally:
         bar.close()
     inputs = {"videos": [str(v) for v in args.videos], "square_side_mm": args.square_side_mm,

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
 import shlex
+import sys
 
 __all__ = ["CommandError", "INPUT_ERRORS", "EXIT_CODES", "HelpFormatter", "sensor_arg",
            "features_arg", "feature_hints", "springs_arg", "springs_of", "mode_arg", "runs_arg",
@@ -118,12 +121,48 @@ def paired_runs(args: argparse.Namespace, *optional: str) -> list[tuple]:
 
 
 def command_line(args: argparse.Namespace) -> str:
-    """The command as parsed (also right when main() is called with an argv list)."""
+    """The command as typed (main() keeps its words), quoted for a shell; for a namespace
+    built elsewhere, the command as parsed."""
+    if getattr(args, "typed", None) is not None:
+        return shlex.join(["camwhisker", *args.typed])
     parts = ["camwhisker", *args.command.split()]  # "dev NAME" is two words
     for key, value in vars(args).items():
-        if key in ("command", "dev_command", "func") or value is None:
+        if key in ("command", "dev_command", "func") or value is None or value is False:
             continue
         flag = "--" + key.replace("_", "-")
+        if value is True:
+            parts.append(flag)
+            continue
         for v in value if isinstance(value, list) else [value]:
             parts += [flag, str(v)]
-    return " ".join(shlex.quote(p) for p in parts)
+    return shlex.join(parts)
+
+
+class _AboveBars(logging.Handler):
+    """Each record as ``camwhisker CMD: warning: ...`` on stderr, above any progress bar."""
+
+    def __init__(self, command: str):
+        super().__init__(logging.WARNING)
+        self.command = command
+
+    def emit(self, record: logging.LogRecord) -> None:
+        from tqdm import tqdm
+
+        level = record.levelname.lower()
+        tqdm.write(f"camwhisker {self.command}: {level}: {record.getMessage()}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def warnings_above_bars(command: str):
+    """The library's warnings (logging) printed above any progress bar (``tqdm.write``),
+    not into its line, while the command runs; left alone where logging is set up already."""
+    root = logging.getLogger()
+    handler = None if root.handlers else _AboveBars(command)
+    if handler is not None:
+        root.addHandler(handler)
+    try:
+        yield
+    finally:
+        if handler is not None:
+            root.removeHandler(handler)
+

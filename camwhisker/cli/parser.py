@@ -24,7 +24,7 @@ from camwhisker.cli import (
     texture,
     validate,
 )
-from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter
+from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter, warnings_above_bars
 
 __all__ = ["build_parser", "main"]
 
@@ -99,7 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; bad input prints ``camwhisker CMD: error: ...`` and returns 2."""
     parser = build_parser()
-    args, rest = parser.parse_known_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    args, rest = parser.parse_known_args(words)
+    args.typed = words  # the exact command, for provenance (common.command_line)
     if getattr(args, "passes_options", False):  # a benchmark script parses its own (cli.dev)
         args.argv = rest
     elif rest:
@@ -107,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "dev":
         args.command = f"dev {args.dev_command}"
     try:
-        return int(args.func(args) or 0)
+        with warnings_above_bars(args.command):
+            return int(args.func(args) or 0)
     except INPUT_ERRORS as exc:
         print(f"camwhisker {args.command}: error: {exc}", file=sys.stderr)
         return 2
