@@ -4,7 +4,9 @@
 one page (``view.html``, plain JavaScript, nothing fetched from elsewhere):
 the current frame drawn by :func:`camwhisker.run.overlay.annotate_frame` (tracked
 corners, tip, the fitted model's outline, motion arrows at 10x), rolling plots
-of phi, dz and theta, the frame rate, drops and latency, and buttons that send
+of phi, dz and theta (and the contact's fields; with base poses, the recent
+contact points in W from above, x-y, and from the side, x-z, in mm), the frame
+rate, drops and latency, and buttons that send
 the session the commands its keys send (re-zero, re-detect, start/stop
 recording).
 
@@ -126,8 +128,10 @@ class Published:
 
 
 #: The contact fields the plots show, in the row's last columns: the belief, the
-#: contact distance (the fused one where the base is streamed in, else MF's) and Z.
-CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",))
+#: contact distance (the fused one where the base is streamed in, else MF's) and Z,
+#: then the contact point in W (with base poses), drawn from above and from the side.
+CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",), ("px_mm",), ("py_mm",),
+                 ("pz_mm",))
 
 
 def _row_numbers(p: Published) -> list:
