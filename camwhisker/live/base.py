@@ -239,7 +239,7 @@ def write_pose_log(path: str | Path, samples: list[tuple]) -> Path:
     as section 9's pose log with ``received_s``, atomically and exactly (repr)."""
     path = Path(path)
     lines = [",".join((*POSE_COLUMNS, "received_s"))]
-    lines += [",".join(map(repr, (t, *pose, r))) for t, pose, r in samples]
+    lines += [",".join(repr(float(v)) for v in (t, *pose, r)) for t, pose, r in samples]
     with atomic_path(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
     return path
