@@ -20,10 +20,14 @@ the front end (``live --calib`` with base positions): the live loop's
 belief, smoothing, onset, GM, MF, Z, fusion, eq. 12, the row's cells and the
 message's values) over the signal rows of simulated mapping runs (every rigid
 peg swept at 5 mm/s without pauses, the base streamed at 20 Hz), with a
-calibration from simulated rigid runs.
+calibration from simulated rigid runs. With ``--poses`` as well, the same runs again
+with the base's poses in space streamed in instead (``live --base-poses``: the runs
+lifted into a turned world frame, :func:`~camwhisker.sim.mechanics.space.lifted_poses`),
+each row then also placing the contact point in W; ``--contact-only`` skips the front
+end's frames.
 
     camwhisker dev live-bench [--frames 150] [--passes N] [--video FILE --sensor FILE]
-                                    [--contact]
+                                    [--contact [--poses] [--contact-only]]
     camwhisker live --bench
 """
 
@@ -206,13 +210,15 @@ class ContactBench:
     runs: int
     wall: dict
     cpu: dict
+    poses: bool = False
 
     def text(self) -> str:
         w, c = self.wall, self.cpu
         verdict = "meets" if w["p99_ms"] <= TARGET_CONTACT_P99_MS else "misses"
+        base = "base poses in space" if self.poses else "base positions"
         return "\n".join([
             f"live contact per frame (on top of the front end), {self.frames} frames of "
-            f"{self.runs} simulated mapping runs at {CONTACT_SPEED_MM_S:g} mm/s:",
+            f"{self.runs} simulated mapping runs at {CONTACT_SPEED_MM_S:g} mm/s, {base}:",
             f"  wall-clock: p50 {w['p50_ms']:.3f} ms, p99 {w['p99_ms']:.3f} ms, "
             f"max {w['max_ms']:.3f} ms, mean {w['mean_ms']:.3f} ms "
             f"({verdict} the p99 <= {TARGET_CONTACT_P99_MS:g} ms target)",
@@ -221,12 +227,14 @@ class ContactBench:
         ])  # fmt: skip
 
 
-def bench_contact(fps: float = 30.0) -> ContactBench:
-    """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes)."""
+def bench_contact(fps: float = 30.0, poses: bool = False) -> ContactBench:
+    """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes);
+    ``poses``: the base's poses streamed in, not its positions."""
     from camwhisker.contact.calibrate import CalibrationRun, calibrate
     from camwhisker.contact.stage import stage_log_from_arrays
     from camwhisker.live.contact import RowContact
     from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
+    from camwhisker.sim.mechanics.space import lifted_poses
     from camwhisker.vision.stream import Frame, RestRecord
     from camwhisker.vision.tracker import FrameResult
 
@@ -240,10 +248,13 @@ def bench_contact(fps: float = 30.0) -> ContactBench:
     nan3 = (math.nan,) * 3
     for run in runs:
         s = run.signals
-        contact = RowContact(calib, 1.0 / fps, base=True)
+        contact = RowContact(calib, 1.0 / fps, base=True, poses=poses)
         t_base = run.stage["t_s"] + run.offset_s  # camera clock
-        for t, x in zip(t_base, run.stage["x_mm"], strict=True):
-            contact.put(t, x, t)  # each position received when the base was there
+        _, p, q = lifted_poses(run.stage, (0.0, 0.0, 0.0), 0.0)
+        values = ([(*a, *b) for a, b in zip(p, q, strict=True)] if poses
+                  else run.stage["x_mm"])  # fmt: skip
+        for t, x in zip(t_base, values, strict=True):
+            contact.put(t, x, t)  # each sample received when the base was there
         rest: list = []
         for i in range(s["t_s"].size):
             if i == 30:  # the rest reference is built from the first 30 frames
@@ -253,12 +264,12 @@ def bench_contact(fps: float = 30.0) -> ContactBench:
                             paper=nan3)  # fmt: skip
             frame = Frame(i, float(s["t_s"][i]), None)
             tic, tc = time.perf_counter(), time.thread_time()
-            values = contact.update(frame, r, rest)
-            contact.message(values)
-            contact.cells(values)
+            row = contact.update(frame, r, rest)
+            contact.message(row)
+            contact.cells(row)
             wall.append(1e3 * (time.perf_counter() - tic))
             cpu.append(1e3 * (time.thread_time() - tc))
-    return ContactBench(len(wall), len(runs), latency_summary(wall), latency_summary(cpu))
+    return ContactBench(len(wall), len(runs), latency_summary(wall), latency_summary(cpu), poses)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -269,6 +280,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="process the frames N times; also print each frame's least CPU time")
     p.add_argument("--contact", action="store_true",
                    help="also time the per-frame contact work (live --calib with base positions)")
+    p.add_argument("--poses", action="store_true",
+                   help="with --contact: also with base poses in space (live --base-poses)")
+    p.add_argument("--contact-only", action="store_true",
+                   help="with --contact: not the front end's frames")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -280,9 +295,14 @@ def main(argv: list[str] | None = None) -> int:
     sensor = load_sensor(args.sensor) if args.sensor else None
     if args.passes < 1:
         p.error(f"--passes must be >= 1, got {args.passes}")
-    print(run_bench(args.frames, args.video, sensor, args.threads, args.passes).text())
+    if (args.poses or args.contact_only) and not args.contact:
+        p.error("--poses and --contact-only go with --contact")
+    if not args.contact_only:
+        print(run_bench(args.frames, args.video, sensor, args.threads, args.passes).text())
     if args.contact:
         print(bench_contact().text())
+    if args.poses:
+        print(bench_contact(poses=True).text())
     return 0
 
 

@@ -204,6 +204,9 @@ class PoseTrack:
         self.t_s.append(float(t_s))
         self.p_mm.append(p)
         self.quat.append(q)
+        if len(self.quat) == 1:
+            #: The first pose's rotation matrix: the travel's frame (as travel_log's).
+            self.r0 = _quat_matrix(q)
         return True
 
     def at(self, t_s: float):
@@ -268,8 +271,11 @@ class _Onset:
 
 class _SpaceOnset:
     """The contact onset as :class:`_Onset` does it, from the base's positions in W: they are
-    kept (before contact, the last ONSET_MAX_FRAMES frames) and projected on the travel
-    direction of each frame, re-taken with theta, until the onset is fixed."""
+    kept and projected on the travel direction of each frame, re-taken with theta, until
+    the onset is fixed. Of the frames before contact (the last ONSET_MAX_FRAMES), only the
+    least and most travelled along the first contact frame's direction are kept, as
+    :class:`_Onset` keeps them (theta moves by a few degrees after: a straight approach
+    has the same ends along it)."""
 
     def __init__(self):
         self.pre: deque[tuple[np.ndarray, float]] = deque(maxlen=ONSET_MAX_FRAMES)
@@ -290,12 +296,17 @@ class _SpaceOnset:
         if d_w is None:  # no direction yet (theta unknown): nothing to fit along
             return self.x0_mm
         if not self._n:  # the first contact frame: room for the onset's frames to come
-            m = len(self.pre)
-            self._p = np.empty((m + ONSET_MAX_FRAMES, 3))
-            self._phi = np.empty(m + ONSET_MAX_FRAMES)
-            for j, (q, f) in enumerate(self.pre):
+            pre = list(self.pre)
+            if pre:
+                x = [sign * float((q - origin) @ d_w) for q, _ in pre]
+                ends = sorted({int(np.argmin(x)), int(np.argmax(x))})
+                pre = [pre[j] for j in ends]
+            self.pre = deque(pre)
+            self._p = np.empty((len(pre) + ONSET_MAX_FRAMES, 3))
+            self._phi = np.empty(len(pre) + ONSET_MAX_FRAMES)
+            for j, (q, f) in enumerate(pre):
                 self._p[j], self._phi[j] = q, f
-            self._n = m
+            self._n = len(pre)
         self._p[self._n], self._phi[self._n] = p, phi_deg
         self._n += 1
         n = self._n
@@ -397,7 +408,7 @@ class OnlineContact:
             d_w = onset.direction
         elif math.isfinite(theta_p):
             # Along theta in S as the base was at its first pose (as travel_log does).
-            d_w = self._direction = _quat_matrix(self.base.quat[0]) @ _direction_s(theta_p)
+            d_w = self._direction = self.base.r0 @ _direction_s(theta_p)
         else:
             d_w = self._direction
         origin = self.base.p_mm[0] if self.base.p_mm else None
