@@ -305,3 +305,38 @@ def test_pose_options_are_checked(tmp_path, capsys):
     assert main(["replay", "x.avi", "--out", out, "--calib", calib, "--pose-log", str(bad)]) == 2
     assert f"{bad}: row 3, columns qw-qz: the quaternion's norm is 2" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_the_view_draws_the_contact_points_as_they_come():
+    """The view's page (headless Chromium, as tests/test_view.py) shows the points panels
+    once rows with a contact point come, holding every point published (its count)."""
+    from camwhisker.bench.view import headless_chromium, quit_chromium
+    from camwhisker.live.view import LiveView
+    from camwhisker.sensor.model import PlateModel
+    from camwhisker.vision.stream import Frame
+    from camwhisker.vision.tracker import FrameResult
+
+    view = LiveView(PlateModel(load_sensor(SAMPLES / "nominal.sensor.toml")), lambda name: None)
+    view.start()
+    driver = headless_chromium()
+    try:
+        driver.get(view.url)
+        js = driver.execute_script
+        hidden = "return document.getElementById('points-top').hidden"
+        assert js(hidden) is True  # no point yet: no panel
+        for i in range(40):
+            # The first 10 rows have no point (no contact): they are not drawn.
+            point = dict(zip(WORLD_COLUMNS[:3], (100.0 + i, -5.0 + 0.1 * i, 300.0 - i),
+                             strict=True)) if i >= 10 else dict.fromkeys(WORLD_COLUMNS[:3])
+            view.publish(Frame(i, i / FPS, None), FrameResult.untrusted(i, "test"), 1.0, 0,
+                         None, {"contact_b": 1.0, "r_hat_mm": 50.0, "z_score": 0.0, **point})
+            time.sleep(0.01)
+        deadline = time.monotonic() + 60.0
+        count = "return document.getElementById('points-side').dataset.points"
+        while js(count) != "30" and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert js(count) == "30" and js(hidden) is False
+        assert js("return window.view.points[29]") == [139.0, -1.1, 261.0]  # the last, i = 39
+    finally:
+        quit_chromium(driver)
+        view.close()

@@ -128,10 +128,10 @@ class Published:
 
 
 #: The contact fields the plots show, in the row's last columns: the belief, the
-#: contact distance (the fused one where the base is streamed in, else MF's) and Z,
-#: then the contact point in W (with base poses), drawn from above and from the side.
-CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",), ("px_mm",), ("py_mm",),
-                 ("pz_mm",))
+#: contact distance (the fused one where the base is streamed in, else MF's) and Z.
+CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",))
+#: With base poses, after them: the contact point in W, drawn from above and from the side.
+POINT_FIELDS = ("px_mm", "py_mm", "pz_mm")
 
 
 def _row_numbers(p: Published) -> list:
@@ -143,6 +143,8 @@ def _row_numbers(p: Published) -> list:
     for names in CONTACT_PLOTS:
         name = next((n for n in names if n in c), None)
         row.append(None if name is None or c[name] is None else number(c[name], 4))
+    if POINT_FIELDS[0] in c:  # only sessions with poses: the other rows keep their length
+        row += [None if c[n] is None else number(c[n], 4) for n in POINT_FIELDS]
     return row
 
 
