@@ -121,6 +121,8 @@ def test_a_mount_composes_the_carrier_pose_as_a_pose_log_does(tmp_path):
         np.testing.assert_allclose(got_p, want_p[0], atol=1e-9)
         np.testing.assert_allclose(got_m, want_m[0], atol=1e-12)
     assert track.at(0.2 + 0.3) is None  # past MAX_EXTRAPOLATE_S: no pose
+    # The turn since the first pose, as the offline check takes it (float rounding only).
+    assert track.turn_deg == pytest.approx(log.turn_deg(), abs=1e-6)
 
 
 #: Rows of a run fed to the online path (~40 s, ~1 s of CPU): its first contacts, slides
@@ -257,7 +259,10 @@ def test_live_session_with_streamed_poses_logs_them_and_replays(tmp_path):
     rep = session.run()
     sender.join()
     assert rep.rows == 90
-    meta = json.loads(out.with_suffix(".json").read_text())["contact"]["base"]
+    contact = json.loads(out.with_suffix(".json").read_text())["contact"]
+    meta = contact["base"]
+    # A carrier that keeps its orientation: no turn (float rounding), no problem said.
+    assert contact["base_turn_deg"] <= 1e-5 and not any("turned" in p for p in rep.problems)
     # Every good pose sent while the clip played came (the last few may be sent after the
     # session stopped receiving), and the three bad ones were named.
     n = meta["received"]

@@ -189,6 +189,9 @@ class PoseTrack:
         self.quat: list[np.ndarray] = []
         self._mount = None if mount is None else (np.asarray(mount.position_mm, float),
                                                   np.asarray(mount.quat, float))
+        #: The largest angle (deg) between the first pose's orientation and any later one's
+        #: (contact_rows_in_space refuses a run past MAX_TURN_DEG; live can only say so).
+        self.turn_deg = 0.0
 
     def add(self, t_s: float, pose) -> bool:
         """Append a pose (x, y, z, qw, qx, qy, qz); False (ignored) where its time is not
@@ -207,6 +210,8 @@ class PoseTrack:
         if len(self.quat) == 1:
             #: The first pose's rotation matrix: the travel's frame (as travel_log's).
             self.r0 = _quat_matrix(q)
+        cos_half = min(abs(float(q @ self.quat[0])), 1.0)
+        self.turn_deg = max(self.turn_deg, math.degrees(2.0 * math.acos(cos_half)))
         return True
 
     def at(self, t_s: float):

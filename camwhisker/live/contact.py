@@ -84,6 +84,8 @@ class RowContact:
         if self.feed is not None:
             out["base_positions"] = len(self.feed.samples)
             out["base_out_of_order"] = self.feed.out_of_order
+        if self.feed is not None and isinstance(self.feed.track, PoseTrack):
+            out["base_turn_deg"] = self.feed.track.turn_deg
         return out
 
 
