@@ -62,9 +62,14 @@ from camwhisker.contact.smooth import local_line
 from camwhisker.contact.space import WORLD_COLUMNS
 from camwhisker.contact.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
-__all__ = ["MAX_EXTRAPOLATE_S", "ONSET_MAX_FRAMES", "BELIEF_FIELDS", "MF_FIELDS", "BASE_FIELDS",
-           "WORLD_FIELDS", "BaseTrack", "BaseFeed", "PoseTrack", "OnlineContact"]
+__all__ = ["MAX_EXTRAPOLATE_S", "MAX_TURN_DEG", "ONSET_MAX_FRAMES", "BELIEF_FIELDS",
+           "MF_FIELDS", "BASE_FIELDS", "WORLD_FIELDS", "BaseTrack", "BaseFeed", "PoseTrack",
+           "OnlineContact"]
 
+#: Largest turn of the base (deg) the online contact in space places points for: it takes
+#: the base's own travel along one direction, which a turn of 0.5 deg moves by 0.9 mm at
+#: the whisker's 100 mm (about GM's spread); the contact command models a turning base.
+MAX_TURN_DEG = 0.5
 #: Longest time past the newest base position that x is extrapolated: 5 periods of a
 #: 20 Hz stage; a base silent for longer has stopped sending or is lost, so no x.
 MAX_EXTRAPOLATE_S = 0.25
