@@ -195,7 +195,7 @@ class PoseTrack:
         self._mount = None if mount is None else (np.asarray(mount.position_mm, float),
                                                   np.asarray(mount.quat, float))
         #: The largest angle (deg) between the first pose's orientation and any later one's
-        #: (contact_rows_in_space refuses a run past MAX_TURN_DEG; live can only say so).
+        #: (live places points for a base within MAX_TURN_DEG; past it the session says so).
         self.turn_deg = 0.0
 
     def add(self, t_s: float, pose) -> bool:
