@@ -28,8 +28,8 @@ from scipy.spatial.transform import Rotation
 
 from camwhisker.cli.parser import main
 from camwhisker.contact.calibrate import read_calibration
-from camwhisker.contact.online import BaseFeed, OnlineContact, PoseTrack
-from camwhisker.contact.space import WORLD_COLUMNS, contact_rows_in_space
+from camwhisker.contact.online import BaseFeed, BaseTrack, OnlineContact, PoseTrack
+from camwhisker.contact.space import WORLD_COLUMNS, contact_rows_in_space, travel_log
 from camwhisker.io.poses import QUAT_NORM_TOL, Mount, read_pose_log
 from camwhisker.io.signals import read_signal_table
 from camwhisker.live.base import (
@@ -130,10 +130,11 @@ def test_a_mount_composes_the_carrier_pose_as_a_pose_log_does(tmp_path):
 ONLINE_ROWS = 1200
 
 
-def _online(signals, samples, calib):
+def _online(signals, samples, calib, track=None):
     """The first ONLINE_ROWS rows of OnlineContact fed the run's frames in order, each with
-    the pose samples received by its time (as a live session hands them over)."""
-    feed = BaseFeed(PoseTrack())
+    the pose samples received by its time (as a live session hands them over); ``track``
+    a BaseTrack for position samples."""
+    feed = BaseFeed(PoseTrack() if track is None else track)
     for sample in samples:
         feed.put(*sample)
     online = OnlineContact(calib, 1 / FPS, base=feed.track)
@@ -188,6 +189,12 @@ def test_online_contact_in_space_agrees_with_the_offline_table(name, tmp_path):
     placed = p + np.einsum("nij,nj->ni", m, local)
     err = np.linalg.norm(p_on - placed, axis=1)[has_on]
     assert np.median(err) <= 0.01 and err.max() <= 0.3
+    # r_hat is the one-axis online path's, fed the offline travel (the poses projected on
+    # the run's theta): within 0.01 mm (3 um seen), the running theta's tiny difference.
+    x = travel_log(read_pose_log(log), theta)
+    one_axis = _online(signals, [(t, v, t) for t, v in zip(x.t_s, x.x_mm, strict=True)],
+                       calib, BaseTrack())  # fmt: skip
+    np.testing.assert_allclose(on["r_hat_mm"], one_axis["r_hat_mm"], atol=0.01, equal_nan=True)
     # The point: what is left is the contact distance r_hat, which online finds from the
     # frames so far (tests/test_live_contact.py holds it to batch): |dP| <= |dr| + 0.3 mm.
     dp = np.linalg.norm(p_on - p_off, axis=1)[both]
