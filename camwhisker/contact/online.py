@@ -36,8 +36,9 @@ so far: the pressing direction theta is the phi-weighted circular mean of theta 
 the trusted rows at phi >= CONTACT_PHI_DEG of the contact so far (:class:`_Pressing`;
 the batch command's mean is over the whole run); the travel is the base's position
 projected on R0 (cos theta, sin theta, 0) (R0 the first pose's rotation), its
-direction re-taken each frame until the onset is fixed and kept from there; eq. 12's
-point is placed in W by the pose at the frame (:data:`WORLD_FIELDS`).
+direction re-taken each frame until the onset is fixed and kept from there (before the
+session's first contact theta is unknown: x_mm is empty); eq. 12's point is placed in W
+by the pose at the frame (:data:`WORLD_FIELDS`).
 """
 
 from __future__ import annotations
