@@ -20,10 +20,15 @@ the front end (``live --calib`` with base positions): the live loop's
 belief, smoothing, onset, GM, MF, Z, fusion, eq. 12, the row's cells and the
 message's values) over the signal rows of simulated mapping runs (every rigid
 peg swept at 5 mm/s without pauses, the base streamed at 20 Hz), with a
-calibration from simulated rigid runs.
+calibration from simulated rigid runs. With ``--poses``, the base's poses in space are
+streamed in instead (``live --base-poses``: the runs lifted into a turned world frame,
+:func:`~camwhisker.sim.mechanics.space.lifted_poses`), each row then also placing the
+contact point in W; each row also goes through a contact given the positions, just
+before, and the difference per row is what the poses add. ``--contact-only`` skips the
+front end's frames.
 
     camwhisker dev live-bench [--frames 150] [--passes N] [--video FILE --sensor FILE]
-                                    [--contact]
+                                    [--contact [--poses] [--contact-only]]
     camwhisker live --bench
 """
 
@@ -206,44 +211,80 @@ class ContactBench:
     runs: int
     wall: dict
     cpu: dict
+    poses: bool = False
+    #: With poses: the positions' CPU time on the same rows, and each row's difference.
+    cpu_positions: dict | None = None
+    added_cpu: dict | None = None
 
     def text(self) -> str:
         w, c = self.wall, self.cpu
         verdict = "meets" if w["p99_ms"] <= TARGET_CONTACT_P99_MS else "misses"
-        return "\n".join([
+        base = "base poses in space" if self.poses else "base positions"
+        lines = [
             f"live contact per frame (on top of the front end), {self.frames} frames of "
-            f"{self.runs} simulated mapping runs at {CONTACT_SPEED_MM_S:g} mm/s:",
+            f"{self.runs} simulated mapping runs at {CONTACT_SPEED_MM_S:g} mm/s, {base}:",
             f"  wall-clock: p50 {w['p50_ms']:.3f} ms, p99 {w['p99_ms']:.3f} ms, "
             f"max {w['max_ms']:.3f} ms, mean {w['mean_ms']:.3f} ms "
             f"({verdict} the p99 <= {TARGET_CONTACT_P99_MS:g} ms target)",
             f"  CPU time: p50 {c['p50_ms']:.3f} ms, p99 {c['p99_ms']:.3f} ms, "
             f"max {c['max_ms']:.3f} ms",
-        ])  # fmt: skip
+        ]  # fmt: skip
+        if self.added_cpu is not None:
+            b, a = self.cpu_positions, self.added_cpu
+            # A row's two times each carry the machine's noise: the p99 of their difference
+            # is that noise's, the difference of the p99s the poses' own.
+            lines += [f"  the same rows with base positions, CPU time: p50 {b['p50_ms']:.3f} ms, "
+                      f"p99 {b['p99_ms']:.3f} ms",
+                      f"  added by the poses: p50 of the rows' differences {a['p50_ms']:.3f} ms, "
+                      f"p99 less p99 {c['p99_ms'] - b['p99_ms']:.3f} ms (CPU)"]  # fmt: skip
+        return "\n".join(lines)
 
 
-def bench_contact(fps: float = 30.0) -> ContactBench:
-    """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes)."""
+def _contact_runs(fps: float):
+    """The bench's calibration (simulated rigid runs) and its mapping runs."""
     from camwhisker.contact.calibrate import CalibrationRun, calibrate
     from camwhisker.contact.stage import stage_log_from_arrays
-    from camwhisker.live.contact import RowContact
     from camwhisker.sim.mechanics.experiment import continuous_protocol, simulate_runs
-    from camwhisker.vision.stream import Frame, RestRecord
-    from camwhisker.vision.tracker import FrameResult
 
     cal_runs = [CalibrationRun(r.signals, stage_log_from_arrays(r.stage["t_s"], r.stage["x_mm"],
                                                                 r.stage["r_mm"]))
                 for r in simulate_runs("rigid", CONTACT_CALIB_SEED)]  # fmt: skip
     calib = calibrate(cal_runs, Sensor().whisker.length_mm, command="bench")[0]
     protocol = continuous_protocol(CONTACT_SPEED_MM_S, fps=fps)
-    runs = simulate_runs("rigid", CONTACT_RUN_SEED, protocol=protocol)
-    wall, cpu = [], []
+    return calib, simulate_runs("rigid", CONTACT_RUN_SEED, protocol=protocol)
+
+
+def _fed_contact(calib, run, fps: float, poses: bool):
+    """A RowContact given the run's base positions (or poses, the run lifted into space),
+    each received when the base was there."""
+    from camwhisker.live.contact import RowContact
+    from camwhisker.sim.mechanics.space import lifted_poses
+
+    contact = RowContact(calib, 1.0 / fps, base=True, poses=poses)
+    t_base = run.stage["t_s"] + run.offset_s  # camera clock
+    _, p, q = lifted_poses(run.stage, (0.0, 0.0, 0.0), 0.0)
+    values = [(*a, *b) for a, b in zip(p, q, strict=True)] if poses else run.stage["x_mm"]
+    for t, x in zip(t_base, values, strict=True):
+        contact.put(t, x, t)
+    return contact
+
+
+def bench_contact(fps: float = 30.0, poses: bool = False) -> ContactBench:
+    """Time :class:`~camwhisker.live.contact.RowContact` per row (see the module notes);
+    ``poses``: the base's poses streamed in, each row also through a contact given the
+    positions just before (the same row, the machine in the same state), for the
+    difference."""
+    from camwhisker.vision.stream import Frame, RestRecord
+    from camwhisker.vision.tracker import FrameResult
+
+    calib, runs = _contact_runs(fps)
+    kinds = (False, True) if poses else (False,)
+    wall: dict = {k: [] for k in kinds}
+    cpu: dict = {k: [] for k in kinds}
     nan3 = (math.nan,) * 3
     for run in runs:
         s = run.signals
-        contact = RowContact(calib, 1.0 / fps, base=True)
-        t_base = run.stage["t_s"] + run.offset_s  # camera clock
-        for t, x in zip(t_base, run.stage["x_mm"], strict=True):
-            contact.put(t, x, t)  # each position received when the base was there
+        contacts = {k: _fed_contact(calib, run, fps, k) for k in kinds}
         rest: list = []
         for i in range(s["t_s"].size):
             if i == 30:  # the rest reference is built from the first 30 frames
@@ -252,13 +293,18 @@ def bench_contact(fps: float = 30.0) -> ContactBench:
                             theta_deg=s["theta_deg"][i], ok=bool(s["ok"][i]), model=nan3,
                             paper=nan3)  # fmt: skip
             frame = Frame(i, float(s["t_s"][i]), None)
-            tic, tc = time.perf_counter(), time.thread_time()
-            values = contact.update(frame, r, rest)
-            contact.message(values)
-            contact.cells(values)
-            wall.append(1e3 * (time.perf_counter() - tic))
-            cpu.append(1e3 * (time.thread_time() - tc))
-    return ContactBench(len(wall), len(runs), latency_summary(wall), latency_summary(cpu))
+            for k in kinds:
+                tic, tc = time.perf_counter(), time.thread_time()
+                row = contacts[k].update(frame, r, rest)
+                contacts[k].message(row)
+                contacts[k].cells(row)
+                wall[k].append(1e3 * (time.perf_counter() - tic))
+                cpu[k].append(1e3 * (time.thread_time() - tc))
+    added = np.subtract(cpu[True], cpu[False]).tolist() if poses else None
+    return ContactBench(len(wall[poses]), len(runs), latency_summary(wall[poses]),
+                        latency_summary(cpu[poses]), poses,
+                        latency_summary(cpu[False]) if poses else None,
+                        latency_summary(added) if poses else None)  # fmt: skip
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -269,6 +315,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="process the frames N times; also print each frame's least CPU time")
     p.add_argument("--contact", action="store_true",
                    help="also time the per-frame contact work (live --calib with base positions)")
+    p.add_argument("--poses", action="store_true",
+                   help="with --contact: with base poses in space (live --base-poses), each "
+                        "row also with positions, for the time the poses add")
+    p.add_argument("--contact-only", action="store_true",
+                   help="with --contact: not the front end's frames")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -280,9 +331,12 @@ def main(argv: list[str] | None = None) -> int:
     sensor = load_sensor(args.sensor) if args.sensor else None
     if args.passes < 1:
         p.error(f"--passes must be >= 1, got {args.passes}")
-    print(run_bench(args.frames, args.video, sensor, args.threads, args.passes).text())
+    if (args.poses or args.contact_only) and not args.contact:
+        p.error("--poses and --contact-only go with --contact")
+    if not args.contact_only:
+        print(run_bench(args.frames, args.video, sensor, args.threads, args.passes).text())
     if args.contact:
-        print(bench_contact().text())
+        print(bench_contact(poses=args.poses).text())
     return 0
 
 

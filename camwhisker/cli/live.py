@@ -36,10 +36,21 @@ def _contact_args(p, live: bool) -> None:
                        help="receive the base position, one JSON datagram {t_s, x_mm} each")
         p.add_argument("--base-host", default="127.0.0.1",
                        help="interface to receive base positions on (default: this host)")
+        p.add_argument("--base-poses", action="store_true",
+                       help="with --base-udp: the datagrams are poses in space {t_s, x_mm, "
+                            "y_mm, z_mm, qw, qx, qy, qz} (docs/sensor.md, section 9): the rows "
+                            "add the contact point px_mm..nz; written as OUT.pose.csv")
     else:
-        p.add_argument("--base-log", metavar="L.csv",
-                       help="the base positions: OUT.base.csv of the live session (or a stage "
-                            "log t_s,x_mm)")
+        base = p.add_mutually_exclusive_group()
+        base.add_argument("--base-log", metavar="L.csv",
+                          help="the base positions: OUT.base.csv of the live session (or a "
+                               "stage log t_s,x_mm)")
+        base.add_argument("--pose-log", metavar="P.csv",
+                          help="the base poses: OUT.pose.csv of the live session (or a pose "
+                               "log of section 9): the rows add the contact point in space")
+    p.add_argument("--mount", metavar="X,Y,Z,QW,QX,QY,QZ",
+                   help="with poses: they are a carrier's (a robot's flange), and this is the "
+                        "sensor's pose in its frame")
     p.add_argument("--base-offset-s", type=float, metavar="X",
                    help="t_camera = t_base + X; default: " + (
                        "the sender stamps with this machine's monotonic clock" if live
@@ -50,7 +61,14 @@ def _calib_of(args):
     """The --calib file's calibration (or None), with the checks of its options."""
     if args.eta_deg is not None and not args.eta_deg > 0:
         raise CommandError(f"--eta-deg must be > 0, got {args.eta_deg}")
-    base = getattr(args, "base_udp", None) is not None or getattr(args, "base_log", None)
+    base = (getattr(args, "base_udp", None) is not None or getattr(args, "base_log", None)
+            or getattr(args, "pose_log", None))
+    poses = getattr(args, "base_poses", False) or getattr(args, "pose_log", None)
+    if getattr(args, "base_poses", False) and args.base_udp is None:
+        raise CommandError("--base-poses goes with --base-udp PORT")
+    if args.mount and not poses:
+        raise CommandError("--mount goes with base poses (" + (
+            "--base-poses" if hasattr(args, "base_poses") else "--pose-log") + ")")
     if args.calib is None:
         if base or args.eta_deg is not None:
             raise CommandError("--eta-deg and the base positions need --calib")
@@ -58,6 +76,15 @@ def _calib_of(args):
     from camwhisker.contact.calibrate import read_calibration
 
     return read_calibration(args.calib)
+
+
+def _mount_of(args):
+    """--mount as a Mount (None without it)."""
+    if not args.mount:
+        return None
+    from camwhisker.io.poses import Mount
+
+    return Mount.parse(args.mount)
 
 
 def _springs_with(args, calib):
@@ -166,6 +193,7 @@ def _run_live(args) -> int:
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
     calib = _calib_of(args)
+    mount = _mount_of(args)  # before the capture opens: a bad one leaves nothing open
     capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
     if args.loop and hasattr(capture, "loop"):
         capture.loop = True
@@ -187,6 +215,8 @@ def _run_live(args) -> int:
         base_port=args.base_udp,
         base_host=args.base_host,
         base_offset_s=args.base_offset_s,
+        base_poses=args.base_poses,
+        mount=mount,
         view_port=args.view,
         view_host=args.view_host,
     )
@@ -223,20 +253,23 @@ def _run_replay(args) -> int:
     calib = _calib_of(args)
     contact = None
     if calib is not None:
-        from camwhisker.live.base import read_base_log
+        from camwhisker.live.base import read_base_log, read_pose_log_samples
         from camwhisker.live.contact import RowContact
 
-        samples = (read_base_log(args.base_log, args.base_offset_s or 0.0)
-                   if args.base_log else None)
+        mount = _mount_of(args)
+        offset = args.base_offset_s or 0.0
+        samples = (read_pose_log_samples(args.pose_log, offset) if args.pose_log else
+                   read_base_log(args.base_log, offset) if args.base_log else None)
 
         def contact(frame_s):
-            rc = RowContact(calib, frame_s, args.eta_deg, base=samples is not None)
+            rc = RowContact(calib, frame_s, args.eta_deg, base=samples is not None,
+                            poses=bool(args.pose_log), mount=mount)
             for sample in samples or ():
                 rc.put(*sample)
             return rc
 
     elif args.base_offset_s is not None:
-        raise CommandError("--base-offset-s needs --calib and --base-log")
+        raise CommandError("--base-offset-s needs --calib and --base-log or --pose-log")
     out = reprocess_session(args.session, sensor, args.out, options,
                             _springs_with(args, calib), contact)
     print(out)

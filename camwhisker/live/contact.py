@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import math
 
-from camwhisker.contact.online import BaseFeed, BaseTrack, OnlineContact
+from camwhisker.contact.online import BaseFeed, BaseTrack, OnlineContact, PoseTrack
 from camwhisker.vision.stream import Frame
 from camwhisker.vision.tracker import FrameResult
 
 __all__ = ["FORMATS", "RowContact"]
 
 #: Cell format of each field (the message rounds to the same digits).
-FORMATS = {"contact_b": ".4f", "z_score": ".3f", "z_combined": ".3f", "p_gm_good": ".4f"}
+FORMATS = {"contact_b": ".4f", "z_score": ".3f", "z_combined": ".3f", "p_gm_good": ".4f",
+           "nx": ".6f", "ny": ".6f", "nz": ".6f"}  # a unit vector: 1e-6 is 0.00006 deg
 _DEFAULT_FORMAT = ".4f"  # mm and mm/s: 0.1 um, far below any estimate's noise
 
 
@@ -33,17 +34,23 @@ class RowContact:
         Given eta; default from the first rest reference's frames.
     base : bool
         Whether base positions come (:meth:`put`).
+    poses : bool
+        With ``base``: they are poses in space (the rows add the contact point in W).
+    mount : camwhisker.io.poses.Mount, optional
+        With ``poses``: the sensor's pose in the frame of the carrier the poses are of.
     """
 
-    def __init__(self, calib, frame_s: float, eta_deg: float | None = None, base: bool = False):
-        track = BaseTrack() if base else None
+    def __init__(self, calib, frame_s: float, eta_deg: float | None = None, base: bool = False,
+                 poses: bool = False, mount=None):  # fmt: skip
+        track = (PoseTrack(mount) if poses else BaseTrack()) if base else None
         self.feed = BaseFeed(track) if base else None
         self.online = OnlineContact(calib, frame_s, eta_deg, track)
         self.fields = self.online.fields()
 
-    def put(self, t_s: float, x_mm: float, received_s: float) -> None:
-        """A base position (camera clock, s) and when it was received (camera clock)."""
-        self.feed.put(t_s, x_mm, received_s)
+    def put(self, t_s: float, value, received_s: float) -> None:
+        """A base position x_mm, or pose (its seven numbers), at t_s (camera clock, s) and
+        when it was received (camera clock)."""
+        self.feed.put(t_s, value, received_s)
 
     def update(self, frame: Frame, r: FrameResult, rest_log: list) -> dict:
         """The fields for one row; ``rest_log`` the stream's rest references so far."""
@@ -53,7 +60,8 @@ class RowContact:
         rest = (rest_log[0].frame, rest_log[0].frames_used) if rest_log else None
         # The pose as the table holds it, so a command run on the table sees the same numbers.
         phi, dz = (float(format(v, ".5f")) for v in (r.phi_deg, r.dz_mm))
-        return self.online.update(frame.index, t, phi, dz, bool(r.ok), rest)
+        theta = float(format(r.theta_deg, ".3f"))
+        return self.online.update(frame.index, t, phi, dz, bool(r.ok), rest, theta)
 
     def cells(self, values: dict) -> list[str]:
         """The fields as table cells (NaN: empty)."""
@@ -76,6 +84,8 @@ class RowContact:
         if self.feed is not None:
             out["base_positions"] = len(self.feed.samples)
             out["base_out_of_order"] = self.feed.out_of_order
+        if self.feed is not None and isinstance(self.feed.track, PoseTrack):
+            out["base_turn_deg"] = self.feed.track.turn_deg
         return out
 
 

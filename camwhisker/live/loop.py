@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camwhisker.contact.online import MAX_TURN_DEG
 from camwhisker.files.atomic import atomic_path, sync_file
 from camwhisker.io.signals import (
     SignalWriter,
@@ -43,7 +44,13 @@ from camwhisker.io.signals import (
     write_signals,
 )
 from camwhisker.io.sources import SessionSource, SourceError, check_frame_size
-from camwhisker.live.base import BaseReceiver, base_log_path, write_base_log
+from camwhisker.live.base import (
+    BaseReceiver,
+    base_log_path,
+    pose_log_path,
+    write_base_log,
+    write_pose_log,
+)
 from camwhisker.live.capture import describe
 from camwhisker.live.contact import RowContact
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
@@ -150,6 +157,9 @@ class LiveConfig:
     base_port : receive base positions there (``base_host``, default this machine only;
         0: a free port), stamped on this machine's monotonic clock, or on any clock
         with ``base_offset_s`` given (t_camera = t_base + offset).
+    base_poses : the base datagrams are poses in space (docs/sensor.md section 9): the rows
+        add the contact point in W; ``mount`` the sensor's pose in the frame of the
+        carrier they are of (camwhisker.io.poses.Mount).
     """
 
     mode: str = "latest"
@@ -175,6 +185,8 @@ class LiveConfig:
     base_port: int | None = None
     base_host: str = "127.0.0.1"
     base_offset_s: float | None = None
+    base_poses: bool = False
+    mount: object = None  # camwhisker.io.poses.Mount
 
 
 @dataclass
@@ -242,17 +254,18 @@ class LiveSession:
         self.contact: RowContact | None = None
         self.base: BaseReceiver | None = None
         self._t0 = math.nan
-        self.base_samples: list[tuple[float, float, float]] = []
+        self.base_samples: list[tuple] = []
         cfg = self.config
         if cfg.calib is not None:
             self.contact = RowContact(cfg.calib, 1.0 / cfg.record_rate_fps, cfg.eta_deg,
-                                      base=cfg.base_port is not None)
+                                      base=cfg.base_port is not None, poses=cfg.base_poses,
+                                      mount=cfg.mount)  # fmt: skip
         if cfg.base_port is not None:
             if cfg.calib is None:
                 capture.release()
                 raise ValueError("base positions need a contact calibration (calib)")
             try:
-                self.base = BaseReceiver(cfg.base_port, cfg.base_host)
+                self.base = BaseReceiver(cfg.base_port, cfg.base_host, poses=cfg.base_poses)
             except OSError:
                 capture.release()
                 raise
@@ -493,15 +506,29 @@ class LiveSession:
         if out["eta_deg"] is None:
             why = out["eta_from"] or "none: no rest reference was built"
             self.report.problems.append(f"no contact belief: eta {why}")
+        what = "pose" if cfg.base_poses else "position"
         if self.base is not None and not self.base.received:
             host, port = self.base.address
-            self.report.problems.append(f"no base position received on {host}:{port}: no GM, "
-                                        f"Z, fusion or contact point")
+            dropped = "; ".join(f"{n} dropped: {k}" for k, n in self.base.rejected.items())
+            self.report.problems.append(f"no base {what} received on {host}:{port}: no GM, "
+                                        f"Z, fusion or contact point"
+                                        + (f" ({dropped})" if dropped else ""))  # fmt: skip
+        turn = out.get("base_turn_deg", 0.0)
+        if turn > MAX_TURN_DEG:
+            self.report.problems.append(
+                f"the base turned by {turn:.2f} deg: live places the contact points for a base "
+                f"that keeps its orientation (within {MAX_TURN_DEG:g} deg); camwhisker contact "
+                "--pose on OUT.pose.csv models the turn")
         if self.base is not None:
-            path = write_base_log(base_log_path(self.out_csv), self.base_samples)
+            if cfg.base_poses:
+                path = write_pose_log(pose_log_path(self.out_csv), self.base_samples)
+            else:
+                path = write_base_log(base_log_path(self.out_csv), self.base_samples)
+            m = cfg.mount
             out["base"] = {
                 "address": list(self.base.address), "received": self.base.received,
-                "rejected": self.base.rejected, "log": str(path),
+                "rejected": self.base.rejected, "log": str(path), "kind": what + "s",
+                "mount": None if m is None else [*map(float, m.position_mm), *map(float, m.quat)],
                 "clock": ("this machine's monotonic clock" if cfg.base_offset_s is None
                           else f"t_camera = t_base + {cfg.base_offset_s!r} s"),
             }

@@ -4,7 +4,9 @@
 one page (``view.html``, plain JavaScript, nothing fetched from elsewhere):
 the current frame drawn by :func:`camwhisker.run.overlay.annotate_frame` (tracked
 corners, tip, the fitted model's outline, motion arrows at 10x), rolling plots
-of phi, dz and theta, the frame rate, drops and latency, and buttons that send
+of phi, dz and theta (and the contact's fields; with base poses, the recent
+contact points in W from above, x-y, and from the side, x-z, in mm), the frame
+rate, drops and latency, and buttons that send
 the session the commands its keys send (re-zero, re-detect, start/stop
 recording).
 
@@ -128,6 +130,8 @@ class Published:
 #: The contact fields the plots show, in the row's last columns: the belief, the
 #: contact distance (the fused one where the base is streamed in, else MF's) and Z.
 CONTACT_PLOTS = (("contact_b",), ("r_hat_mm", "r_mf_mm"), ("z_score",))
+#: With base poses, after them: the contact point in W, drawn from above and from the side.
+POINT_FIELDS = ("px_mm", "py_mm", "pz_mm")
 
 
 def _row_numbers(p: Published) -> list:
@@ -139,6 +143,8 @@ def _row_numbers(p: Published) -> list:
     for names in CONTACT_PLOTS:
         name = next((n for n in names if n in c), None)
         row.append(None if name is None or c[name] is None else number(c[name], 4))
+    if POINT_FIELDS[0] in c:  # only sessions with poses: the other rows keep their length
+        row += [None if c[n] is None else number(c[n], 4) for n in POINT_FIELDS]
     return row
 
 
