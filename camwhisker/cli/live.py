@@ -184,7 +184,8 @@ def _run_live(args) -> int:
         return 0
     if not args.source or not args.out:
         raise CommandError("live needs a SOURCE and --out (or --bench)")
-    logging.basicConfig(level=logging.INFO, format="camwhisker live: %(message)s")
+    # Replaces the command's warning handler: live logs its own progress at INFO.
+    logging.basicConfig(level=logging.INFO, format="camwhisker live: %(message)s", force=True)
     profile = C310_PROFILE
     if args.no_lock:
         profile = replace(profile, auto_wb=None, auto_exposure=None)

@@ -49,13 +49,7 @@ from collections import deque
 
 import numpy as np
 
-from camwhisker.contact.belief import (
-    ETA_FACTOR,
-    ETA_QUANTILE,
-    contact_belief,
-    eta_from_rest,
-    next_contact,
-)
+from camwhisker.contact.belief import contact_belief, eta_from_rest, eta_source, next_contact
 from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
@@ -398,8 +392,8 @@ class OnlineContact:
         except ValueError as exc:  # the session goes on without a belief, and says why
             self.eta_from = f"none: rest frames {first}-{first + used - 1}: {exc}"
             return
-        self.eta_from = (f"{ETA_FACTOR:g} x the {ETA_QUANTILE:g} quantile of phi_deg over "
-                         f"rest frames {first}-{first + used - 1}")
+        how = eta_source(np.array(d), self.eta_deg)
+        self.eta_from = f"{how}: frames {first}-{first + used - 1}"
 
     def _travel(self, t_s: float, phi: float) -> tuple[float, float, float, float]:
         """(x_mm, speed_mm_s, dx_mm, travel sign) at the frame, from base positions."""
