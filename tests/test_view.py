@@ -107,6 +107,13 @@ def _check_page_and_buttons(run, out, avi):
         # The picture and the plots update while the clip plays.
         _until(lambda: js("return window.view.pictures") >= 3, "three pictures")
         first = int(js("return document.getElementById('frame').dataset.frame"))
+        # The header names the picture's own frame; a panel shows only where it has data
+        # (no --calib here: no belief, r or Z panel).
+        _until(lambda: js("return document.getElementById('picture-index').textContent")
+               == js("return document.getElementById('frame').dataset.frame"), "the header")
+        assert js("return document.getElementById('plot-phi').hidden") is False
+        assert js("return ['plot-belief', 'plot-r', 'plot-z'].map("
+                  "(id) => document.getElementById(id).hidden)") == [True, True, True]
         plot_before = js("return document.getElementById('plot-phi').toDataURL()")
         plotted_before = int(js("return document.getElementById('plot-phi').dataset.lastFrame"))
         _until(lambda: int(js("return document.getElementById('frame').dataset.frame"))
