@@ -285,3 +285,17 @@ def test_latency_bench_least_over_passes(capsys):
     assert bench_main(["--video", str(SAMPLES / "nominal_mjpg.avi"), "--passes", "2",
                        "--sensor", str(SAMPLES / "nominal_mjpg.sensor.toml")]) == 0  # fmt: skip
     assert "least CPU time over 2 passes: p50" in capsys.readouterr().out
+
+
+def test_a_missing_camera_is_one_line_of_error(tmp_path):
+    # No /dev/video7 on a test machine (checked: else the test would open a real camera).
+    assert not Path("/dev/video7").exists()
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_LOG_LEVEL"}
+    done = subprocess.run([sys.executable, "-m", "camwhisker.cli", "live", "7", "--sensor",
+                           str(Path(__file__).resolve().parents[1] / "sample_frames" /
+                               "nominal.sensor.toml"), "--out", str(tmp_path / "x.csv")],
+                          capture_output=True, text=True, env=env, timeout=120)  # fmt: skip
+    # camwhisker's error alone: OpenCV's own "[ WARN ...] can't open camera" lines are quiet.
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == ["camwhisker live: error: camera 7: cannot open 7"]
+    assert not (tmp_path / "x.csv").exists()

@@ -23,7 +23,9 @@ folder), decoded exactly as batch decodes it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -44,6 +46,21 @@ __all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is
 
 log = logging.getLogger(__name__)
 
+
+
+@contextlib.contextmanager
+def _opencv_quiet():
+    """OpenCV's own log silenced while a camera opens (a missing one prints two WARN lines
+    before camwhisker's error says the same), unless the user set OPENCV_LOG_LEVEL."""
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        yield
+        return
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(level)
 
 class CaptureError(OSError):
     """A capture device cannot be opened or read."""
@@ -114,7 +131,8 @@ class CameraCapture:
         self._open()
 
     def _open(self) -> None:
-        cap = self._opener(self.target)
+        with _opencv_quiet():
+            cap = self._opener(self.target)
         if not cap.isOpened():
             raise CaptureError(f"camera {self.spec}: cannot open {self.target}")
         self.settings = apply_profile(cap, self.profile)
