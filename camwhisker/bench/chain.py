@@ -319,13 +319,15 @@ def format_summary(s: dict) -> str:
         f"{_num(fe['phi_rmse_deg'], '.3f')} deg, dz RMSE {_num(fe['dz_rmse_mm'], '.4f')} mm",
         f"contact tables per {s['provenance']['contact_per']} (as `contact --per "
         f"{s['provenance']['contact_per']}`); errors (mm) per role, the calibration's "
-        "in-sample (MF's table holds its pauses):",
-        f"  {'role':<12}{'pauses':>7}{'GM RMSE':>9}{'GM mean':>9}{'MF RMSE':>9}"
+        "in-sample (MF's table holds its pauses), over the pauses with GM and MF (of those "
+        "with GM, as Fig. 7A counts them):",
+        f"  {'role':<12}{'pauses':>10}{'GM RMSE':>9}{'GM mean':>9}{'MF RMSE':>9}"
         f"{'fused RMSE':>12}{'bad':>5}{'hit':>6}{'false flags':>13}",
     ]
     for role, r in s["roles"].items():
+        pauses = f"{r['n']} of {r['n_gm']}"
         lines.append(
-            f"  {role:<12}{r['n']:>7}{_num(r['gm_rmse_mm'], '.2f'):>9}"
+            f"  {role:<12}{pauses:>10}{_num(r['gm_rmse_mm'], '.2f'):>9}"
             f"{_num(r['gm_mean_mm'], '.2f'):>9}{_num(r['mf_rmse_mm'], '.2f'):>9}"
             f"{_num(r['fused_rmse_mm'], '.2f'):>12}{r['n_bad']:>5}"
             f"{_num(r['z_score_hit'], '.2f'):>6}{_num(r['z_score_false'], '.2f'):>13}"

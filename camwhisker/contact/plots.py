@@ -151,7 +151,7 @@ def plot_texture(est, path, how: str = "") -> None:
         times = tr.get(key, np.zeros(0))
         if len(times):
             ax.plot(times, np.interp(times, t, y), mark, color="C3", ms=4, label=key)
-    title = (f"gap {est.gap_mm:.3g} ± {est.gap_se_mm:.2g} mm, amplitude {est.amplitude_mm:.3g} ± "
+    title = (f"gap {est.gap_mm:.4g} ± {est.gap_se_mm:.2g} mm, amplitude {est.amplitude_mm:.4g} ± "
              f"{est.amplitude_se_mm:.2g} mm" if est.resolved
              else f"not resolved: gap >= {est.limits['gap_min_mm']:.3g} mm needed")
     ax.set_title(title)
