@@ -77,7 +77,7 @@ def test_a_whisk_is_placed_with_the_turning_model(calib, kind, seed, median_mm, 
     d_w = poses.rotations[0].apply([1.0, 0.0, 0.0])
     log = stage_log_from_arrays(poses.t_s, (poses.p_mm - poses.p_mm[0]) @ d_w, max_gap_s=1.0)
     flat, flat_run = contact_rows(signals, log, calib, an.offset_s)
-    e_flat = _errors(space._placed(flat, flat_run, poses, theta), run.truth["contact_w"])
+    e_flat = _errors(space.placed_in_world(flat, flat_run, poses, theta), run.truth["contact_w"])
     assert np.percentile(e_flat, 95) > 3.0 * np.percentile(e, 95)
 
 

@@ -24,6 +24,7 @@ BENCH_SCRIPTS = {
     "solids-bench": ("solids", "objects in 3-D from sweeps lifted into space"),
     "space-filmed-bench": ("space_filmed", "a sweep in space filmed: contact points, object"),
     "taps-bench": ("taps", "seed 000's spheres and plane tapped by a rig: identification, error"),
+    "whisk-bench": ("whisk", "a base that turns: contact points with and without its model"),
 }
 
 

@@ -39,7 +39,8 @@ from camwhisker.contact.stage import (
 from camwhisker.io.poses import MAX_GAP_S, PoseLog
 
 __all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "STILL_TURN_DEG", "MIN_TRAVEL_MM", "MIN_CLOCK_SCORE",
-           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space"]  # fmt: skip
+           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space",
+           "placed_in_world"]  # fmt: skip
 
 #: The contact point and the surface normal's estimate in W, after the section 7 columns.
 WORLD_COLUMNS = ("px_mm", "py_mm", "pz_mm", "nx", "ny", "nz")
@@ -245,10 +246,10 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
         cols, run = contact_rows(signals, travel_log(poses, theta, reach_mm=calib.l_w_mm),
                                  calib, offset_s, mode)  # fmt: skip
         _check_clock(run, poses)
-    return _placed(cols, run, poses, theta), run, theta
+    return placed_in_world(cols, run, poses, theta), run, theta
 
 
-def _placed(cols: dict, run: RunAnalysis, poses: PoseLog, theta: float) -> dict:
+def placed_in_world(cols: dict, run: RunAnalysis, poses: PoseLog, theta: float) -> dict:
     """The contact table with eq. 12's point and the normal placed in W by each frame's pose."""
     p, m = poses.at(np.asarray(cols["t_s"], float) - run.offset_s)
     d_s = _direction_s(theta)
