@@ -158,6 +158,10 @@ def add_space_experiment(sub) -> None:
     p.add_argument("--dest", required=True, metavar="DIR", help="folder to write into")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and the renders")
     p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
+    p.add_argument("--rig", action="store_true",
+                   help="the three heights as three sensors on one carrier: rig.toml, one "
+                        "carrier pose log per run, a folder per sensor with its videos and "
+                        "calibration runs")  # fmt: skip
     p.set_defaults(func=_run_space_experiment)
 
 
@@ -165,7 +169,7 @@ def _run_space_experiment(args) -> int:
     from camwhisker.sim.render.space import render_space_experiment
 
     print(render_space_experiment(args.dest, args.kind, args.seed, jobs=args.jobs,
-                                  command=command_line(args)))  # fmt: skip
+                                  command=command_line(args), rig=args.rig))  # fmt: skip
     return 0
 
 
