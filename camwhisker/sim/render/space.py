@@ -12,12 +12,19 @@ offsets). Frame rate and compression as the bundled stage experiment
 
 As a rig (``rig=True``, :mod:`camwhisker.run.rig_experiment`'s layout): ``rig.toml`` with
 the three heights as sensors on one carrier, per run the carrier's ``RUN.pose.csv``, and
-per sensor a folder ``SENSOR/`` with its own eight calibration runs and its ``RUN.mp4``
-(with ``RUN.contact_truth.csv``).
+per sensor a folder ``SENSOR/`` with eight calibration runs and its ``RUN.mp4`` (with
+``RUN.contact_truth.csv``). The simulated sensors are one build: by default their
+calibration runs are one set of films, linked into each sensor's folder (each sensor is
+still calibrated from its own folder); ``own_calibration_films`` films a set per sensor
+(three times the calibration's rendering). A film already there with its seed is kept:
+an interrupted render goes on where it stopped.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -42,7 +49,7 @@ from camwhisker.sim.mechanics.space import (
 )
 from camwhisker.sim.render.experiment import EXPERIMENT_CRF, EXPERIMENT_FPS, pose_track, render_run
 from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, Scenario
-from camwhisker.sim.render.video import render_scenario
+from camwhisker.sim.render.video import render_scenario, sidecar_paths
 
 __all__ = ["render_space_experiment", "CALIB_SEED_OFFSET"]
 
@@ -54,6 +61,36 @@ CALIB_SEED_OFFSET = 500
 RIG_CALIB_SEED_STEP = 1000
 
 
+def _filmed(video: Path, seed: int) -> bool:
+    """A film already made with this seed (its sidecar is written last)."""
+    meta = sidecar_paths(video)["meta"]
+    try:
+        return video.is_file() and json.loads(meta.read_text())["seed"] == seed
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def _render_calibration(args) -> None:
+    role, run, dest, fps, artefacts, seed = args
+    stem = dest / f"{role}_{run.name}"
+    if not (_filmed(stem.with_suffix(".mp4"), seed) and
+            stem.with_name(stem.name + ".contact_truth.csv").is_file()):  # fmt: skip
+        render_run(args)
+
+
+def _link_calibration(dest: Path) -> None:
+    """The first rig sensor's calibration films linked into the other sensors' folders."""
+    first = dest / RIG_SENSORS[0]
+    for name in RIG_SENSORS[1:]:
+        for f in sorted(first.glob("calibration_*")):
+            target = dest / name / f.name
+            target.unlink(missing_ok=True)
+            try:
+                os.link(f, target)
+            except OSError:  # another file system, or no hard links: a copy
+                shutil.copy2(f, target)
+
+
 def _render_space_run(args) -> dict:
     lr, dest, fps, artefacts, seed = args
     scenario = Scenario(lr.name, f"run {lr.name} of a sweep in space", pose_track(lr.run),
@@ -62,7 +99,8 @@ def _render_space_run(args) -> dict:
         dest = dest / lr.sensor
     else:
         write_csv(dest / f"{lr.name}.pose.csv", pose_columns(lr.poses), digits=10)
-    render_scenario(scenario, Sensor(), dest / f"{lr.name}.mp4", seed)
+    if not _filmed(dest / f"{lr.name}.mp4", seed):
+        render_scenario(scenario, Sensor(), dest / f"{lr.name}.mp4", seed)
     t = lr.poses[0]
     world = contact_in_world(lr)
     inside = np.asarray(lr.run.truth["in_contact"], float) == 1
@@ -76,14 +114,17 @@ def _render_space_run(args) -> dict:
             "frames": int(t.size)}  # fmt: skip
 
 
-def _calibration_work(dest: Path, seed: int, fps: float, artefacts, rig: bool) -> list:
-    """The calibration runs to film: eight pegs, for each rig sensor in its own folder."""
+def _calibration_work(dest: Path, seed: int, fps: float, artefacts, rig: bool,
+                      own: bool) -> list:  # fmt: skip
+    """The calibration runs to film: eight pegs; in a rig, in the first sensor's folder, or
+    in each sensor's (``own``)."""
     cal_seed = seed + CALIB_SEED_OFFSET
     folders = [(dest / n, cal_seed + RIG_CALIB_SEED_STEP * k) for k, n in enumerate(RIG_SENSORS)
                ] if rig else [(dest, cal_seed)]  # fmt: skip
-    work = []
-    for folder, s in folders:
+    for folder, _ in folders:
         folder.mkdir(parents=True, exist_ok=True)
+    work = []
+    for folder, s in folders if own or not rig else folders[:1]:
         runs = simulate_runs("rigid", s, protocol=StageProtocol(fps=fps))
         work += [("calibration", run, folder, fps, artefacts, s + j) for j, run in enumerate(runs)]
     return work
@@ -91,13 +132,14 @@ def _calibration_work(dest: Path, seed: int, fps: float, artefacts, rig: bool) -
 
 def render_space_experiment(dest: str | Path, kind: str, seed: int, fps: float = EXPERIMENT_FPS,
                             crf: int = EXPERIMENT_CRF, jobs: int = 2, command: str = "",
-                            rig: bool = False) -> Path:  # fmt: skip
+                            rig: bool = False, own_calibration_films: bool = False
+                            ) -> Path:  # fmt: skip
     """Simulate and film a sweep in space and its calibration into ``dest`` (with ``rig``,
     as a rig: module docstring); returns the path of ``object.json``."""
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     artefacts = replace(NOMINAL_ARTEFACTS, h264_crf=crf)
-    cal = _calibration_work(dest, seed, fps, artefacts, rig)
+    cal = _calibration_work(dest, seed, fps, artefacts, rig, own_calibration_films)
     sweep, runs = simulate_space_sweep(kind, np.random.default_rng(seed), fps=fps, rig=rig)
     work = [(lr, dest, fps, artefacts, seed + 100 + k) for k, lr in enumerate(runs)]
     if rig:
@@ -108,11 +150,13 @@ def render_space_experiment(dest: str | Path, kind: str, seed: int, fps: float =
         atomic_write_text(dest / RIG_NAME, rig_toml(f"made by {command or 'render'}"))
     if jobs > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            list(pool.map(render_run, cal))
+            list(pool.map(_render_calibration, cal))
             entries = list(pool.map(_render_space_run, work))
     else:
-        [render_run(c) for c in cal]
+        [_render_calibration(c) for c in cal]
         entries = [_render_space_run(w) for w in work]
+    if rig and not own_calibration_films:
+        _link_calibration(dest)
     atomic_write_text(dest / "sensor.toml", dump_sensor(Sensor()))
     record = {"camwhisker": __version__, "command": command, "kind": kind, "seed": seed,
               "fps": fps, "object": truth_in_world(sweep), "runs": entries}  # fmt: skip
