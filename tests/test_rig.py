@@ -151,6 +151,16 @@ def test_a_rig_folder_that_cannot_be_run_is_named(tmp_path, capsys, files, rig, 
     assert not (tmp_path / "out").exists()  # nothing written
 
 
+def test_a_rig_file_given_by_option_is_the_one_used(tmp_path, capsys):
+    folder = _layout(tmp_path / "rec", [*_CAL, "a/run0.mp4", "b/run0.mp4", "run0.pose.csv"],
+                     _TWO)  # fmt: skip
+    (tmp_path / "three.toml").write_text(_TWO + '[[sensor]]\nname = "c"\nmount = [0, 60, 0, '
+                                         '1, 0, 0, 0]\n')  # fmt: skip
+    assert main(["experiment", str(folder), "--out", str(tmp_path / "out"), "--rig",
+                 str(tmp_path / "three.toml")]) == 2  # fmt: skip
+    assert f"{tmp_path / 'three.toml'}: sensor c has no recordings" in capsys.readouterr().err
+
+
 def test_a_rig_and_a_mount_together_are_refused(tmp_path, capsys):
     folder = _layout(tmp_path / "rec", [*_CAL, "a/run0.mp4", "b/run0.mp4", "run0.pose.csv"],
                      _TWO)  # fmt: skip

@@ -16,6 +16,8 @@ runs, in order:
 
 Everything lands under the output folder with ``summary.json`` saying how it was made.
 No truth is read: :mod:`camwhisker.bench.chain` adds the check against a simulator's.
+A folder with a rig file (``rig.toml``: several sensors on one carrier) is a rig's:
+:mod:`camwhisker.run.rig_experiment`.
 """
 
 from __future__ import annotations

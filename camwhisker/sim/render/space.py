@@ -72,9 +72,9 @@ def _filmed(video: Path, seed: int) -> bool:
 
 def _render_calibration(args) -> None:
     role, run, dest, fps, artefacts, seed = args
-    stem = dest / f"{role}_{run.name}"
-    if not (_filmed(stem.with_suffix(".mp4"), seed) and
-            stem.with_name(stem.name + ".contact_truth.csv").is_file()):  # fmt: skip
+    stem = f"{role}_{run.name}"  # a peg's name has a dot (r22.5): no with_suffix
+    if not (_filmed(dest / f"{stem}.mp4", seed) and (dest / f"{stem}.contact_truth.csv")
+            .is_file()):  # fmt: skip
         render_run(args)
 
 
