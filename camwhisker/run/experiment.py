@@ -74,7 +74,8 @@ class Recording:
         return self.stage.name.endswith(POSE_SUFFIX)
 
 
-def _has_r_mm(stage: Path) -> bool:
+def has_r_mm(stage: Path) -> bool:
+    """Whether a stage log has an r_mm column: a calibration run's."""
     with open(stage, encoding="utf-8") as fh:
         header = fh.readline()
     return "r_mm" in (c.strip() for c in header.split(","))
@@ -105,7 +106,7 @@ def find_recordings(folder: str | Path) -> list[Recording]:
         raise ExperimentError(f"{folder}: no run (NAME.mp4 or NAME.avi with "
                               f"NAME{STAGE_SUFFIX} or NAME{POSE_SUFFIX})")  # fmt: skip
     runs = [Recording(n, videos[n], logs[n], not logs[n].name.endswith(POSE_SUFFIX)
-                      and _has_r_mm(logs[n])) for n in sorted(videos)]  # fmt: skip
+                      and has_r_mm(logs[n])) for n in sorted(videos)]  # fmt: skip
     if not any(r.calibration for r in runs):
         raise ExperimentError(f"{folder}: no calibration run (a stage log with an r_mm "
                               "column, docs/sensor.md section 7)")  # fmt: skip
@@ -137,7 +138,8 @@ def _logs(folder: Path) -> dict[str, Path]:
     return logs
 
 
-def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
+def folder_sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
+    """The sensor given, or the folder's sensor file."""
     if isinstance(sensor, Sensor):
         return sensor
     if sensor is None:
@@ -191,7 +193,7 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
                                   jobs=jobs, per=per, progress=progress, command=command,
                                   plots=plots)  # fmt: skip
     runs = find_recordings(folder)
-    sensor = _sensor(folder, sensor)
+    sensor = folder_sensor(folder, sensor)
     timings: dict = {}
     tables, timings["batch"] = batch_runs(runs, sensor, out, jobs, progress)
     signals = {r.name: read_signal_table(tables[r.name]) for r in runs}

@@ -41,13 +41,13 @@ from camwhisker.run.experiment import (
     VIDEO_SUFFIXES,
     ExperimentError,
     Recording,
-    _has_r_mm,
-    _sensor,
     batch_runs,
     calibrate_runs,
     calibration_record,
     contact_step,
     find_videos,
+    folder_sensor,
+    has_r_mm,
     planar_percepts,
     run_entries,
     space_percept,
@@ -111,7 +111,7 @@ def _sensor_runs(folder: Path, s: RigSensor, rig: Rig, carrier: dict) -> list[Re
             raise ExperimentError(f"{video}: no stage log {name}{STAGE_SUFFIX} beside it and "
                                   f"no carrier pose log {folder / (name + POSE_SUFFIX)}")
         log = stages.get(name) or carrier[name]
-        runs.append(Recording(name, video, log, name in stages and _has_r_mm(log)))
+        runs.append(Recording(name, video, log, name in stages and has_r_mm(log)))
     if s.calibration is None and not any(r.calibration for r in runs):
         raise ExperimentError(f"{sub}: sensor {s.name} has no calibration run (a stage log "
                               "with an r_mm column) and the rig gives it no calibration "
@@ -147,7 +147,7 @@ def find_rig_recordings(folder: str | Path, rig: Rig) -> dict[str, list[Recordin
 def _sensor_of(folder: Path, s: RigSensor, sensor, cache: dict) -> Sensor:
     key = str(s.sensor_file) if s.sensor_file else None
     if key not in cache:
-        cache[key] = load_sensor(s.sensor_file) if s.sensor_file else _sensor(folder, sensor)
+        cache[key] = load_sensor(s.sensor_file) if s.sensor_file else folder_sensor(folder, sensor)
     return cache[key]
 
 
