@@ -20,10 +20,12 @@ def add_experiment(sub) -> None:
     )
     p.add_argument("folder", help="per run NAME.mp4 or NAME.avi with NAME.stage.csv "
                    "(docs/sensor.md section 7) or NAME.pose.csv (section 9), and "
-                   "sensor.toml")  # fmt: skip
+                   "sensor.toml; a rig's: rig.toml, the carrier's RUN.pose.csv, and per "
+                   "sensor a folder SENSOR/ with its videos and calibration runs")  # fmt: skip
     p.add_argument("--out", required=True, metavar="DIR",
                    help="folder for signals/, calib.toml, contact/, percept/, the figures "
-                   "and summary.json")  # fmt: skip
+                   "and summary.json (a rig: those of each sensor in SENSOR/; one "
+                   "percept/space.json and map)")  # fmt: skip
     sensor_arg(p, "sensor file (TOML); default: the folder's sensor.toml")
     p.add_argument("--per", choices=("pause", "frame"), default="pause",
                    help="contact from the medians of each stage pause, as the paper "
