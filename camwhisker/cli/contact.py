@@ -96,13 +96,16 @@ def add_simulate_space(sub) -> None:
                    help="folder for NAME.signals.csv, NAME.pose.csv and object.json (the "
                         "object in the world frame, the true clock offsets)")
     p.add_argument("--seed", type=int, default=0, help="seed of the object and the runs")
+    p.add_argument("--rig", action="store_true",
+                   help="the heights as three sensors on one carrier: rig.toml, the carrier's "
+                        "RUN.pose.csv, SENSOR/RUN.signals.csv")  # fmt: skip
     p.set_defaults(func=_run_simulate_space)
 
 
 def _run_simulate_space(args) -> int:
     from camwhisker.sim.mechanics.space import write_space_sweep
 
-    paths = write_space_sweep(args.out, args.kind, args.seed, command_line(args))
+    paths = write_space_sweep(args.out, args.kind, args.seed, command_line(args), rig=args.rig)
     print(f"wrote {len(paths)} files to {args.out} (object.json: the object and the offsets)")
     return 0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from camwhisker.cli.common import command_line, sensor_arg
+from camwhisker.cli.common import CommandError, command_line, sensor_arg
 from camwhisker.sensor.file import load_sensor
 from camwhisker.sim.render.scenarios import SCENARIOS
 
@@ -158,14 +158,25 @@ def add_space_experiment(sub) -> None:
     p.add_argument("--dest", required=True, metavar="DIR", help="folder to write into")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulation and the renders")
     p.add_argument("--jobs", type=int, default=2, help="runs rendered in parallel")
+    p.add_argument("--rig", action="store_true",
+                   help="the three heights as three sensors on one carrier: rig.toml, one "
+                        "carrier pose log per run, a folder per sensor with its videos and "
+                        "calibration runs (one set of films, linked into each folder: the "
+                        "simulated sensors are one build)")
+    p.add_argument("--own-calibration-films", action="store_true",
+                   help="with --rig: film each sensor's calibration runs apart (three times "
+                        "the calibration's rendering)")  # fmt: skip
     p.set_defaults(func=_run_space_experiment)
 
 
 def _run_space_experiment(args) -> int:
     from camwhisker.sim.render.space import render_space_experiment
 
+    if args.own_calibration_films and not args.rig:
+        raise CommandError("--own-calibration-films: only with --rig (a folder per sensor)")
     print(render_space_experiment(args.dest, args.kind, args.seed, jobs=args.jobs,
-                                  command=command_line(args)))  # fmt: skip
+                                  command=command_line(args), rig=args.rig,
+                                  own_calibration_films=args.own_calibration_films))  # fmt: skip
     return 0
 
 

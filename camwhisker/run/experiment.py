@@ -16,6 +16,8 @@ runs, in order:
 
 Everything lands under the output folder with ``summary.json`` saying how it was made.
 No truth is read: :mod:`camwhisker.bench.chain` adds the check against a simulator's.
+A folder with a rig file (``rig.toml``: several sensors on one carrier) is a rig's:
+:mod:`camwhisker.run.rig_experiment`.
 """
 
 from __future__ import annotations
@@ -37,12 +39,13 @@ from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.tables import write_csv
 from camwhisker.io.poses import Mount, read_pose_log
+from camwhisker.io.rig import RIG_NAME
 from camwhisker.io.signals import read_signal_table, sidecar_path
 from camwhisker.run.campaign import BatchTask, run_many
 from camwhisker.sensor.file import Sensor, load_sensor
 from camwhisker.vision.tracker import FrontEndOptions
 
-__all__ = ["ExperimentError", "Recording", "find_recordings", "run_experiment",
+__all__ = ["ExperimentError", "Recording", "find_recordings", "find_videos", "run_experiment",
            "format_experiment", "VIDEO_SUFFIXES", "SENSOR_NAME"]  # fmt: skip
 
 #: A run's video, by suffix, in the order looked for.
@@ -71,7 +74,8 @@ class Recording:
         return self.stage.name.endswith(POSE_SUFFIX)
 
 
-def _has_r_mm(stage: Path) -> bool:
+def has_r_mm(stage: Path) -> bool:
+    """Whether a stage log has an r_mm column: a calibration run's."""
     with open(stage, encoding="utf-8") as fh:
         header = fh.readline()
     return "r_mm" in (c.strip() for c in header.split(","))
@@ -89,13 +93,7 @@ def find_recordings(folder: str | Path) -> list[Recording]:
     folder = Path(folder)
     if not folder.is_dir():
         raise ExperimentError(f"{folder}: no such folder")
-    videos: dict[str, Path] = {}
-    for suffix in VIDEO_SUFFIXES:
-        for video in sorted(folder.glob(f"*{suffix}")):
-            if video.stem in videos:
-                raise ExperimentError(f"{video}: run {video.stem} has two videos "
-                                      f"({videos[video.stem].name} too)")  # fmt: skip
-            videos[video.stem] = video
+    videos = find_videos(folder)
     logs = _logs(folder)
     for name, video in videos.items():
         if name not in logs:
@@ -108,11 +106,23 @@ def find_recordings(folder: str | Path) -> list[Recording]:
         raise ExperimentError(f"{folder}: no run (NAME.mp4 or NAME.avi with "
                               f"NAME{STAGE_SUFFIX} or NAME{POSE_SUFFIX})")  # fmt: skip
     runs = [Recording(n, videos[n], logs[n], not logs[n].name.endswith(POSE_SUFFIX)
-                      and _has_r_mm(logs[n])) for n in sorted(videos)]  # fmt: skip
+                      and has_r_mm(logs[n])) for n in sorted(videos)]  # fmt: skip
     if not any(r.calibration for r in runs):
         raise ExperimentError(f"{folder}: no calibration run (a stage log with an r_mm "
                               "column, docs/sensor.md section 7)")  # fmt: skip
     return runs
+
+
+def find_videos(folder: Path) -> dict[str, Path]:
+    """The videos of ``folder`` by run name; a run with two videos is an error."""
+    videos: dict[str, Path] = {}
+    for suffix in VIDEO_SUFFIXES:
+        for video in sorted(folder.glob(f"*{suffix}")):
+            if video.stem in videos:
+                raise ExperimentError(f"{video}: run {video.stem} has two videos "
+                                      f"({videos[video.stem].name} too)")  # fmt: skip
+            videos[video.stem] = video
+    return videos
 
 
 def _logs(folder: Path) -> dict[str, Path]:
@@ -128,7 +138,8 @@ def _logs(folder: Path) -> dict[str, Path]:
     return logs
 
 
-def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
+def folder_sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
+    """The sensor given, or the folder's sensor file."""
     if isinstance(sensor, Sensor):
         return sensor
     if sensor is None:
@@ -140,8 +151,8 @@ def _sensor(folder: Path, sensor: str | Path | Sensor | None) -> Sensor:
 
 def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | Sensor | None
                    = None, jobs: int = 2, per: str = "pause", progress: bool = True,
-                   command: str = "", plots: bool = True, mount: Mount | None = None
-                   ) -> dict:  # fmt: skip
+                   command: str = "", plots: bool = True, mount: Mount | None = None,
+                   rig: str | Path | None = None) -> dict:  # fmt: skip
     """Batch, calibrate, contact and percepts over a folder of recordings.
 
     Parameters
@@ -161,6 +172,9 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
         How it was called, for the summary and the calibration's provenance.
     mount : Mount, optional
         Where the pose logs give a carrier's pose: the sensor's pose in the carrier's frame.
+    rig : path, optional
+        A rig file (:mod:`camwhisker.io.rig`); default: the folder's ``rig.toml`` where it
+        has one. With a rig, the folder is a rig's (:mod:`camwhisker.run.rig_experiment`).
 
     Returns
     -------
@@ -169,8 +183,17 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
         whose contact could not be made and why (the other runs are done).
     """
     folder, out = Path(folder), Path(out)
+    if rig is not None or (folder / RIG_NAME).is_file():
+        from camwhisker.run.rig_experiment import run_rig_experiment
+
+        if mount is not None:
+            raise ExperimentError(f"{rig or folder / RIG_NAME}: the rig file gives each "
+                                  "sensor's mount; leave out --mount")  # fmt: skip
+        return run_rig_experiment(folder, out, rig or folder / RIG_NAME, sensor=sensor,
+                                  jobs=jobs, per=per, progress=progress, command=command,
+                                  plots=plots)  # fmt: skip
     runs = find_recordings(folder)
-    sensor = _sensor(folder, sensor)
+    sensor = folder_sensor(folder, sensor)
     timings: dict = {}
     tables, timings["batch"] = batch_runs(runs, sensor, out, jobs, progress)
     signals = {r.name: read_signal_table(tables[r.name]) for r in runs}
@@ -194,10 +217,12 @@ def run_experiment(folder: str | Path, out: str | Path, *, sensor: str | Path | 
 
     t0 = time.perf_counter()
     done = [r for r in runs if r.name in contacts]
-    percepts = _percepts(out, [r for r in done if not r.calibration and not r.in_space], plots)
+    percepts = planar_percepts(out, [r for r in done if not r.calibration and not r.in_space],
+                               plots)  # fmt: skip
     in_space = [r for r in done if r.in_space]
     if in_space:
-        percepts["space"] = _space_percept(out, in_space, plots, command)
+        percepts["space"] = space_percept(out, {r.name: out / "contact" / f"{r.name}.csv"
+                                                for r in in_space}, plots, command)  # fmt: skip
     if plots:
         from camwhisker.contact.plots import plot_gm_model
 
@@ -224,12 +249,13 @@ def contact_step(r: Recording, signals: dict, log, calib: Calibration, per: str,
     return cols, run
 
 
-def _space_percept(out: Path, runs: list[Recording], plots: bool, command: str) -> dict:
-    """Step 4 in space: one object from every run in space, and their map's points."""
+def space_percept(out: Path, runs: dict[str, Path], plots: bool, command: str) -> dict:
+    """Step 4 in space: one object from every run in space (contact tables by run), and
+    their map's points."""
     from camwhisker.percept.contact_map import plot_contact_map, read_contact_points, write_ply
     from camwhisker.percept.solids import perceive_solid, read_surfels3, solid_record
 
-    tables = [out / "contact" / f"{r.name}.csv" for r in runs]
+    tables = list(runs.values())
     surfels = read_surfels3(tables)
     p = perceive_solid(surfels)
     record = {"camwhisker": __version__, "contacts": [str(t) for t in tables],
@@ -244,7 +270,7 @@ def _space_percept(out: Path, runs: list[Recording], plots: bool, command: str) 
                          read_percept(out / "percept" / "space.json"))  # fmt: skip
     return {"object": p.best.model, "model": p.best.model, "contacts": p.n_surfels,
             "params": p.best.params, "intervals_95": p.best.intervals,
-            "runs": [r.name for r in runs]}  # fmt: skip
+            "runs": list(runs)}  # fmt: skip
 
 
 def batch_runs(runs: list, sensor: Sensor, out: Path, jobs: int, progress: bool
@@ -285,7 +311,7 @@ def calibrate_runs(runs: list, sensor: Sensor, tables: dict, signals: dict, logs
     return calib, cal_data
 
 
-def _percepts(out: Path, runs: list[Recording], plots: bool) -> dict:
+def planar_percepts(out: Path, runs: list[Recording], plots: bool) -> dict:
     """Step 4: each object run's percept (JSON, and its picture)."""
     from camwhisker.percept.percepts import object_of, outline, perceive, percept_record
     from camwhisker.percept.surfels import read_surfels
@@ -313,6 +339,20 @@ def _percepts(out: Path, runs: list[Recording], plots: bool) -> dict:
 
 
 def _summary(runs, signals, contacts, percepts, calib: Calibration, timings) -> dict:
+    space = {"space": percepts["space"]} if "space" in percepts else {}
+    return {"runs": run_entries(runs, signals, contacts, percepts), **space,
+            "calibration": calibration_record(calib, sum(r.calibration for r in runs)),
+            "timings": timings}  # fmt: skip
+
+
+def calibration_record(calib: Calibration, n_runs: int) -> dict:
+    """The summary's calibration: GM's model, parameters and intervals, the runs it used."""
+    return {"gm_model": calib.gm.kind, "gm_params": calib.gm.params, "gm_ci95": calib.gm.ci,
+            "calibration_runs": n_runs}  # fmt: skip
+
+
+def run_entries(runs, signals, contacts, percepts) -> list[dict]:
+    """The summary's line per run whose contact was made."""
     per_run = []
     for r in runs:
         if r.name not in contacts:
@@ -326,24 +366,35 @@ def _summary(runs, signals, contacts, percepts, calib: Calibration, timings) -> 
             "rows_with_estimate": int(np.isfinite(cols["r_hat_mm"]).sum()),
             **({"percept": percepts[r.name]} if r.name in percepts else {}),
         })  # fmt: skip
-    space = {"space": percepts["space"]} if "space" in percepts else {}
-    return {"runs": per_run, **space,
-            "calibration": {"gm_model": calib.gm.kind, "gm_params": calib.gm.params,
-                            "gm_ci95": calib.gm.ci, "calibration_runs":
-                            sum(r.calibration for r in runs)},
-            "timings": timings}  # fmt: skip
+    return per_run
+
+
+def _calibration_line(c: dict, who: str = "calibration") -> str:
+    params = ", ".join(f"{k} {v:.4g}" for k, v in c["gm_params"].items())
+    where = f"{c['file']}" if c.get("given") else f"{c['calibration_runs']} runs"
+    return f"{who}: {where}; GM model {c['gm_model']} ({params})"
+
+
+def _rig_lines(rig: dict) -> list[str]:
+    lines = [f"rig {rig['file']}: {len(rig['sensors'])} sensors"]
+    for sn in rig["sensors"]:
+        m = sn["mount"]
+        pos = ", ".join(f"{v:.4g}" for v in m["position_mm"])
+        quat = ", ".join(f"{v:.4g}" for v in m["quat"])
+        lines.append(_calibration_line(sn["calibration"], f"  {sn['name']}: mount ({pos}) mm, "
+                                       f"quat ({quat}); calibration"))  # fmt: skip
+    return lines
 
 
 def format_experiment(s: dict) -> str:
     """What a person reads after the run: one line per run, then the times."""
-    c = s["calibration"]
-    params = ", ".join(f"{k} {v:.4g}" for k, v in c["gm_params"].items())
-    lines = [f"calibration: {c['calibration_runs']} runs; GM model {c['gm_model']} ({params})",
-             f"  {'run':<24}{'role':<13}{'frames ok':>11}{'offset s':>10}{'estimates':>11}"
-             "  object"]  # fmt: skip
+    lines = _rig_lines(s["rig"]) if "rig" in s else [_calibration_line(s["calibration"])]
+    lines.append(f"  {'run':<24}{'role':<13}{'frames ok':>11}{'offset s':>10}{'estimates':>11}"
+                 "  object")  # fmt: skip
     for r in s["runs"]:
         obj = r.get("percept", {}).get("object", "")
-        lines.append(f"  {r['name']:<24}{r['role']:<13}{r['ok']:>5} of {r['frames']:<3}"
+        name = f"{r['sensor']}/{r['name']}" if "sensor" in r else r["name"]
+        lines.append(f"  {name:<24}{r['role']:<13}{r['ok']:>5} of {r['frames']:<3}"
                      f"{r['offset_s']:>+10.3f}{r['rows_with_estimate']:>11}  {obj}")  # fmt: skip
     if "space" in s:
         sp = s["space"]
@@ -353,8 +404,10 @@ def format_experiment(s: dict) -> str:
     for name, why in s.get("failed", {}).items():
         lines.append(f"  {name}: contact failed: {why}")
     t = s["timings"]
+    steps = (f"calibrate {t['calibrate']['seconds']:.1f} s, contact "
+             f"{t['contact']['seconds']:.1f} s" if "calibrate" in t else
+             f"calibrate and contact {t['calibrate_and_contact']['seconds']:.1f} s")  # fmt: skip
     lines.append(f"time: batch {t['batch']['seconds']:.1f} s ({t['batch']['frames']} frames, "
-                 f"{t['batch']['reused']} tables reused), calibrate "
-                 f"{t['calibrate']['seconds']:.1f} s, contact {t['contact']['seconds']:.1f} s, "
+                 f"{t['batch']['reused']} tables reused), {steps}, "
                  f"percepts and plots {t['percept']['seconds']:.1f} s")  # fmt: skip
     return "\n".join(lines)

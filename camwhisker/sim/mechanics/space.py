@@ -11,11 +11,18 @@ The simulator's 3-D frame: its plane is x-z (x the stage's travel, z the whisker
 rest), the extrusion along y. A run's sensor frame S has x_S along the travel and z_S
 along the shaft (its theta is 0 for a base travelling +x, the simulator's convention).
 Spheres need the whisker bending out of its plane: they are not here.
+
+As a rig (``rig=True``): the heights are three sensors on one carrier (:data:`RIG_SENSORS`,
+low to high), the carrier's frame the sensor frame at height 0 and each sensor's mount its
+height along y_S (:func:`rig_mounts`). A run moves the carrier once: its sensors share the
+motion, the truth and the stage clock (their cameras start together), each with its own
+front-end noise.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,17 +32,21 @@ from camwhisker import __version__
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.jsonfile import dumps
 from camwhisker.files.tables import write_csv
+from camwhisker.io.rig import RIG_NAME, dump_rig
 from camwhisker.sim.mechanics.experiment import (
     FRONT_END_NOISE,
     NoiseModel,
     StageProtocol,
+    measure_signals,
+    signal_arrays_from,
     simulate_run,
 )
 from camwhisker.sim.mechanics.objects import draw_sweep, turned_wall_run
 
-__all__ = ["HEIGHTS_MM", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "LiftedRun", "lifted_poses",
-           "simulate_space_sweep", "turned_wall_runs", "truth_in_world", "contact_in_world",
-           "write_space_sweep"]  # fmt: skip
+__all__ = ["HEIGHTS_MM", "WORLD_TURN_DEG", "WORLD_SHIFT_MM", "RIG_SENSORS", "LiftedRun",
+           "lifted_poses", "carrier_poses", "rig_mounts", "rig_toml", "simulate_space_sweep",
+           "turned_wall_runs", "truth_in_world", "contact_in_world", "write_space_sweep",
+           "pose_columns"]  # fmt: skip
 
 #: Sweeps at these heights along the extrusion (mm): the axis is told by their spread.
 HEIGHTS_MM = (-30.0, 0.0, 30.0)
@@ -44,6 +55,8 @@ WORLD_TURN_DEG = (35.0, -20.0, 50.0)
 WORLD_SHIFT_MM = (120.0, -40.0, 300.0)
 #: The stage protocol of the percept sweeps (their travel covers a cylinder's far side).
 MAX_TRAVEL_MM = 90.0
+#: A rig's sensors, one per height of :data:`HEIGHTS_MM` (its folder's names).
+RIG_SENSORS = ("low", "mid", "high")
 
 _WORLD = Rotation.from_euler("zyx", WORLD_TURN_DEG, degrees=True)
 
@@ -72,16 +85,71 @@ def lifted_poses(stage: dict, pose: tuple, height_mm: float):
     return np.asarray(stage["t_s"], float), _to_world(base), np.tile(q, (x.size, 1))
 
 
+def rig_mounts() -> dict[str, tuple]:
+    """Each rig sensor's mount, X,Y,Z,QW,QX,QY,QZ: its height along the carrier's y axis."""
+    return {n: (0.0, h, 0.0, 1.0, 0.0, 0.0, 0.0)
+            for n, h in zip(RIG_SENSORS, HEIGHTS_MM, strict=True)}  # fmt: skip
+
+
+def rig_toml(comment: str = "") -> str:
+    """The simulated rig's file (:mod:`camwhisker.io.rig`), each sensor with the folder's
+    sensor file and its own calibration runs."""
+    return dump_rig([(n, m, None, None) for n, m in rig_mounts().items()], comment)
+
+
 class LiftedRun:
     """One simulated run at one height: the run (signals, stage log, truth), its poses and
-    its stage frame's pose in the simulator's plane (x0_mm, y0_mm, angle_deg)."""
+    its stage frame's pose in the simulator's plane (x0_mm, y0_mm, angle_deg); in a rig,
+    also its sensor's name."""
 
-    def __init__(self, run, height_mm: float, poses: tuple, pose: tuple):
+    def __init__(self, run, height_mm: float, poses: tuple, pose: tuple, sensor: str = ""):
         self.run, self.height_mm, self.poses, self.pose = run, height_mm, poses, pose
+        self.sensor = sensor
 
     @property
     def name(self) -> str:
         return self.run.name
+
+
+def carrier_poses(lr: LiftedRun):
+    """The rig carrier's poses over a run (the sensor frame at height 0): as
+    :func:`lifted_poses`."""
+    return lifted_poses(lr.run.stage, lr.pose, 0.0)
+
+
+def pose_columns(poses: tuple) -> dict:
+    """A pose log's columns from (t_s, position, quaternion)."""
+    t, p, q = poses
+    return {"t_s": t, "x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2], "qw": q[:, 0],
+            "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]}  # fmt: skip
+
+
+def _renoised(run, rng, noise: NoiseModel):
+    """The run as another sensor of the rig sees it: the same motion and truth, its own
+    front-end noise."""
+    used = slice(0, run.info["n_steps"] + 1)
+    x_cam = np.interp(run.signals["t_s"], run.schedule_t_s, run.schedule_x_mm)
+    clean = signal_arrays_from(run.steps, used, x_cam)
+    sig = measure_signals(clean["phi_deg"], clean["dz_mm"], run.info["theta_deg"], noise, rng)
+    return replace(run, signals={"frame": run.signals["frame"], "t_s": run.signals["t_s"],
+                                 **sig})  # fmt: skip
+
+
+def _rig_runs(specs, rng, noise: NoiseModel, quiet=None, fps: float = StageProtocol.fps
+              ) -> list[LiftedRun]:  # fmt: skip
+    """Each run once, its carrier holding a sensor at every height."""
+    protocol = StageProtocol(max_travel_mm=MAX_TRAVEL_MM, fps=fps)
+    runs = []
+    for i, spec in enumerate(specs):
+        first = simulate_run(f"run{i}", "slide-box", spec.scene, rng, protocol=protocol,
+                             noise=noise, travel_sign=spec.travel_sign)  # fmt: skip
+        for name, h in zip(RIG_SENSORS, HEIGHTS_MM, strict=True):
+            run = first if h == 0.0 else _renoised(first, rng, noise)
+            if quiet is not None:
+                run = replace(run, signals=quiet(run.signals, rng, noise))
+            runs.append(LiftedRun(run, h, lifted_poses(run.stage, spec.pose, h), spec.pose,
+                                  name))  # fmt: skip
+    return runs
 
 
 def _at_heights(specs, rng, noise: NoiseModel, first: int = 0, quiet=None,
@@ -108,15 +176,18 @@ def turned_wall_runs(sweep, turn_deg: float, rng, noise: NoiseModel = FRONT_END_
 
 
 def simulate_space_sweep(kind: str, rng, noise: NoiseModel = FRONT_END_NOISE, quiet=None,
-                         fps: float = StageProtocol.fps):  # fmt: skip
+                         fps: float = StageProtocol.fps, rig: bool = False):  # fmt: skip
     """An object of ``kind`` ("wall", "cylinder" or "none") and its runs at every height.
 
     ``quiet(signals, rng, noise)``, where given for "none", replaces the signals by the
-    front end's noise alone (nothing touched).
+    front end's noise alone (nothing touched). With ``rig``, the heights are a rig's
+    sensors (module docstring): a run per sensor per carrier run, ``sensor`` set.
     """
     sweep = draw_sweep(kind, rng)
-    return sweep, _at_heights(sweep.runs, rng, noise, quiet=quiet if kind == "none" else None,
-                              fps=fps)  # fmt: skip
+    quiet = quiet if kind == "none" else None
+    if rig:
+        return sweep, _rig_runs(sweep.runs, rng, noise, quiet=quiet, fps=fps)
+    return sweep, _at_heights(sweep.runs, rng, noise, quiet=quiet, fps=fps)
 
 
 def contact_in_world(lr: LiftedRun) -> np.ndarray:
@@ -149,25 +220,33 @@ def truth_in_world(sweep) -> dict:
 
 
 def write_space_sweep(dest: str | Path, kind: str, seed: int, command: str = "",
-                      noise: NoiseModel = FRONT_END_NOISE) -> list[Path]:  # fmt: skip
+                      noise: NoiseModel = FRONT_END_NOISE, rig: bool = False
+                      ) -> list[Path]:  # fmt: skip
     """Simulate a sweep and write, per run, ``NAME.signals.csv`` and ``NAME.pose.csv`` (on the
     stage's clock), and ``object.json``: the object in the world frame, the runs' true clock
-    offsets, how it was made. Returns the paths written."""
+    offsets, how it was made. With ``rig``: ``rig.toml``, per run the carrier's
+    ``RUN.pose.csv`` and per sensor ``SENSOR/RUN.signals.csv``. Returns the paths written."""
     out = Path(dest)
     out.mkdir(parents=True, exist_ok=True)
-    sweep, runs = simulate_space_sweep(kind, np.random.default_rng(seed), noise)
+    sweep, runs = simulate_space_sweep(kind, np.random.default_rng(seed), noise, rig=rig)
     paths = []
     for lr in runs:
-        sig, (t, p, q) = lr.run.signals, lr.poses
-        cols = {"t_s": t, "x_mm": p[:, 0], "y_mm": p[:, 1], "z_mm": p[:, 2],
-                "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]}
+        sig = lr.run.signals
         signals = {k: sig[k] for k in ("frame", "t_s", "dz_mm", "phi_deg", "theta_deg", "ok")}
-        write_csv(out / f"{lr.name}.signals.csv", signals, digits=8)
-        write_csv(out / f"{lr.name}.pose.csv", cols, digits=9)
-        paths += [out / f"{lr.name}.signals.csv", out / f"{lr.name}.pose.csv"]
+        table = out / lr.sensor / f"{lr.name}.signals.csv"
+        write_csv(table, signals, digits=8)
+        paths.append(table)
+        if not rig or lr.height_mm == 0.0:  # a rig's runs share the carrier's log
+            write_csv(out / f"{lr.name}.pose.csv",
+                      pose_columns(carrier_poses(lr) if rig else lr.poses), digits=9)
+            paths.append(out / f"{lr.name}.pose.csv")
     record = {"camwhisker": __version__, "command": command, "kind": kind, "seed": seed,
               "object": truth_in_world(sweep),
-              "runs": [{"name": lr.name, "height_mm": lr.height_mm,
-                        "offset_s": lr.run.offset_s} for lr in runs]}  # fmt: skip
+              "runs": [{"name": lr.name, **({"sensor": lr.sensor} if rig else {}),
+                        "height_mm": lr.height_mm, "offset_s": lr.run.offset_s}
+                       for lr in runs]}  # fmt: skip
+    if rig:
+        atomic_write_text(out / RIG_NAME, rig_toml(f"made by {command or 'simulate-space'}"))
+        paths.append(out / RIG_NAME)
     atomic_write_text(out / "object.json", dumps(record, indent=1) + "\n")
     return [*paths, out / "object.json"]
