@@ -71,7 +71,10 @@ def test_a_second_run_reuses_every_table(ran, capsys):
     out = ran / "out"
     before = (out / "contact" / "box_box.csv").read_bytes()
     assert main(["experiment", str(ran / "recordings"), "--out", str(out), "--quiet"]) == 0
-    assert "14 tables reused" in capsys.readouterr().out
+    out_text = capsys.readouterr().out
+    assert "14 tables reused" in out_text
+    # The contact mode is named (chain's and experiment's default; contact's is per frame).
+    assert "contact tables per pause (as `camwhisker contact --per pause`)" in out_text
     assert (out / "contact" / "box_box.csv").read_bytes() == before
 
 

@@ -389,6 +389,9 @@ def _rig_lines(rig: dict) -> list[str]:
 def format_experiment(s: dict) -> str:
     """What a person reads after the run: one line per run, then the times."""
     lines = _rig_lines(s["rig"]) if "rig" in s else [_calibration_line(s["calibration"])]
+    per = s.get("provenance", {}).get("per")
+    if per:
+        lines.append(f"contact tables per {per} (as `camwhisker contact --per {per}`)")
     lines.append(f"  {'run':<24}{'role':<13}{'frames ok':>11}{'offset s':>10}{'estimates':>11}"
                  "  object")  # fmt: skip
     for r in s["runs"]:
