@@ -9,3 +9,10 @@
 
 The contact calibration (GM, sigma_GM, the MF table) is :mod:`camwhisker.contact.calibrate`.
 """
+
+__all__ = ["MAX_ROUNDS"]
+
+#: Rounds of tracking and adjustment at most (calibration.sweep): the tip's measurement places
+#: the model's rim and rod, so each round's fit measures it better (~0.6x the error). Here, so
+#: that the command line reads it without importing the adjustment.
+MAX_ROUNDS = 6

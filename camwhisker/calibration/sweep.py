@@ -31,6 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from camwhisker.calibration import MAX_ROUNDS
 from camwhisker.calibration.adjust import (
     KNOWN_DZ_SD_MM,
     Adjustment,
@@ -83,9 +84,6 @@ __all__ = [
 #: frame's (px): above the tip's scatter at rest on noisy builds (~0.45 px), below
 #: its move at 0.06 deg. Every point, not their median: the tip moves first.
 REST_PX = 0.5
-#: Rounds of tracking and adjustment at most: the tip's measurement places the
-#: model's rim and rod, so each round's fit measures it better (~0.6x the error).
-MAX_ROUNDS = 6
 #: The sweep's corners are tracked without their apex (px, FrontEndOptions.apex_mask_px):
 #: the phi scale comes from the corners' foreshortening, which blur's rounding of the
 #: apex biases at the 0.02 px level under tilt; the edges' half levels it does not move.

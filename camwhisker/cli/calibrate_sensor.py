@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from camwhisker.calibration.sweep import MAX_ROUNDS
+from camwhisker.calibration import MAX_ROUNDS
 from camwhisker.cli.common import (
     CommandError,
     command_line,
