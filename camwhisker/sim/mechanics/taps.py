@@ -52,6 +52,8 @@ from camwhisker import __version__
 from camwhisker.files.atomic import atomic_write_text
 from camwhisker.files.jsonfile import dumps
 from camwhisker.files.tables import write_csv
+from camwhisker.io.poses import Mount
+from camwhisker.io.rig import RigSensor
 from camwhisker.sim.mechanics.experiment import (
     FRONT_END_NOISE,
     NoiseModel,
@@ -66,7 +68,7 @@ __all__ = ["OBJECTS", "FACE_DEG", "MU", "TOP_MM", "PHI_STOP_DEG", "MAX_PRESS_MM"
            "MIN_DEPTH_MM", "press_travel_mm", "TAP_PROTOCOL", "Sphere", "Plane", "Cylinder",
            "Tap", "TapError", "TapRun",
            "tap_on", "simulate_tap", "object_record", "write_taps", "PAPER_SPHERE_RADII_MM",
-           "STIMULI", "LOCATIONS_MM", "Mount", "RIG", "Trial", "protocol_trial",
+           "STIMULI", "LOCATIONS_MM", "RIG", "Trial", "protocol_trial",
            "simulate_trial", "object_taps", "write_object_taps"]  # fmt: skip
 
 OBJECTS = ("sphere", "plane", "cylinder")
@@ -340,16 +342,8 @@ SPHERE_DEPTH_MM = (60.0, 88.0)
 PLATE_DEPTH_MM = (35.0, 60.0)
 
 
-@dataclass(frozen=True)
-class Mount:
-    """A sensor's pose in the carrier's frame (section 9's mount): S's origin and rotation."""
-
-    name: str
-    translation: tuple
-    rotation: Rotation
-
-
-def _mount(name: str, x_mm: float, yaw_deg: float, rise_deg: float, roll_deg: float) -> Mount:
+def _mount(name: str, x_mm: float, yaw_deg: float, rise_deg: float, roll_deg: float
+           ) -> RigSensor:  # fmt: skip
     """A sensor at x_mm across the carrier, its shaft turned yaw_deg about y_c from z_c and
     raised rise_deg toward y_c, rolled roll_deg about the shaft."""
     y, r = math.radians(yaw_deg), math.radians(rise_deg)
@@ -357,7 +351,7 @@ def _mount(name: str, x_mm: float, yaw_deg: float, rise_deg: float, roll_deg: fl
     x0 = _unit(np.cross([0.0, 1.0, 0.0], a))
     frame = np.column_stack([x0, np.cross(a, x0), a])
     turn = Rotation.from_matrix(frame) * Rotation.from_euler("z", roll_deg, degrees=True)
-    return Mount(name, (x_mm, 0.0, 0.0), turn)
+    return RigSensor(name, Mount(np.array([x_mm, 0.0, 0.0]), turn.as_quat(scalar_first=True)))
 
 
 #: Five sensors in a fan across the carrier (z_c forward, y_c away from the stimulus): their
@@ -388,7 +382,7 @@ def _rig_taps(obj, top, carrier: Rotation, location_mm: float, rng, rig) -> list
     x_c, y_c, _ = carrier.as_matrix().T
     origin = top + STANDOFF_MM * y_c + location_mm * x_c
     depths = SPHERE_DEPTH_MM if obj.kind == "sphere" else PLATE_DEPTH_MM
-    return [tap_on(obj, carrier * m.rotation, origin + carrier.apply(m.translation),
+    return [tap_on(obj, carrier * m.mount.rotation, origin + carrier.apply(m.mount.position_mm),
                    rng.uniform(*depths), mu=rng.uniform(*MU)) for m in rig]  # fmt: skip
 
 
