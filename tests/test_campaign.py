@@ -185,3 +185,37 @@ def test_batch_command_many_inputs(videos, capsys):
     assert main(["batch", str(root / "a"), "--dest", str(dest), "--quiet"]) == 0
     assert "1 already complete" in capsys.readouterr().out
     assert main(["batch", str(good[0]), str(good[1]), "--out", str(root / "x.csv")]) == 2
+
+
+_AFTER_OPENCV_THREADS = """
+import sys
+from pathlib import Path
+import cv2
+import numpy as np
+from camwhisker.run.campaign import BatchTask, run_many
+from camwhisker.sensor.file import Sensor
+
+# OpenCV's thread pool at work in this process first, as in a notebook or a test session.
+cv2.setNumThreads(2)
+image = np.random.default_rng(0).integers(0, 255, (2000, 2000, 3), dtype=np.uint8)
+for _ in range(3):
+    cv2.GaussianBlur(image, (31, 31), 5)
+out = Path(sys.argv[1])
+summary = run_many([(Path(p), out / (Path(p).stem + ".csv")) for p in sys.argv[2:]],
+                   BatchTask(Sensor()), jobs=2, progress=False)
+print(summary.count("done"), cv2.getNumThreads())
+"""
+
+
+def test_workers_forked_after_opencv_used_its_threads_finish(tmp_path):
+    videos = []
+    for name in ("a", "b", "c"):
+        videos.append(tmp_path / f"{name}.avi")
+        shutil.copy(SAMPLE, videos[-1])
+    # Before the fix a forked worker hung in cv2.getNumThreads (the pool's condition
+    # variables copied mid-wait): 12-frame clips take ~2 s, so 120 s means hung.
+    done = subprocess.run([sys.executable, "-c", _AFTER_OPENCV_THREADS, str(tmp_path / "out"),
+                           *map(str, videos)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    # All three done, and this process's OpenCV back on its two threads.
+    assert done.stdout.split() == ["3", "2"]

@@ -19,6 +19,7 @@ first removes the temporary files that killed runs left in its output folders.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import time
@@ -202,11 +203,13 @@ def _run_one(process: Callable[[Path, Path], dict], video: Path, out: Path) -> T
     import cv2
 
     threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
+    if threads != 1:  # a forked worker is at 1 already (_opencv_one_thread): setting hangs it
+        cv2.setNumThreads(1)
     try:
         return _timed(process, video, out)
     finally:
-        cv2.setNumThreads(threads)
+        if threads != 1:
+            cv2.setNumThreads(threads)
 
 
 def _timed(process, video, out) -> TaskResult:
@@ -317,7 +320,27 @@ def _dispatch(todo, process, jobs, scheduler):
             yield _run_one(process, v, o)
         return
     calls = [(process, v, o) for v, o in todo]
-    yield from run_in_processes(_run_one, calls, min(jobs, len(todo)))
+    with _opencv_one_thread():
+        yield from run_in_processes(_run_one, calls, min(jobs, len(todo)))
+
+
+@contextlib.contextmanager
+def _opencv_one_thread():
+    """OpenCV on one thread in this process while its workers are forked and run.
+
+    OpenCV's thread pool does not survive a fork: in a worker forked while the pool's
+    threads ran (this process used OpenCV before, as a notebook or a test session does),
+    cv2.setNumThreads waits forever for threads that exist only here.
+    """
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    cv2.getNumThreads()  # the pool is rebuilt on its next use: here, not in a worker
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 @dataclass(frozen=True)
