@@ -81,3 +81,19 @@ def test_the_bundled_rig_tapping_a_sphere(tmp_path, capsys):
     assert main(["map", *tables, "--percept", str(tmp_path / "object.json"), "--out",
                  str(tmp_path / "map")]) == 0
     assert "2937 contact points from 5 table(s)" in capsys.readouterr().out
+
+
+def test_gm_bias_only_where_gm_is(tmp_path):
+    # The fusion's line through GM's bias is defined between GM's samples too; the table
+    # gives it only where GM is (a per-frame run had -192 mm in an onset row without GM).
+    from camwhisker.files.tables import read_columns
+
+    out = tmp_path / "c.csv"
+    assert main(["contact", "--signals", str(SPACE / "h+0run0.signals.csv"), "--pose",
+                 str(SPACE / "h+0run0.pose.csv"), "--calib", str(SPACE / "calib.toml"),
+                 "--out", str(out)]) == 0
+    cols = read_columns(out, ("r_gm_mm", "gm_bias_mm"))
+    gm, bias = cols["r_gm_mm"], cols["gm_bias_mm"]
+    assert not np.isfinite(bias[~np.isfinite(gm)]).any()
+    # Within the whisker's length (150 mm) wherever it is given.
+    assert np.isfinite(bias).sum() > 2000 and np.nanmax(np.abs(bias)) < 150.0

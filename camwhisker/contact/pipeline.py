@@ -177,7 +177,9 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,
-        "slipping": state, "p_gm_good": p_good, "gm_bias_mm": bias, "r_fused_mm": fused,
+        "slipping": state, "p_gm_good": p_good,
+        # GM's bias where GM is: elsewhere the fusion's line through its neighbours says nothing.
+        "gm_bias_mm": np.where(np.isfinite(rg), bias, np.nan), "r_fused_mm": fused,
         "r_hat_mm": fused, "x_hat_mm": x_hat, "y_hat_mm": y_hat, "x_mf_mm": x_mf,
         "y_mf_mm": y_mf,
     }
