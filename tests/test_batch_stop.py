@@ -24,6 +24,9 @@ from camwhisker.io.signals import read_signal_table
 from camwhisker.run.campaign import is_complete, output_path
 from camwhisker.sensor.file import Sensor
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_frames" / "nominal_mjpg.avi"
 SAMPLE_FRAMES = 12  # every one tracked (test_campaign: frames_decoded == 12)
@@ -157,6 +160,7 @@ def test_kill_9_of_the_parent_leaves_no_worker(videos, dest):
 _HOLD_TEMP = """
 import sys, time
 from camwhisker.files.atomic import atomic_path
+
 with atomic_path(sys.argv[1]) as tmp:
     tmp.write_text("t_s,half a row")
     print(tmp.name, flush=True)

@@ -37,6 +37,9 @@ from camwhisker.run.batch import run_batch
 from camwhisker.sensor.file import load_sensor
 from camwhisker.vision.stream import GAP_REASON, live_track
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"
 CLIP_FRAMES = 90

@@ -61,6 +61,9 @@ from camwhisker.sim.render.scenarios import NOMINAL_ARTEFACTS, Scenario
 from camwhisker.sim.render.video import render_scenario
 from tests.test_calibrate import calibration
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 FPS = 30.0
 #: The mapping run: the issue's top base speed, a short sweep (tuning seed 5).
 SPEED_MM_S = 5.0

@@ -43,6 +43,9 @@ from camwhisker.live.record import MjpgRoundTrip
 from camwhisker.sensor.file import load_sensor
 from camwhisker.vision.tracker import FrameResult
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"
 SENSOR = SAMPLES / "nominal.sensor.toml"

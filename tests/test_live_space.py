@@ -45,6 +45,9 @@ from camwhisker.live.playback import PlaybackSource
 from camwhisker.sensor.file import load_sensor
 from camwhisker.sensor.springs import suspension_stiffness
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 SPACE = SAMPLES / "space"
 CLIP = SAMPLES / "nominal.mp4"

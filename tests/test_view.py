@@ -28,6 +28,9 @@ from camwhisker.live.playback import PlaybackSource
 from camwhisker.live.view import CLIENT_IDLE_S, VIEW_WIDTH_PX
 from camwhisker.sensor.file import load_sensor
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
 CLIP = SAMPLES / "nominal.mp4"
 #: Bound on every wait for the page or the session (s): a guard, not a measurement.

@@ -18,6 +18,9 @@ from camwhisker.bench.view import headless_chromium, quit_chromium
 from camwhisker.live.view import is_loopback
 from camwhisker.sensor.file import load_sensor
 
+# Plays video at camera rate or times a live loop: run alone (README's test command).
+pytestmark = pytest.mark.timing
+
 
 @pytest.fixture(scope="module")
 def sensor():
