@@ -18,17 +18,24 @@ def _vec(d: dict, names) -> np.ndarray:
     return np.array([d[n] for n in names], float)
 
 
-def test_the_bundled_cylinder_from_space(tmp_path, capsys):
-    runs = sorted(p.name.removesuffix(".signals.csv") for p in SPACE.glob("*.signals.csv"))
-    assert len(runs) == 6  # both ways at three heights
+def _perceive(folder: Path, tmp_path: Path) -> tuple[list[str], list[str], dict, dict]:
+    """The README's commands on a bundled sample: contact --pose per run (pause medians),
+    then percept on all the tables. Returns the runs, the --contacts arguments, the fit and
+    the sample's true object."""
+    runs = sorted(p.name.removesuffix(".signals.csv") for p in folder.glob("*.signals.csv"))
     for n in runs:
-        assert main(["contact", "--signals", str(SPACE / f"{n}.signals.csv"), "--pose",
-                     str(SPACE / f"{n}.pose.csv"), "--calib", str(SPACE / "calib.toml"),
+        assert main(["contact", "--signals", str(folder / f"{n}.signals.csv"), "--pose",
+                     str(folder / f"{n}.pose.csv"), "--calib", str(SPACE / "calib.toml"),
                      "--per", "pause", "--out", str(tmp_path / f"{n}.csv")]) == 0
     tables = [a for n in runs for a in ("--contacts", str(tmp_path / f"{n}.csv"))]
     assert main(["percept", *tables, "--out", str(tmp_path / "object.json")]) == 0
     fit = json.loads((tmp_path / "object.json").read_text())
-    truth = json.loads((SPACE / "object.json").read_text())["object"]
+    return runs, tables, fit, json.loads((folder / "object.json").read_text())["object"]
+
+
+def test_the_bundled_cylinder_from_space(tmp_path, capsys):
+    runs, tables, fit, truth = _perceive(SPACE, tmp_path)
+    assert len(runs) == 6  # both ways at three heights
     assert fit["model"] == "cylinder"
     p, axis, centre = fit["params"], ("axis_x", "axis_y", "axis_z"), ("center_x_mm",
                                                                       "center_y_mm",
@@ -54,16 +61,8 @@ def test_the_bundled_rig_tapping_a_sphere(tmp_path, capsys):
     """The README's rig example: five sensors tap a sphere of 187.4 mm once each; their
     contacts slide from the first touch, so the sphere comes with wide intervals that must
     hold the truth, and the next touch goes to the side the taps did not see."""
-    runs = sorted(p.name.removesuffix(".signals.csv") for p in TAPS.glob("*.signals.csv"))
+    runs, tables, fit, truth = _perceive(TAPS, tmp_path)
     assert runs == [f"L3s{k}" for k in range(1, 6)]
-    for n in runs:
-        assert main(["contact", "--signals", str(TAPS / f"{n}.signals.csv"), "--pose",
-                     str(TAPS / f"{n}.pose.csv"), "--calib", str(SPACE / "calib.toml"),
-                     "--per", "pause", "--out", str(tmp_path / f"{n}.csv")]) == 0
-    tables = [a for n in runs for a in ("--contacts", str(tmp_path / f"{n}.csv"))]
-    assert main(["percept", *tables, "--out", str(tmp_path / "object.json")]) == 0
-    fit = json.loads((tmp_path / "object.json").read_text())
-    truth = json.loads((TAPS / "object.json").read_text())["object"]
     assert fit["model"] == "sphere"
     centre = ("center_x_mm", "center_y_mm", "center_z_mm")
     # The README's numbers: centre 10.2 mm off, radius 177.6 against 187.4 mm; each inside
