@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from camwhisker.contact.space import SpaceError, contact_rows_in_space
 from camwhisker.io.poses import pose_log_from_arrays
@@ -34,8 +35,8 @@ __all__ = ["CALIB_PATH", "TUNING_SEEDS", "HELD_OUT_SEEDS", "PAPER", "contact_err
 
 #: The contact calibration made from the simulator's stage runs (rigid pegs).
 CALIB_PATH = Path(__file__).resolve().parents[2] / "sample_frames" / "space" / "calib.toml"
-#: Seeds looked at while building the protocol (rig, depths, press); never scored below.
-TUNING_SEEDS = range(0, 12)
+#: Seeds looked at while building the protocol and choosing the normals' scale (0-39).
+TUNING_SEEDS = range(0, 40)
 #: One trial per stimulus and location (seed % 4 stimulus, (seed // 4) % 10 location).
 HELD_OUT_SEEDS = range(100, 140)
 #: Frames scored for the contact point: phi at least this (deg).
@@ -77,10 +78,23 @@ def object_errors(kind: str, truth: dict, params: dict) -> dict:
             "distance_err_mm": float(abs(params["distance_mm"] - truth["distance_mm"]))}
 
 
-def _tables(runs, calib, mode: str):
+def _believed(tr, mount_error_deg: float, rng) -> tuple:
+    """A tap's poses as a user who knows the sensor's mount to ``mount_error_deg`` gives
+    them: turned by that angle about a random axis through the sensor."""
+    t, p, q = tr.poses
+    if not mount_error_deg:
+        return t, p, q
+    axis = rng.standard_normal(3)
+    delta = Rotation.from_rotvec(math.radians(mount_error_deg) * axis / np.linalg.norm(axis))
+    return t, p, (Rotation.from_quat(q, scalar_first=True) * delta.inv()).as_quat(
+        scalar_first=True)
+
+
+def _tables(runs, calib, mode: str, mount_error_deg: float = 0.0, seed: int = 0):
     tables, used = [], []
+    rng = np.random.default_rng([seed, 11])
     for tr in runs:
-        poses = pose_log_from_arrays(*tr.poses, f"<{tr.name}>")
+        poses = pose_log_from_arrays(*_believed(tr, mount_error_deg, rng), f"<{tr.name}>")
         try:
             cols, run, _ = contact_rows_in_space(tr.signals, poses, calib, None, mode=mode)
         except SpaceError:  # no trusted contact row: this tap adds nothing
@@ -90,13 +104,15 @@ def _tables(runs, calib, mode: str):
     return tables, used
 
 
-def run_trial(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> dict:
+def run_trial(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE,
+              mount_error_deg: float = 0.0) -> dict:  # fmt: skip
     """One trial: taps, contact tables (per pause for the percept, per frame for the points),
-    the percept and its errors; the contact errors as arrays under ``"_contact"``."""
+    the percept and its errors; the contact errors as arrays under ``"_contact"``. With
+    ``mount_error_deg`` each sensor's pose is known only to that angle (:func:`_believed`)."""
     t0 = time.perf_counter()
     trial = protocol_trial(seed)
     runs = simulate_trial(trial, noise)
-    tables, used = _tables(runs, calib, "pause")
+    tables, used = _tables(runs, calib, "pause", mount_error_deg, seed)
     s = surfels_from_tables(tables)
     p = perceive_solid(s)
     kind = trial.obj.kind
@@ -111,7 +127,7 @@ def run_trial(seed: int, calib, noise: NoiseModel = FRONT_END_NOISE) -> dict:
         out.update(object_errors(kind, truth, fit.params))
         cover = [lo <= truth[k] <= hi for k, (lo, hi) in fit.intervals.items()]
         out["covered"], out["checked"] = int(sum(cover)), len(cover)
-    frames, placed = _tables(runs, calib, "frame")
+    frames, placed = _tables(runs, calib, "frame", mount_error_deg, seed)
     errs = [contact_errors(cols, tr) for cols, (tr, _) in zip(frames, placed, strict=True)]
     out["_contact"] = {k: np.concatenate([e[k] for e in errs]) if errs else np.empty(0)
                        for k in ("dist", "shaft", "press", "side")}  # fmt: skip
@@ -213,11 +229,14 @@ def main(argv: list[str] | None = None) -> int:
                         f"for tuning (default: {HELD_OUT_SEEDS[0]}-{HELD_OUT_SEEDS[-1]})")
     p.add_argument("--calib", default=str(CALIB_PATH),
                    help="contact calibration (default: sample_frames/space/calib.toml)")
+    p.add_argument("--mount-error-deg", type=float, default=0.0, metavar="DEG",
+                   help="each sensor's mount known only to DEG, about a random axis: how well "
+                        "a user must know the rig (default: 0, exact)")
     p.add_argument("--out", metavar="R.json", help="also write the summary and every trial")
     args = p.parse_args(argv)
     calib = read_calibration(args.calib)
     t0 = time.perf_counter()
-    rows = [run_trial(seed, calib) for seed in args.seeds]
+    rows = [run_trial(seed, calib, mount_error_deg=args.mount_error_deg) for seed in args.seeds]
     s = summarise(rows)
     print(format_summary(s))
     print(f"{len(rows)} trials in {time.perf_counter() - t0:.0f} s")

@@ -1,15 +1,17 @@
 """Objects in 3-D from contacts placed in W: plane, sphere, cylinder or none, with intervals.
 
 The 3-D form of :mod:`camwhisker.percept.percepts` (docs/sensor.md section 9). Surfels come
-from contact tables with the world columns (``camwhisker contact --pose``): a point on
-the surface, the surface normal's estimate across the shaft (toward psi) and, where the
-table has it, the shaft's rest direction. Each model is fitted by robust least squares
-(Cauchy loss) to seed 000's cost (eqs. 3-6) less its free-space term: contacts far from the
-surface and normals that disagree with the surface's; the model with the lowest BIC is the
-percept, "none" charging each residual :data:`NONE_RESIDUAL` scales. The free-space term
-is left out: the base, the only free space a table holds, passes behind a finite wall's
-plane while it touches the wall's edge (it turned walls into cylinders), and the measured
-normals already say which side is outside.
+from contact tables with the world columns (``camwhisker contact --pose``): a point on the
+surface, the surface normal's estimate across the shaft (toward psi) and, where the table
+has it, the shaft's rest direction. Each model is fitted by robust least squares (Cauchy
+loss) to seed 000's cost (eqs. 3-6) less its free-space term: contacts far from the surface
+and normals that disagree with the surface's, each normal on its own scale
+(:func:`_normal_sigma`: tight for a tap, loose where the base dragged the contact
+sideways); the model with the lowest BIC is the percept, "none" charging each residual
+:data:`NONE_RESIDUAL` scales. The free-space term is left out: the base, the only free
+space a table holds, passes behind a finite wall's plane while it touches the wall's edge
+(it turned walls into cylinders), and the measured normals already say which side is
+outside.
 
 A measured normal lies across the shaft: the surface's own normal less its component along
 the shaft (the contact force's component along the shaft does not bend the whisker). So a
@@ -64,6 +66,14 @@ __all__ = ["MODELS", "Surfels3", "surfels_from_tables", "read_surfels3",
 MODELS = ("plane", "sphere", "cylinder")
 #: Fewer contacts than this cannot tell a shape in 3-D: "none".
 MIN_SURFELS = 6
+#: Scale of a measured normal's error (rad) where the base moved in the plane of its shaft
+#: and the normal (a tap, a sweep in one plane): friction then bends the whisker in that
+#: plane too, and theta's run mean holds the normal to 0.01-0.03 deg; the scale is a
+#: sensor's mount known to about a degree (a tighter one loses spheres to cylinders there).
+NORMAL_SIGMA_RAD = 0.04
+#: A base moving across that plane drags the contact sideways: Coulomb friction turns the
+#: bending direction by up to about this times the travel's part across the plane.
+LATERAL_MU = 0.6
 # A model normal within this of the shaft (its part across the shaft under sin 6 deg) says
 # nothing about the measured one, which lies across the shaft.
 _ACROSS_MIN = 0.1
@@ -192,9 +202,20 @@ def _normal_angle(model_n: np.ndarray, measured: np.ndarray, shaft: np.ndarray) 
     return np.where(ok, np.arctan2(sin, cos), 0.0)
 
 
+def _normal_sigma(s: Surfels3) -> np.ndarray:
+    """Each measured normal's scale (rad): :data:`NORMAL_SIGMA_RAD` with the sideways drag
+    of a base that moved across the plane of the shaft and the normal; the planar
+    percepts' DIR_SIGMA_RAD where the table gives no travel or shaft."""
+    if s.travel is None:
+        return np.full(s.n, DIR_SIGMA_RAD)
+    across = np.abs(np.sum(s.travel * np.cross(s.shaft, s.normal), axis=1))
+    sigma = np.hypot(NORMAL_SIGMA_RAD, LATERAL_MU * across)
+    return np.where(np.isfinite(sigma), sigma, DIR_SIGMA_RAD)
+
+
 def _residuals(x: np.ndarray, model: str, s: Surfels3, centroid: np.ndarray) -> np.ndarray:
     dist, normal = _geometry(model, x, s.p_mm)
-    parts = [dist / POINT_SIGMA_MM, _normal_angle(normal, s.normal, s.shaft) / DIR_SIGMA_RAD]
+    parts = [dist / POINT_SIGMA_MM, _normal_angle(normal, s.normal, s.shaft) / _normal_sigma(s)]
     if model == "cylinder":
         parts.append([(x[:3] - centroid) @ _unit(x[3], x[4]) / _GAUGE_MM])
     return np.concatenate([np.atleast_1d(np.asarray(q, float)) for q in parts])
