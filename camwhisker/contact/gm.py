@@ -80,6 +80,10 @@ def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI
     dx = np.asarray(dx_mm, dtype=float)
     phi_deg = np.asarray(phi_deg, dtype=float)
     dx, phi_deg = np.broadcast_arrays(dx, phi_deg)
+    if dx.size == 1:  # the live loop's one row: numpy's per-call overhead was 0.3 ms a frame
+        r = _r_gm_beam_one(dx.item(), phi_deg.item(), beta_per_mm, kappa_per_mm, l_w_mm,
+                           phi_min_deg)  # fmt: skip
+        return np.full(dx.shape, r)
     ok = defined(dx, phi_deg, phi_min_deg)
     phi = np.radians(np.where(ok, phi_deg, PHI_MIN_DEG))
     dxv = np.where(ok, dx, 0.0)
@@ -99,6 +103,27 @@ def r_gm_beam(dx_mm, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg=PHI
         lo = np.where(below, mid, lo)
         hi = np.where(below, hi, mid)
     return np.where(ok, 0.5 * (lo + hi), np.nan)
+
+
+def _r_gm_beam_one(dx, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg):
+    """:func:`r_gm_beam` of one row in Python floats: the same operations in the same order
+    (sin and radians by numpy), so the same bits."""
+    if not bool(defined(np.float64(dx), np.float64(phi_deg), phi_min_deg)):
+        return math.nan
+    phi = float(np.radians(phi_deg))
+    sin_phi = float(np.sin(phi))
+    bend = beta_per_mm * phi / 3.0
+    r_max = _beam_r_max(kappa_per_mm, l_w_mm)
+    if not _beam_travel(r_max, sin_phi, bend, kappa_per_mm) >= dx:
+        return math.nan
+    lo, hi = 0.0, r_max
+    for _ in range(_BISECT_ITERATIONS):
+        mid = 0.5 * (lo + hi)
+        if _beam_travel(mid, sin_phi, bend, kappa_per_mm) < dx:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 @dataclass(frozen=True)
