@@ -173,19 +173,25 @@ def _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm):
     return r_gm, r_mf, np.where(both, 1.0 / var, 0.0), np.where(both, r_gm - r_mf, 0.0)
 
 
+def _zero_nan(v):
+    """v with NaN as 0: np.nan_to_num's checks for infinities (neither a bias nor a
+    probability is one) are slow in the live loop."""
+    return np.where(np.isnan(v), 0.0, v)
+
+
 def _posterior(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, trend=None):
     """P(GM good) and the fused estimate from the bias estimate m (module docstring);
     ``var``: m's variance (a weighted mean's, weights w_i = 1 / variance_i: 1 / sum(w)).
     Where ``trend`` (a slip), GM is known to be broken: m is taken off whole."""
     se2 = var + floor_mm**2
-    like_good = prior_good * np.exp(-0.5 * np.nan_to_num(m) ** 2 / se2) / np.sqrt(
+    like_good = prior_good * np.exp(-0.5 * _zero_nan(m) ** 2 / se2) / np.sqrt(
         2.0 * np.pi * se2)
     like_bad = (1.0 - prior_good) / l_w_mm
     p_good = np.where(seen & np.isfinite(r_gm), like_good / (like_good + like_bad), np.nan)
-    shift = np.where(np.nan_to_num(p_good) >= keep_gm, 0.0,
-                     (1.0 - np.nan_to_num(p_good)) * np.nan_to_num(m))
+    shift = np.where(_zero_nan(p_good) >= keep_gm, 0.0,
+                     (1.0 - _zero_nan(p_good)) * _zero_nan(m))
     if trend is not None:
-        shift = np.where(trend, np.nan_to_num(m), shift)
+        shift = np.where(trend, _zero_nan(m), shift)
     fused = np.where(seen & np.isfinite(r_gm), r_gm - shift, np.nan)
     fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)
     fused = np.where(~np.isfinite(r_gm) & np.isfinite(r_mf), r_mf, fused)

@@ -137,9 +137,9 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     gm_bias_mm, r_fused_mm, r_hat_mm (= r_fused_mm; NaN from the contact's first slip on where
     no MF is in reach to take GM's bias off), x_hat_mm, y_hat_mm (eq. 12 on the whisker
     bent as the GM model and the calibration's bend correction have it) and x_mf_mm,
-    y_mf_mm (the same from r_MF). Samples of one ``segment`` (contact) must be in time order (see
-    :func:`~camwhisker.contact.fusion.fuse`); the fusion also parts them where slip
-    starts or stops. ``fusion``, an
+    y_mf_mm (the same from r_MF; NaN with ``fusion``). Samples of one ``segment`` (contact)
+    must be in time order (see :func:`~camwhisker.contact.fusion.fuse`); the fusion also
+    parts them where slip starts or stops. ``fusion``, an
     :class:`~camwhisker.contact.fusion.OnlineFusion`, fuses one new sample with the
     earlier ones instead, its slip state from ``slip``, an
     :class:`~camwhisker.contact.slip.OnlineSlip` (live: no later samples).
@@ -173,7 +173,9 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     fused = np.where(slid & np.isfinite(rg) & ~np.isfinite(p_good), np.nan, fused)
     state = np.where(np.isfinite(rg), sliding, np.nan)
     x_hat, y_hat = reconstruct(x_mm, fused, phi, dz, travel_sign, calib.gm, calib.bend)
-    x_mf, y_mf = reconstruct(x_mm, mf.r_mm, phi, dz, travel_sign, calib.gm, calib.bend)
+    # MF's own point is for tables (percepts weigh it); a live row does not carry it.
+    x_mf, y_mf = (reconstruct(x_mm, mf.r_mm, phi, dz, travel_sign, calib.gm, calib.bend)
+                  if fusion is None else (np.full(rg.shape, np.nan),) * 2)  # fmt: skip
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,

@@ -42,8 +42,9 @@ class SpreadTable:
     def sigma_at(self, phi_deg) -> np.ndarray:
         """The spread for each phi; NaN for NaN phi."""
         phi = np.asarray(phi_deg, float)
-        k = np.clip(np.searchsorted(self.edges_deg, np.nan_to_num(phi, nan=0.0), side="right") - 1,
-                    0, self.std_mm.size - 1)
+        at = np.where(np.isnan(phi), 0.0, phi)  # np.nan_to_num is slow in the live loop
+        k = np.clip(np.searchsorted(self.edges_deg, at, side="right") - 1, 0,
+                    self.std_mm.size - 1)
         return np.where(np.isfinite(phi), self.std_mm[k], np.nan)
 
     def rows(self):
