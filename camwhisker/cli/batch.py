@@ -33,6 +33,10 @@ def add_batch(sub) -> None:
         help="video files OpenCV can read, folders, globs; or one folder of images with --out",
     )
     p.add_argument("--out", metavar="OUT.csv", help="signal table of a single input")
+    p.add_argument("--mcap", metavar="FILE.mcap",
+                   help="single input: also the table as ROS 2 messages in an MCAP file, "
+                   "/whisker/signals and, with --springs, /whisker/wrench (docs/robots.md; "
+                   "pip install 'camwhisker[ros]')")  # fmt: skip
     p.add_argument("--dest", metavar="DIR", help="many inputs: write the tables under DIR, "
                    "mirroring each input's folder as seen from DIR's parent")  # fmt: skip
     p.add_argument(
@@ -88,18 +92,32 @@ def _run_batch(args) -> int:
         features=feature_hints(args, sensor),
     )
     if args.out is None:
+        if args.mcap:
+            raise CommandError("--mcap goes with --out (a single input)")
         return _run_batch_many(args, sensor, options)
     if len(args.video) != 1 or args.dest:
         raise CommandError("--out takes a single input; for many use --dest (or neither)")
+    if args.mcap:
+        from camwhisker.io.bag import ros_modules
+
+        ros_modules()  # a missing extra stops the command before the video, not after
+        if Path(args.mcap).resolve() == Path(args.out).resolve():
+            raise CommandError(f"--mcap {args.mcap} would overwrite the table --out")
     from camwhisker.run.batch import run_batch
     from camwhisker.run.workers import stop_signals_interrupt
 
+    bag = None
     with stop_signals_interrupt():  # SIGTERM unwinds as Ctrl-C does: no temporary file left
         report = run_batch(
             args.video[0], sensor, args.out, options, args.rest_frame, args.fps, not args.quiet,
             springs=springs_of(args),
         )
-    outputs = ", ".join(str(p) for p in (report.out_csv, report.sidecar, report.rest_check) if p)
+        if args.mcap:
+            from camwhisker.io.bag import write_table_bag
+
+            bag = write_table_bag(report.out_csv, args.mcap)
+    outputs = ", ".join(str(p) for p in (report.out_csv, report.sidecar, report.rest_check, bag)
+                        if p)  # fmt: skip
     print(f"{report.frames} frames, {report.frames_ok} ok -> {outputs}")
     for problem in report.problems:
         print(f"camwhisker batch: problem: {problem}", file=sys.stderr)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.files.tables import read_log
+from camwhisker.io.bag import STAGE_TYPES, bag_source, read_bag_poses
 
 __all__ = [
     "StageLogError",
@@ -102,13 +103,23 @@ def read_stage_log(path: str | Path, max_gap_s: float = MIN_PAUSE_S) -> StageLog
         Largest allowed interval between consecutive samples; a longer gap
         could hide a motion, so it is an error.
 
+    ``path`` may name a topic of an MCAP bag, ``FILE.mcap:/topic`` (the extra ``ros``), of
+    ROS 2 PointStamped, PoseStamped or TransformStamped messages: x_mm is the position's x
+    (metres there), t_s the header's stamp; rows are the topic's messages counted from 1.
+
     Raises
     ------
     StageLogError
         Missing file or columns, a non-numeric or non-finite cell, times not
         strictly increasing (unsorted or duplicate), a gap, or fewer than two rows.
-        The message names the file and the 1-based row (the header is row 1).
+        The message names the file and the 1-based row (the header is row 1); for a
+        bag, ``FILE:TOPIC`` (a missing topic lists the bag's).
     """
+    bag = bag_source(path, StageLogError)
+    if bag is not None:
+        t, p_mm, _ = read_bag_poses(*bag, STAGE_TYPES, StageLogError)
+        return stage_log_from_arrays(t, p_mm[:, 0], source=f"{bag[0]}:{bag[1]}",
+                                     max_gap_s=max_gap_s, first_row=1)  # fmt: skip
     path = Path(path)
     arrays, _ = read_log(path, ("t_s", "x_mm"), ("r_mm", "dz_mm"), "stage log", StageLogError)
     return stage_log_from_arrays(arrays["t_s"], arrays["x_mm"], arrays.get("r_mm"),

@@ -141,14 +141,25 @@ def pose_log_from_arrays(t_s, p_mm, quat, source: str = "<arrays>", rows=None,
 def read_pose_log(path: str | Path, mount: Mount | None = None) -> PoseLog:
     """Read and check a pose log; with ``mount``, the sensor's poses from its carrier's.
 
+    ``path`` may name a topic of an MCAP bag, ``FILE.mcap:/topic``, of ROS 2 PoseStamped
+    or TransformStamped messages (:func:`camwhisker.io.bag.read_pose_bag`; the extra
+    ``ros``): in metres there, read into mm.
+
     Raises
     ------
     PoseLogError
         A missing file or column, a cell not a finite number, times not strictly
         increasing, a gap over :data:`MAX_GAP_S`, a quaternion whose norm is not 1
         within :data:`QUAT_NORM_TOL`, fewer than two rows. The message names the file,
-        the 1-based row (the header is row 1) and the column.
+        the 1-based row (the header is row 1) and the column; for a bag, ``FILE:TOPIC``
+        and the message counted from 1 (a missing topic lists the bag's).
     """
+    # Imported here: bag.py imports this module (and mcap only where a bag is read).
+    from camwhisker.io.bag import bag_source, read_pose_bag
+
+    bag = bag_source(path, PoseLogError)
+    if bag is not None:
+        return read_pose_bag(*bag).mounted(mount)
     data, rows = read_log(path, POSE_COLUMNS, (), "pose log", PoseLogError)
     p = np.column_stack([data["x_mm"], data["y_mm"], data["z_mm"]])
     q = np.column_stack([data["qw"], data["qx"], data["qy"], data["qz"]])

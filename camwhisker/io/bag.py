@@ -1,0 +1,279 @@
+"""ROS 2 messages in MCAP files (docs/robots.md): the signal table out, pose and stage logs in.
+
+Written by :func:`write_signal_bag` (``camwhisker batch --mcap``), in the sensor frame S
+(frame_id :data:`FRAME_ID`; docs/sensor.md sections 2 and 9):
+
+- :data:`SIGNALS_TOPIC`, ``camwhisker_msgs/msg/Signals``: one message per table row,
+  ``header.stamp`` = the row's t_s to the nanosecond, ``uint32 frame``, ``bool ok`` and one
+  float64 per other numeric column, named as the column in lower case (ROS 2 field names
+  are: fz_mN is ``fz_mn``, still mN) and in the table's units, NaN where a cell is empty.
+- :data:`WRENCH_TOPIC`, ``geometry_msgs/msg/WrenchStamped`` (tables with the forces): SI
+  units, the suspension's restoring wrench on the plate, equal and opposite to the load
+  the contact puts on it: force.z = fz_mN / 1000 N; the torque, mb_Nmm / 1000 N m about
+  the axis z_S x (cos theta, sin theta, 0), turns the whisker back toward theta (a tilt
+  leans it toward theta + 180 deg). Where theta is empty (phi too small to give it) the
+  torque is zero; rows without both forces (untrusted) have no message.
+
+Read: a source ``FILE.mcap:/topic`` (:func:`bag_source`) gives a pose log
+(:func:`read_pose_bag`) from ``geometry_msgs/msg/PoseStamped`` or ``TransformStamped``
+(metres to mm, times from header.stamp); :mod:`camwhisker.contact.stage` reads a stage log
+through :func:`read_bag_poses`, also from ``PointStamped``.
+
+The packages ``mcap`` and ``mcap-ros2-support`` (the extra ``ros``) are imported only in
+the functions that use them: the package runs without them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from camwhisker.files.atomic import atomic_path
+from camwhisker.files.tables import read_columns, read_header
+from camwhisker.io.poses import PoseLog, PoseLogError, pose_log_from_arrays
+
+__all__ = ["INSTALL_HINT", "FRAME_ID", "SIGNALS_TOPIC", "WRENCH_TOPIC", "SIGNALS_TYPE",
+           "WRENCH_TYPE", "POSE_TYPES", "STAGE_TYPES", "BagError", "ros_modules", "bag_source",
+           "write_signal_bag", "write_table_bag", "read_bag_poses", "read_pose_bag"]  # fmt: skip
+
+#: The extra that installs the MCAP packages (pyproject.toml), named where they are missing.
+INSTALL_HINT = "pip install 'camwhisker[ros]'"
+#: The sensor frame S (docs/sensor.md section 9) as the messages' header.frame_id.
+FRAME_ID = "whisker"
+SIGNALS_TOPIC = "/whisker/signals"
+WRENCH_TOPIC = "/whisker/wrench"
+SIGNALS_TYPE = "camwhisker_msgs/msg/Signals"
+WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+#: Message types a pose log is read from; a stage log also takes a point.
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped")
+STAGE_TYPES = (*POSE_TYPES, "geometry_msgs/msg/PointStamped")
+# Cells of these columns are text, not numbers: they have no field.
+_TEXT_COLUMNS = ("note",)
+# ROS 2's rule for a field name (rosidl): the table's names that break it are refused.
+_FIELD_NAME = re.compile(r"(?!.*__)(?!.*_$)[a-z][a-z0-9_]*")
+_NS = 10**9
+
+_SEP = "=" * 80
+_HEADER = f"""{_SEP}
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+{_SEP}
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+_WRENCH = f"""std_msgs/Header header
+geometry_msgs/Wrench wrench
+{_SEP}
+MSG: geometry_msgs/Wrench
+geometry_msgs/Vector3 force
+geometry_msgs/Vector3 torque
+{_SEP}
+MSG: geometry_msgs/Vector3
+float64 x
+float64 y
+float64 z
+{_HEADER}"""
+
+
+class BagError(ValueError):
+    """An MCAP bag that cannot be written or read; the message names the file (and topic)."""
+
+
+def ros_modules(error: type[Exception] = BagError):
+    """The mcap and mcap_ros2 packages, or ``error`` saying how to install them."""
+    try:
+        import mcap.exceptions
+        import mcap.reader
+        import mcap_ros2.decoder
+        import mcap_ros2.writer
+    except ImportError:
+        raise error(f"MCAP bags need the packages mcap and mcap-ros2-support, which are not "
+                    f"installed: {INSTALL_HINT}") from None  # fmt: skip
+    return mcap, mcap_ros2
+
+
+def bag_source(path: str | Path, error: type[Exception] = BagError) -> tuple[Path, str] | None:
+    """``(FILE, /topic)`` where ``path`` is ``FILE.mcap:/topic``; None for any other file.
+
+    A bare ``FILE.mcap`` is ``error``: a bag holds many topics, the reader needs one."""
+    text = str(path)
+    k = text.rfind(":/")
+    if k > 0 and text[:k].endswith(".mcap"):
+        return Path(text[:k]), text[k + 1:]
+    if text.endswith(".mcap"):
+        raise error(f"{text}: an MCAP bag: name the topic to read, as {text}:/TOPIC")
+    return None
+
+
+def _stamp(t_s: float) -> dict:
+    """builtin_interfaces/Time of ``t_s``: integer nanoseconds, so exact to the nanosecond."""
+    sec, nanosec = divmod(round(t_s * 1e9), _NS)
+    return {"sec": sec, "nanosec": nanosec}
+
+
+def _signal_fields(columns: dict, path: Path) -> list[tuple[str, str, str]]:
+    """(column, field, ROS type) of the Signals message, in the table's order."""
+    if "t_s" not in columns:
+        raise BagError(f"{path}: the table has no column t_s for the messages' stamps")
+    fields = []
+    for name, values in columns.items():
+        if name == "t_s" or name in _TEXT_COLUMNS or np.asarray(values).dtype.kind not in "biuf":
+            continue
+        kind = {"frame": "uint32", "ok": "bool"}.get(name, "float64")
+        field = name.lower()  # ROS 2 field names are lower case: fz_mN -> fz_mn
+        if not _FIELD_NAME.fullmatch(field) or any(f == field for _, f, _ in fields):
+            raise BagError(f"{path}: column {name}: {field!r} is not a ROS 2 field name "
+                           "(lower case letters, digits, single underscores) or repeats one")
+        fields.append((name, field, kind))
+    return fields
+
+
+def _wrench(fz_mN: float, mb_Nmm: float, theta_deg: float) -> dict:
+    """The restoring wrench in S (SI): +z force, torque about z_S x (cos theta, sin theta, 0)."""
+    th = math.radians(theta_deg)
+    # Theta empty: phi is too small to give the moment a direction.
+    ax, ay = (-math.sin(th), math.cos(th)) if math.isfinite(th) else (0.0, 0.0)
+    m = mb_Nmm / 1000.0
+    return {"force": {"x": 0.0, "y": 0.0, "z": fz_mN / 1000.0},
+            "torque": {"x": m * ax, "y": m * ay, "z": 0.0}}  # fmt: skip
+
+
+def write_signal_bag(path: str | Path, columns: dict) -> Path:
+    """Write a signal table's columns (name -> array, one value per row) as an MCAP file of
+    ROS 2 messages (module docstring), durably; returns ``path``.
+
+    Columns whose values are not numbers (``note``) have no field. t_s must be finite
+    and not negative (MCAP's log times are unsigned nanoseconds); log and publish time
+    equal the stamp. :data:`WRENCH_TOPIC` is written where the table has ``fz_mN`` and
+    ``mb_Nmm``, for the rows where both are numbers (with theta_deg where present).
+
+    Raises
+    ------
+    BagError
+        A missing t_s, a time below 0 or not a number (naming the row as in a file),
+        a column name ROS 2 refuses, or the MCAP packages not installed.
+    OSError
+        Writing failed; it names ``path``, which is left as it was.
+    """
+    path = Path(path)
+    _, mcap_ros2 = ros_modules(BagError)
+    fields = _signal_fields(columns, path)
+    t = np.asarray(columns["t_s"], float)
+    bad = np.flatnonzero(~(t >= 0))
+    if bad.size:
+        raise BagError(f"{path}: row {bad[0] + 2}, column t_s: {t[bad[0]]!r} is not a time "
+                       "from 0 on (MCAP's log times are unsigned)")  # fmt: skip
+    cols = {c: np.asarray(columns[c]).tolist() for c, _, _ in fields}
+    forces = all(c in columns for c in ("fz_mN", "mb_Nmm"))
+    theta = np.asarray(columns.get("theta_deg", np.full(t.size, np.nan)), float)
+    signals_def = "std_msgs/Header header\n" + "".join(f"{k} {f}\n" for _, f, k in fields)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        writer = mcap_ros2.writer.Writer(fh)
+        signals = writer.register_msgdef(SIGNALS_TYPE, signals_def + _HEADER)
+        wrench = writer.register_msgdef(WRENCH_TYPE, _WRENCH) if forces else None
+        for i, t_s in enumerate(t.tolist()):
+            stamp = _stamp(t_s)
+            ns = stamp["sec"] * _NS + stamp["nanosec"]
+            header = {"stamp": stamp, "frame_id": FRAME_ID}
+            msg = {f: (cols[c][i] == 1 if k == "bool" else cols[c][i]) for c, f, k in fields}
+            writer.write_message(SIGNALS_TOPIC, signals, {"header": header, **msg},
+                                 log_time=ns, publish_time=ns, sequence=i)  # fmt: skip
+            if wrench is None:
+                continue
+            fz, mb = float(columns["fz_mN"][i]), float(columns["mb_Nmm"][i])
+            if math.isfinite(fz) and math.isfinite(mb):
+                writer.write_message(WRENCH_TOPIC, wrench,
+                                     {"header": header, "wrench": _wrench(fz, mb, theta[i])},
+                                     log_time=ns, publish_time=ns, sequence=i)  # fmt: skip
+        writer.finish()
+    return path
+
+
+def write_table_bag(table: str | Path, path: str | Path) -> Path:
+    """Write the signal table at ``table`` (a CSV) as the MCAP file ``path``
+    (:func:`write_signal_bag`), every message holding the table's printed values."""
+    names = tuple(c for c in read_header(table) if c not in _TEXT_COLUMNS)
+    return write_signal_bag(path, read_columns(table, names))
+
+
+def _topics(reader) -> dict[str, str]:
+    """Each topic of a bag and its message type; a bag without an index is read through."""
+    summary = reader.get_summary()
+    if summary is not None:
+        return {c.topic: summary.schemas[c.schema_id].name if c.schema_id else ""
+                for c in summary.channels.values()}  # fmt: skip
+    return {c.topic: s.name if s else "" for s, c, _ in reader.iter_messages()}
+
+
+def _sample(msg) -> tuple[int, tuple, tuple]:
+    """Stamp (ns), position (m) and quaternion (w, x, y, z; NaN for a point) of a message."""
+    stamp = msg.header.stamp
+    if hasattr(msg, "pose"):
+        p, q = msg.pose.position, msg.pose.orientation
+    elif hasattr(msg, "transform"):
+        p, q = msg.transform.translation, msg.transform.rotation
+    else:
+        p, q = msg.point, None
+    quat = (q.w, q.x, q.y, q.z) if q is not None else (math.nan,) * 4
+    return stamp.sec * _NS + stamp.nanosec, (p.x, p.y, p.z), quat
+
+
+def read_bag_poses(path: str | Path, topic: str, accepted: tuple[str, ...] = POSE_TYPES,
+                   error: type[Exception] = BagError):  # fmt: skip
+    """Times (s, from header.stamp), positions (mm) and quaternions (w, x, y, z) of the
+    messages on one topic of an MCAP bag, in log-time order, as arrays (N,), (N, 3),
+    (N, 4); a point's quaternion is NaN.
+
+    Raises
+    ------
+    error
+        The file unreadable or not an MCAP bag, the topic missing (the message lists the
+        bag's topics), of a type not in ``accepted`` (named, with those accepted) or
+        without messages; the MCAP packages not installed. Each names ``FILE:TOPIC``.
+    """
+    mcap, mcap_ros2 = ros_modules(error)
+    source = f"{path}:{topic}"
+    stamps, positions, quats = [], [], []
+    try:
+        with open(path, "rb") as fh:
+            reader = mcap.reader.make_reader(
+                fh, decoder_factories=[mcap_ros2.decoder.DecoderFactory()])
+            topics = _topics(reader)
+            if topic not in topics:
+                raise error(f"{source}: no topic {topic} in the bag; it has: "
+                            f"{', '.join(sorted(topics)) or 'none'}")  # fmt: skip
+            if topics[topic] not in accepted:
+                raise error(f"{source}: messages of type {topics[topic] or 'unknown'}, "
+                            f"expected one of {', '.join(accepted)}")  # fmt: skip
+            for _, _, _, msg in reader.iter_decoded_messages(topics=[topic]):
+                ns, p, q = _sample(msg)
+                stamps.append(ns)
+                positions.append(p)
+                quats.append(q)
+    except OSError as exc:
+        raise error(f"{path}: cannot read the bag ({exc.strerror or exc})") from exc
+    except mcap.exceptions.McapError as exc:
+        raise error(f"{source}: not a readable MCAP bag ({exc})") from exc
+    if not stamps:
+        raise error(f"{source}: the topic has no messages")
+    # Integer nanoseconds over 1e9: Python rounds the quotient once, as a CSV's decimals.
+    t = np.array([ns / _NS for ns in stamps], float)
+    return t, np.array(positions, float) * 1000.0, np.array(quats, float)
+
+
+def read_pose_bag(path: str | Path, topic: str) -> PoseLog:
+    """A pose log from a topic of PoseStamped or TransformStamped messages (metres to mm),
+    checked as a CSV pose log is; its rows are the topic's messages counted from 1.
+
+    Raises
+    ------
+    PoseLogError
+        As :func:`read_bag_poses`, and the pose log's own checks, naming ``FILE:TOPIC``.
+    """
+    t, p, q = read_bag_poses(path, topic, POSE_TYPES, PoseLogError)
+    return pose_log_from_arrays(t, p, q, f"{path}:{topic}", range(1, t.size + 1))
