@@ -19,7 +19,13 @@ from camwhisker.bench.solids import CALIB_SEED, run_solid_sweep
 from camwhisker.cli import main
 from camwhisker.contact.space import WORLD_COLUMNS
 from camwhisker.files.tables import TableError, write_csv
-from camwhisker.percept.solids import MIN_SURFELS, Surfels3, perceive_solid, read_surfels3
+from camwhisker.percept.solids import (
+    MIN_SURFELS,
+    Surfels3,
+    fit_solid,
+    perceive_solid,
+    read_surfels3,
+)
 
 #: The contact point's error along the shaft (mm): the fused r's scatter, a little more.
 ALONG_SHAFT_MM = 0.5
@@ -219,7 +225,7 @@ def _dragged_sphere(seed: int, sideways: bool) -> Surfels3:
     m = math.cos(turn) * s.normal + math.sin(turn) * side
     across = 0.2 if sideways else 0.0
     travel = across * side - math.sqrt(1.0 - across**2) * s.normal
-    return Surfels3(s.p_mm, m, s.shaft, np.arange(s.n) // 10, travel)
+    return Surfels3(s.p_mm, m, s.shaft, np.zeros(s.n, int), travel)
 
 
 def test_a_normal_dragged_sideways_counts_for_less():
@@ -227,9 +233,8 @@ def test_a_normal_dragged_sideways_counts_for_less():
     errs = {True: [], False: []}
     for seed in range(1, 9):
         for sideways in errs:
-            p = perceive_solid(_dragged_sphere(seed, sideways))
-            assert p.best.model == "sphere"
-            c = np.array([p.best.params[f"center_{k}_mm"] for k in "xyz"])
+            fit = fit_solid("sphere", _dragged_sphere(seed, sideways))
+            c = np.array([fit.params[f"center_{k}_mm"] for k in "xyz"])
             errs[sideways].append(np.linalg.norm(c - c0))
     aware, blind = np.array(errs[True]), np.array(errs[False])
     # On 8 seeds the drag-aware fit is closer on each (0.13-0.51 mm against 0.26-1.25 mm):
