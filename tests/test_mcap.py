@@ -140,16 +140,18 @@ def test_batch_writes_the_table_as_ros2_messages(tmp_path, capsys):
     for (s, log_ns, msg), i in zip(wrench, np.flatnonzero(have), strict=True):
         assert s == "geometry_msgs/msg/WrenchStamped" and log_ns == signals[i][1]
         f, m = msg.wrench.force, msg.wrench.torque
-        # force.z is the printed fz_mN / 1000 exactly: the same division of the same value.
-        assert (f.x, f.y, f.z) == (0.0, 0.0, table["fz_mN"][i] / 1000.0)
+        # force.z is the printed -fz_mN / 1000 exactly (the load pushes along -z_S): the same
+        # division of the same value.
+        assert (f.x, f.y, f.z) == (0.0, 0.0, -table["fz_mN"][i] / 1000.0)
         th = math.radians(table["theta_deg"][i])
         if math.isnan(th):
             assert (m.x, m.y, m.z) == (0.0, 0.0, 0.0)  # no direction at phi under 0.6 deg
             continue
-        # 1e-12 relative: only cos^2 + sin^2 rounding; the axis is z x (cos, sin, 0).
+        # 1e-12 relative: only cos^2 + sin^2 rounding; the axis is z x (cos psi, sin psi, 0),
+        # psi = theta + 180 deg, the way the load leans the whisker: (sin, -cos, 0).
         assert math.hypot(m.x, m.y) == pytest.approx(table["mb_Nmm"][i] / 1000.0, rel=1e-12)
-        assert -math.sin(th) * m.x + math.cos(th) * m.y == pytest.approx(math.hypot(m.x, m.y),
-                                                                         rel=1e-12)
+        assert math.sin(th) * m.x - math.cos(th) * m.y == pytest.approx(math.hypot(m.x, m.y),
+                                                                        rel=1e-12)
         assert m.z == 0.0
 
 

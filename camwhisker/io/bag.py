@@ -8,11 +8,12 @@ Written by :func:`write_signal_bag` (``camwhisker batch --mcap``), in the sensor
   float64 per other numeric column, named as the column in lower case (ROS 2 field names
   are: fz_mN is ``fz_mn``, still mN) and in the table's units, NaN where a cell is empty.
 - :data:`WRENCH_TOPIC`, ``geometry_msgs/msg/WrenchStamped`` (tables with the forces): SI
-  units, the suspension's restoring wrench on the plate, equal and opposite to the load
-  the contact puts on it: force.z = fz_mN / 1000 N; the torque, mb_Nmm / 1000 N m about
-  the axis z_S x (cos theta, sin theta, 0), turns the whisker back toward theta (a tilt
-  leans it toward theta + 180 deg). Where theta is empty (phi too small to give it) the
-  torque is zero; rows without both forces (untrusted) have no message.
+  units, the load the whisker puts on the plate, as a force/torque sensor reports it:
+  force.z = -fz_mN / 1000 N (fz_mN > 0 pushes the plate toward the camera, along -z_S);
+  the torque, mb_Nmm / 1000 N m about the axis z_S x (cos psi, sin psi, 0), psi = theta
+  + 180 deg, tilts the whisker toward psi as the load does (section 9). Where theta is
+  empty (phi too small to give it) the torque is zero; rows without both forces
+  (untrusted) have no message.
 
 Read: a source ``FILE.mcap:/topic`` (:func:`bag_source`) gives a pose log
 (:func:`read_pose_bag`) from ``geometry_msgs/msg/PoseStamped`` or ``TransformStamped``
@@ -134,12 +135,13 @@ def _signal_fields(columns: dict, path: Path) -> list[tuple[str, str, str]]:
 
 
 def _wrench(fz_mN: float, mb_Nmm: float, theta_deg: float) -> dict:
-    """The restoring wrench in S (SI): +z force, torque about z_S x (cos theta, sin theta, 0)."""
+    """The load on the plate in S (SI): force along -z_S, torque about z_S x (cos psi,
+    sin psi, 0) with psi = theta + 180 deg, i.e. about (sin theta, -cos theta, 0)."""
     th = math.radians(theta_deg)
     # Theta empty: phi is too small to give the moment a direction.
-    ax, ay = (-math.sin(th), math.cos(th)) if math.isfinite(th) else (0.0, 0.0)
+    ax, ay = (math.sin(th), -math.cos(th)) if math.isfinite(th) else (0.0, 0.0)
     m = mb_Nmm / 1000.0
-    return {"force": {"x": 0.0, "y": 0.0, "z": fz_mN / 1000.0},
+    return {"force": {"x": 0.0, "y": 0.0, "z": -fz_mN / 1000.0},
             "torque": {"x": m * ax, "y": m * ay, "z": 0.0}}  # fmt: skip
 
 
