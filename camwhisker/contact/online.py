@@ -38,7 +38,8 @@ the batch command's mean is over the whole run); the travel is the base's positi
 projected on R0 (cos theta, sin theta, 0) (R0 the first pose's rotation), its
 direction re-taken each frame until the onset is fixed and kept from there (before the
 session's first contact theta is unknown: x_mm is empty); eq. 12's point is placed in W
-by the pose at the frame (:data:`WORLD_FIELDS`).
+by the pose at the frame (:data:`WORLD_FIELDS`). A base that turns gives the travel of
+the shaft's point at r instead (:class:`_Turning`).
 """
 
 from __future__ import annotations
@@ -54,17 +55,13 @@ from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
 from camwhisker.contact.smooth import local_line
-from camwhisker.contact.space import WORLD_COLUMNS
+from camwhisker.contact.space import STILL_TURN_DEG, WORLD_COLUMNS
 from camwhisker.contact.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
-__all__ = ["MAX_EXTRAPOLATE_S", "MAX_TURN_DEG", "ONSET_MAX_FRAMES", "BELIEF_FIELDS",
+__all__ = ["MAX_EXTRAPOLATE_S", "ONSET_MAX_FRAMES", "BELIEF_FIELDS",
            "MF_FIELDS", "BASE_FIELDS", "WORLD_FIELDS", "BaseTrack", "BaseFeed", "PoseTrack",
            "OnlineContact"]
 
-#: Largest turn of the base (deg) the online contact in space places points for: it takes
-#: the base's own travel along one direction, which a turn of 0.5 deg moves by 0.9 mm at
-#: the whisker's 100 mm (about GM's spread); the contact command models a turning base.
-MAX_TURN_DEG = 0.5
 #: Longest time past the newest base position that x is extrapolated: 5 periods of a
 #: 20 Hz stage; a base silent for longer has stopped sending or is lost, so no x.
 MAX_EXTRAPOLATE_S = 0.25
@@ -189,8 +186,8 @@ class PoseTrack:
         self.quat: list[np.ndarray] = []
         self._mount = None if mount is None else (np.asarray(mount.position_mm, float),
                                                   np.asarray(mount.quat, float))
-        #: The largest angle (deg) between the first pose's orientation and any later one's
-        #: (live places points for a base within MAX_TURN_DEG; past it the session says so).
+        #: The largest angle (deg) between the first pose's orientation and any later one's:
+        #: past STILL_TURN_DEG the base turns (:class:`_Turning`).
         self.turn_deg = 0.0
 
     def add(self, t_s: float, pose) -> bool:
@@ -328,6 +325,28 @@ def _direction_s(theta_deg: float) -> np.ndarray:
     return np.array([math.cos(th), math.sin(th), 0.0])
 
 
+class _Turning:
+    """The travel of a turning base's shaft point at r, as the contact command's model
+    (:mod:`camwhisker.contact.space`) with the frames so far: d_w(t) . (p(t) - c0), c0 the
+    shaft's point at r at the pose where the contact began (the belief's contact state);
+    r the running median of MF less dz over the contact (phi >= 2 CONTACT_PHI_DEG; before
+    one, the last contact's or l_w / 2)."""
+
+    def __init__(self, r_mm: float):
+        self.r_mm = r_mm
+        self._r_seen: list[float] = []
+        #: Where the contact began: the base's position and its shaft's direction (W).
+        self.c0: np.ndarray | None = None
+
+    def note_r(self, r_mf_mm: float, dz_mm: float, phi_deg: float) -> None:
+        if phi_deg >= 2.0 * CONTACT_PHI_DEG and math.isfinite(r_mf_mm - dz_mm):
+            bisect.insort(self._r_seen, r_mf_mm - dz_mm)
+            self.r_mm = self._r_seen[len(self._r_seen) // 2]
+
+    def travel(self, p: np.ndarray, d_w: np.ndarray) -> float:
+        return float(d_w @ (p - self.c0[:3] - self.r_mm * self.c0[3:]))
+
+
 class OnlineContact:
     """Contact per frame from that frame and the earlier ones (module docstring).
 
@@ -370,6 +389,9 @@ class OnlineContact:
         self._onset = _SpaceOnset() if self.space else _Onset()
         self._pressing = _Pressing()
         self._slip = OnlineSlip()
+        last = getattr(self, "_turning", None)
+        l_w = self.calib.l_w_mm if self.calib is not None else math.nan
+        self._turning = _Turning(last.r_mm if last is not None else 0.5 * l_w)
 
     def fields(self) -> tuple[str, ...]:
         base = self.calib is not None and self.base is not None
@@ -418,9 +440,17 @@ class OnlineContact:
             d_w = self._direction
         origin = self.base.p_mm[0] if self.base.p_mm else None
         p = None if pose is None else pose[0]
+        turning = self.base.turn_deg > STILL_TURN_DEG
+        if turning and self._turning.c0 is None and self._state and pose is not None:
+            self._turning.c0 = np.concatenate([p, pose[1][:, 2]])  # c0 follows r
         if d_w is None or origin is None:
             onset.update(p, phi, origin, None, 1.0)
             return math.nan, math.nan, math.nan, 1.0, pose, theta_p
+        if turning:  # the base presses toward theta: the shaft's point travels along +d_w
+            if pose is None or self._turning.c0 is None:
+                return math.nan, math.nan, math.nan, 1.0, pose, theta_p
+            x = dx = self._turning.travel(p, pose[1] @ (self.base.r0.T @ d_w))
+            return x, abs(float(pose[2] @ d_w)), (dx if dx > 0 else math.nan), 1.0, pose, theta_p
         sign = 1.0 if (self.base.p_mm[-1] - origin) @ d_w >= 0 else -1.0
         x0 = onset.update(p, phi, origin, d_w, sign)
         if pose is None:
@@ -464,6 +494,8 @@ class OnlineContact:
             x, speed, dx, sign = self._travel(t_s, phi)
         e = estimate(self.calib, np.array([x]), np.array([dx]), np.array([phi_s]),
                      np.array([dz_s]), sign, fusion=self._fusion, slip=self._slip)
+        if self.space and self.base.turn_deg > STILL_TURN_DEG:
+            self._turning.note_r(float(e["r_mf_mm"][0]), dz_s, phi_s)
         use = ok and math.isfinite(x)
         out["r_mf_mm"] = float(e["r_mf_mm"][0]) if ok else math.nan
         out["sigma_mf_mm"] = float(e["sigma_mf_mm"][0]) if ok else math.nan

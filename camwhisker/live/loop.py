@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.contact.online import MAX_TURN_DEG
 from camwhisker.files.atomic import atomic_path, sync_file
 from camwhisker.io.signals import (
     SignalWriter,
@@ -513,12 +512,6 @@ class LiveSession:
             self.report.problems.append(f"no base {what} received on {host}:{port}: no GM, "
                                         f"Z, fusion or contact point"
                                         + (f" ({dropped})" if dropped else ""))  # fmt: skip
-        turn = out.get("base_turn_deg", 0.0)
-        if turn > MAX_TURN_DEG:
-            self.report.problems.append(
-                f"the base turned by {turn:.2f} deg: live places the contact points for a base "
-                f"that keeps its orientation (within {MAX_TURN_DEG:g} deg); camwhisker contact "
-                "--pose on OUT.pose.csv models the turn")
         if self.base is not None:
             if cfg.base_poses:
                 path = write_pose_log(pose_log_path(self.out_csv), self.base_samples)
