@@ -216,6 +216,8 @@ def format_summary(s: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
+    from tqdm import tqdm
+
     from camwhisker.bench.seeds import seed_list
     from camwhisker.contact.calibrate import read_calibration
     from camwhisker.files.atomic import atomic_write_text
@@ -236,7 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     calib = read_calibration(args.calib)
     t0 = time.perf_counter()
-    rows = [run_trial(seed, calib, mount_error_deg=args.mount_error_deg) for seed in args.seeds]
+    rows = [run_trial(seed, calib, mount_error_deg=args.mount_error_deg)
+            for seed in tqdm(args.seeds, unit="trial", desc="taps")]
     s = summarise(rows)
     print(format_summary(s))
     print(f"{len(rows)} trials in {time.perf_counter() - t0:.0f} s")
