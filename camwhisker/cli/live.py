@@ -57,6 +57,29 @@ def _contact_args(p, live: bool) -> None:
                        else "0 (the session's base log is on the camera clock)"))
 
 
+def _mcap_arg(p, live: bool) -> None:
+    images = ("the recording's JPEG bytes with --record, the camera's with --raw-mjpg, else "
+              "the frames at JPEG quality 90" if live else "the recording's JPEG bytes")
+    p.add_argument("--mcap", metavar="FILE.mcap",
+                   help="also the rows as ROS 2 messages in an MCAP file, streamed: "
+                        "/whisker/signals, /whisker/wrench (forces), /whisker/contact (base "
+                        f"poses) and /whisker/image ({images}); docs/robots.md, "
+                        "pip install 'camwhisker[ros]'")  # fmt: skip
+
+
+def _mcap_of(args) -> Path | None:
+    """--mcap as a path, checked before the session starts (the extra installed, not the
+    table's name)."""
+    if not args.mcap:
+        return None
+    from camwhisker.io.bag import ros_modules
+
+    ros_modules(CommandError)  # a missing extra stops the command before the session
+    if Path(args.mcap).resolve() == Path(args.out).resolve():
+        raise CommandError(f"--mcap {args.mcap} would overwrite the table --out")
+    return Path(args.mcap)
+
+
 def _calib_of(args):
     """The --calib file's calibration (or None), with the checks of its options."""
     if args.eta_deg is not None and not args.eta_deg > 0:
@@ -160,6 +183,7 @@ def add_live(sub) -> None:
     )
     p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
+    _mcap_arg(p, live=True)
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)
@@ -195,6 +219,7 @@ def _run_live(args) -> int:
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
     calib = _calib_of(args)
     mount = _mount_of(args)  # before the capture opens: a bad one leaves nothing open
+    mcap = _mcap_of(args)
     capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
     if args.loop and hasattr(capture, "loop"):
         capture.loop = True
@@ -220,6 +245,7 @@ def _run_live(args) -> int:
         mount=mount,
         view_port=args.view,
         view_host=args.view_host,
+        mcap=mcap,
     )
     try:
         session = LiveSession(capture, sensor, args.out, config)
@@ -237,6 +263,7 @@ def add_replay(sub) -> None:
     p.add_argument("session", help="SESSION.avi recorded by 'camwhisker live --record'")
     p.add_argument("--out", required=True, metavar="OUT.csv",
                    help="signal table to write (OUT.json beside it)")
+    _mcap_arg(p, live=False)
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)
@@ -252,6 +279,7 @@ def _run_replay(args) -> int:
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
     calib = _calib_of(args)
+    mcap = _mcap_of(args)
     contact = None
     if calib is not None:
         from camwhisker.live.base import read_base_log, read_pose_log_samples
@@ -272,6 +300,6 @@ def _run_replay(args) -> int:
     elif args.base_offset_s is not None:
         raise CommandError("--base-offset-s needs --calib and --base-log or --pose-log")
     out = reprocess_session(args.session, sensor, args.out, options,
-                            _springs_with(args, calib), contact)
-    print(out)
+                            _springs_with(args, calib), contact, mcap)
+    print(out if mcap is None else f"{out}, {mcap}")
     return 0

@@ -15,6 +15,15 @@ Written by :func:`write_signal_bag` (``camwhisker batch --mcap``), in the sensor
   empty (phi too small to give it) the torque is zero; rows without both forces
   (untrusted) have no message.
 
+Written row by row by :class:`BagStream` (``camwhisker live --mcap``, ``replay --mcap``):
+the same two topics from the live table's rows, and
+
+- :data:`IMAGE_TOPIC`, ``sensor_msgs/msg/CompressedImage``: each frame's JPEG bytes
+  (``format`` "jpeg"), stamped as its row;
+- :data:`CONTACT_TOPIC`, ``geometry_msgs/msg/PointStamped`` (rows with the contact point
+  px_mm, py_mm, pz_mm): the point in the world frame W in metres (frame_id
+  :data:`WORLD_FRAME_ID`), for the rows where it is a number.
+
 Read: a source ``FILE.mcap:/topic`` (:func:`bag_source`) gives a pose log
 (:func:`read_pose_bag`) from ``geometry_msgs/msg/PoseStamped`` or ``TransformStamped``
 (metres to mm, times from header.stamp); :mod:`camwhisker.contact.stage` reads a stage log
@@ -26,8 +35,10 @@ the functions that use them: the package runs without them.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -36,9 +47,11 @@ from camwhisker.files.atomic import atomic_path
 from camwhisker.files.tables import read_columns, read_header
 from camwhisker.io.poses import PoseLog, PoseLogError, pose_log_from_arrays
 
-__all__ = ["INSTALL_HINT", "FRAME_ID", "SIGNALS_TOPIC", "WRENCH_TOPIC", "SIGNALS_TYPE",
-           "WRENCH_TYPE", "POSE_TYPES", "STAGE_TYPES", "BagError", "ros_modules", "bag_source",
-           "write_signal_bag", "write_table_bag", "read_bag_poses", "read_pose_bag"]  # fmt: skip
+__all__ = ["INSTALL_HINT", "FRAME_ID", "WORLD_FRAME_ID", "SIGNALS_TOPIC", "WRENCH_TOPIC",
+           "IMAGE_TOPIC", "CONTACT_TOPIC", "SIGNALS_TYPE", "WRENCH_TYPE", "IMAGE_TYPE",
+           "POINT_TYPE", "POSE_TYPES", "STAGE_TYPES", "BagError", "BagStream", "ros_modules",
+           "bag_source", "write_signal_bag", "write_table_bag", "read_bag_poses",
+           "read_pose_bag"]  # fmt: skip
 
 #: The extra that installs the MCAP packages (pyproject.toml), named where they are missing.
 INSTALL_HINT = "pip install 'camwhisker[ros]'"
@@ -46,13 +59,21 @@ INSTALL_HINT = "pip install 'camwhisker[ros]'"
 FRAME_ID = "whisker"
 SIGNALS_TOPIC = "/whisker/signals"
 WRENCH_TOPIC = "/whisker/wrench"
+IMAGE_TOPIC = "/whisker/image"
+CONTACT_TOPIC = "/whisker/contact"
 SIGNALS_TYPE = "camwhisker_msgs/msg/Signals"
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
+POINT_TYPE = "geometry_msgs/msg/PointStamped"
+#: The world frame W of the base poses (docs/sensor.md section 9): the contact point's.
+WORLD_FRAME_ID = "world"
 #: Message types a pose log is read from; a stage log also takes a point.
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped")
 STAGE_TYPES = (*POSE_TYPES, "geometry_msgs/msg/PointStamped")
 # Cells of these columns are text, not numbers: they have no field.
-_TEXT_COLUMNS = ("note",)
+_TEXT_COLUMNS = ("note", "doubt")
+# The contact point's columns (camwhisker.contact.space.WORLD_COLUMNS), in mm.
+_POINT_COLUMNS = ("px_mm", "py_mm", "pz_mm")
 # ROS 2's rule for a field name (rosidl): the table's names that break it are refused.
 _FIELD_NAME = re.compile(r"(?!.*__)(?!.*_$)[a-z][a-z0-9_]*")
 _NS = 10**9
@@ -79,6 +100,15 @@ float64 x
 float64 y
 float64 z
 {_HEADER}"""
+_IMAGE = f"std_msgs/Header header\nstring format\nuint8[] data\n{_HEADER}"
+_POINT = f"""std_msgs/Header header
+geometry_msgs/Point point
+{_SEP}
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+{_HEADER}"""
 
 
 class BagError(ValueError):
@@ -90,6 +120,7 @@ def ros_modules(error: type[Exception] = BagError):
     try:
         import mcap.exceptions
         import mcap.reader
+        import mcap.writer
         import mcap_ros2.decoder
         import mcap_ros2.writer
     except ImportError:
@@ -121,9 +152,16 @@ def _signal_fields(columns: dict, path: Path) -> list[tuple[str, str, str]]:
     """(column, field, ROS type) of the Signals message, in the table's order."""
     if "t_s" not in columns:
         raise BagError(f"{path}: the table has no column t_s for the messages' stamps")
+    numeric = [c for c, v in columns.items() if np.asarray(v).dtype.kind in "biuf"]
+    return _fields(numeric, path)
+
+
+def _fields(names, path: Path) -> list[tuple[str, str, str]]:
+    """(column, field, ROS type) of the Signals message for the columns ``names``: all
+    but t_s and the text columns, frame uint32, ok bool, the others float64."""
     fields = []
-    for name, values in columns.items():
-        if name == "t_s" or name in _TEXT_COLUMNS or np.asarray(values).dtype.kind not in "biuf":
+    for name in names:
+        if name == "t_s" or name in _TEXT_COLUMNS:
             continue
         kind = {"frame": "uint32", "ok": "bool"}.get(name, "float64")
         field = name.lower()  # ROS 2 field names are lower case: fz_mN -> fz_mn
@@ -132,6 +170,12 @@ def _signal_fields(columns: dict, path: Path) -> list[tuple[str, str, str]]:
                            "(lower case letters, digits, single underscores) or repeats one")
         fields.append((name, field, kind))
     return fields
+
+
+def _signals_def(fields: list[tuple[str, str, str]]) -> str:
+    """The Signals message's definition, its fields in the table's order."""
+    return ("std_msgs/Header header\n" + "".join(f"{k} {f}\n" for _, f, k in fields)
+            + _HEADER)
 
 
 def _wrench(fz_mN: float, mb_Nmm: float, theta_deg: float) -> dict:
@@ -173,10 +217,9 @@ def write_signal_bag(path: str | Path, columns: dict) -> Path:
     cols = {c: np.asarray(columns[c]).tolist() for c, _, _ in fields}
     forces = all(c in columns for c in ("fz_mN", "mb_Nmm"))
     theta = np.asarray(columns.get("theta_deg", np.full(t.size, np.nan)), float)
-    signals_def = "std_msgs/Header header\n" + "".join(f"{k} {f}\n" for _, f, k in fields)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         writer = mcap_ros2.writer.Writer(fh)
-        signals = writer.register_msgdef(SIGNALS_TYPE, signals_def + _HEADER)
+        signals = writer.register_msgdef(SIGNALS_TYPE, _signals_def(fields))
         wrench = writer.register_msgdef(WRENCH_TYPE, _WRENCH) if forces else None
         for i, t_s in enumerate(t.tolist()):
             stamp = _stamp(t_s)
@@ -201,6 +244,159 @@ def write_table_bag(table: str | Path, path: str | Path) -> Path:
     (:func:`write_signal_bag`), every message holding the table's printed values."""
     names = tuple(c for c in read_header(table) if c not in _TEXT_COLUMNS)
     return write_signal_bag(path, read_columns(table, names))
+
+
+class BagStream:
+    """An MCAP file of ROS 2 messages written row by row, while a session runs (live,
+    replay): the topics of the module docstring, each message as it comes.
+
+    The file is written under a temporary name beside ``path``; :meth:`close` writes
+    MCAP's summary, fsyncs and renames it into place, so ``path`` holds the old file
+    (or none) until the end, never part of a bag. Leaving a ``with`` block on an
+    exception discards it (:meth:`discard`); a session that is stopped calls
+    :meth:`close`. Chunks are not compressed: JPEG does not shrink, and a compressed
+    1 MB chunk would cost the loop ~4 ms where it is written.
+
+    Parameters
+    ----------
+    path : path
+        The MCAP file.
+    columns : sequence of str
+        The signal table's columns, in its order (:func:`write_signal_bag`'s fields);
+        with fz_mN and mb_Nmm the wrench, with px_mm, py_mm, pz_mm the contact point.
+
+    Raises
+    ------
+    BagError
+        The MCAP packages not installed, no t_s or a column name ROS 2 refuses.
+    OSError
+        The temporary file cannot be made; it names ``path``.
+    """
+
+    def __init__(self, path: str | Path, columns: Sequence[str]):
+        self.path = Path(path)
+        mcap, mcap_ros2 = ros_modules(BagError)
+        columns = list(columns)
+        if "t_s" not in columns:
+            raise BagError(f"{self.path}: the table has no column t_s for the messages' stamps")
+        fields = _fields(columns, self.path)
+        # Each message's cell index, field and converter, fixed once: no work per row on it.
+        self._fields = [(columns.index(c), f, {"uint32": int, "bool": _is_one}.get(k, _number))
+                        for c, f, k in fields]  # fmt: skip
+        self._t = columns.index("t_s")
+        self._force = ([columns.index(c) for c in ("fz_mN", "mb_Nmm", "theta_deg")]
+                       if {"fz_mN", "mb_Nmm", "theta_deg"} <= set(columns) else None)
+        self._point = ([columns.index(c) for c in _POINT_COLUMNS]
+                       if set(_POINT_COLUMNS) <= set(columns) else None)  # fmt: skip
+        self.rows = self.images = 0
+        self._stack = contextlib.ExitStack()
+        try:
+            tmp = self._stack.enter_context(atomic_path(self.path))
+            fh = self._stack.enter_context(open(tmp, "wb"))  # noqa: SIM115 - closed in close()
+            self._writer = mcap_ros2.writer.Writer(
+                fh, compression=mcap.writer.CompressionType.NONE)
+            w = self._writer
+            self._signals = w.register_msgdef(SIGNALS_TYPE, _signals_def(fields))
+            self._wrench = w.register_msgdef(WRENCH_TYPE, _WRENCH) if self._force else None
+            self._image = w.register_msgdef(IMAGE_TYPE, _IMAGE)
+            self._contact = w.register_msgdef(POINT_TYPE, _POINT) if self._point else None
+        except BaseException:
+            self.discard()
+            raise
+        self.closed = False
+
+    def write_row(self, cells: Sequence) -> None:
+        """One row of the signal table, its cells as the table holds them (empty: NaN):
+        its Signals message, and its wrench and contact point where they are numbers.
+
+        Raises
+        ------
+        BagError
+            The row's t_s is not a time from 0 on (naming the row as in a file).
+        """
+        t = cells[self._t]
+        t_s = _number(t)
+        if not t_s >= 0:
+            raise BagError(f"{self.path}: row {self.rows + 2}, column t_s: {t!r} is not a "
+                           "time from 0 on (MCAP's log times are unsigned)")  # fmt: skip
+        stamp = _stamp(t_s)
+        ns, seq = stamp["sec"] * _NS + stamp["nanosec"], self.rows
+        header = {"stamp": stamp, "frame_id": FRAME_ID}
+        msg = {f: convert(cells[i]) for i, f, convert in self._fields}
+        msg["header"] = header
+        write = self._writer.write_message
+        write(SIGNALS_TOPIC, self._signals, msg, log_time=ns, publish_time=ns, sequence=seq)
+        if self._force is not None:
+            fz, mb, theta = (_number(cells[i]) for i in self._force)
+            if math.isfinite(fz) and math.isfinite(mb):
+                write(WRENCH_TOPIC, self._wrench, {"header": header,
+                                                   "wrench": _wrench(fz, mb, theta)},
+                      log_time=ns, publish_time=ns, sequence=seq)  # fmt: skip
+        if self._point is not None:
+            p = [_number(cells[i]) / 1000.0 for i in self._point]  # mm -> m
+            if all(math.isfinite(v) for v in p):
+                point = {"header": {"stamp": stamp, "frame_id": WORLD_FRAME_ID},
+                         "point": dict(zip("xyz", p, strict=True))}  # fmt: skip
+                write(CONTACT_TOPIC, self._contact, point, log_time=ns, publish_time=ns,
+                      sequence=seq)  # fmt: skip
+        self.rows += 1
+
+    def write_image(self, t_s: float, jpeg: bytes) -> None:
+        """A frame's JPEG bytes, stamped ``t_s`` to the table's 6 decimals (its row's)."""
+        stamp = _stamp(round(t_s, 6))
+        ns = stamp["sec"] * _NS + stamp["nanosec"]
+        msg = {"header": {"stamp": stamp, "frame_id": FRAME_ID}, "format": "jpeg",
+               "data": jpeg}  # fmt: skip
+        self._writer.write_message(IMAGE_TOPIC, self._image, msg, log_time=ns,
+                                   publish_time=ns, sequence=self.images)  # fmt: skip
+        self.images += 1
+
+    def close(self) -> Path:
+        """Write the summary, fsync and rename the file into place; returns its path.
+
+        Raises
+        ------
+        OSError
+            Writing failed; it names ``path``, which is left as it was.
+        """
+        if self.closed:
+            return self.path
+        self.closed = True
+        try:
+            self._writer.finish()
+        except BaseException:
+            self.discard()
+            raise
+        self._stack.close()
+        return self.path
+
+    def discard(self) -> None:
+        """Drop the temporary file: ``path`` stays as it was."""
+        self.closed = True
+        with contextlib.suppress(_Discarded):
+            self._stack.__exit__(_Discarded, _Discarded(), None)
+
+    def __enter__(self) -> BagStream:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        elif not self.closed:
+            self.discard()
+
+
+class _Discarded(Exception):
+    """Raised into the temporary file's context to drop it."""
+
+
+def _number(cell) -> float:
+    """A table cell as a number (an empty cell: NaN)."""
+    return math.nan if cell == "" else float(cell)
+
+
+def _is_one(cell) -> bool:
+    return cell == 1 or cell == "1"
 
 
 def _topics(reader) -> dict[str, str]:

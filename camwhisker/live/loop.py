@@ -11,12 +11,15 @@ mismatch checks; a mismatch is logged as a warning).
 
 :func:`reprocess_session` drives the same generator over a recorded session
 (:class:`~camwhisker.io.sources.SessionSource`): the live table again, row for
-row. :class:`LiveProcessor` hands the generator one frame at a time, for a
+row. With an MCAP file (``--mcap``), both also write each row as ROS 2 messages
+(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md) with the frame's JPEG bytes.
+:class:`LiveProcessor` hands the generator one frame at a time, for a
 caller that times each frame.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import gc
 import logging
@@ -35,10 +38,13 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.files.atomic import atomic_path, sync_file
+from camwhisker.io.bag import BagStream
 from camwhisker.io.signals import (
     SignalWriter,
     sidecar,
     sidecar_path,
+    signal_row,
+    table_columns,
     write_sidecar,
     write_signals,
 )
@@ -54,7 +60,14 @@ from camwhisker.live.capture import describe
 from camwhisker.live.contact import RowContact
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
-from camwhisker.live.record import JPEG_QUALITY, MjpgRoundTrip, SessionRecorder, decode_only
+from camwhisker.live.record import (
+    JPEG_QUALITY,
+    DecodeKeepingJpeg,
+    MjpgRoundTrip,
+    SessionRecorder,
+    decode_only,
+    recorded_jpegs,
+)
 from camwhisker.live.view import DEFAULT_VIEW_HOST, LiveView
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.model import PlateModel
@@ -96,11 +109,15 @@ class LiveProcessor:
 
 def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
                       options: FrontEndOptions | None = None, springs=None,
-                      contact=None) -> Path:  # fmt: skip
+                      contact=None, mcap: str | Path | None = None) -> Path:  # fmt: skip
     """Process a recorded session again: the same rows as the live table (with the
     forces where ``springs``, a Stiffness, is given, and the contact's fields where
     ``contact`` is: a function of the recording's frame period (s) that gives the
     :class:`~camwhisker.live.contact.RowContact`, fed the logged base positions).
+
+    With ``mcap``, the rows also go there as ROS 2 messages (:class:`BagStream`), each
+    frame's image as the JPEG bytes stored in the recording. The table and the bag are
+    written whole or not at all: an interrupted replay leaves both as they were.
 
     Raises
     ------
@@ -108,21 +125,37 @@ def reprocess_session(video: str | Path, sensor: Sensor, out_csv: str | Path,
         No video or no timestamps file.
     camwhisker.io.sources.SourceError
         The video cannot be decoded, or holds fewer frames than the timestamps list.
+    camwhisker.io.bag.BagError
+        With ``mcap``: the MCAP packages not installed, or a row's t_s not a time.
     """
     source = SessionSource(video)
     check_frame_size(source, sensor)
     rest_log: list = []
     rows = stream(source, sensor, options, strict=False, rest_log=rest_log)
     out_csv = Path(out_csv)
-    if contact is None:
+    if contact is None and mcap is None:
         with atomic_path(out_csv) as tmp:
             write_signals(tmp, ((frame.t_s, r) for frame, r in rows), springs)
         return out_csv
-    contact = contact(1.0 / source.fps)
-    with atomic_path(out_csv) as tmp, SignalWriter(tmp, springs=springs,
-                                                   extra=contact.fields) as writer:
-        for frame, r in rows:
-            writer.write(frame.t_s, r, contact.cells(contact.update(frame, r, rest_log)))
+    contact = contact(1.0 / source.fps) if contact is not None else None
+    extra = contact.fields if contact is not None else ()
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(atomic_path(out_csv))
+        writer = stack.enter_context(SignalWriter(tmp, springs=springs, extra=extra))
+        bag = jpegs = None
+        if mcap is not None:
+            bag = stack.enter_context(BagStream(mcap, table_columns(springs) + tuple(extra)))
+            jpegs = stack.enter_context(contextlib.closing(recorded_jpegs(video)))
+        for row, (frame, r) in zip(source.rows, rows, strict=True):
+            cells = contact.cells(contact.update(frame, r, rest_log)) if contact else []
+            writer.write(frame.t_s, r, cells)
+            if bag is None:
+                continue
+            bag.write_row(signal_row(frame.t_s, r, springs) + cells)
+            if row["video_frame"] is not None:
+                jpeg = next(jpegs)  # the recorder muxed video_frame k as the k-th packet
+                if frame.image is not None:  # a frame lost to corruption has no picture
+                    bag.write_image(frame.t_s, jpeg)
     return out_csv
 
 
@@ -159,6 +192,8 @@ class LiveConfig:
     base_poses : the base datagrams are poses in space (docs/sensor.md section 9): the rows
         add the contact point in W; ``mount`` the sensor's pose in the frame of the
         carrier they are of (camwhisker.io.poses.Mount).
+    mcap : an MCAP file to write the rows to as ROS 2 messages, with each frame's JPEG
+        bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90).
     """
 
     mode: str = "latest"
@@ -186,6 +221,7 @@ class LiveConfig:
     base_offset_s: float | None = None
     base_poses: bool = False
     mount: object = None  # camwhisker.io.poses.Mount
+    mcap: Path | None = None
 
 
 @dataclass
@@ -275,6 +311,8 @@ class LiveSession:
             except SourceError:
                 capture.release()
                 raise
+        #: The MCAP stream while the session runs (None without ``config.mcap``).
+        self._bag: BagStream | None = None
         #: The browser view (None without one); bound now, so a taken port writes nothing.
         self.view: LiveView | None = None
         if self.config.view_port is not None:
@@ -339,13 +377,23 @@ class LiveSession:
     # ------------------------------------------------------------------ run
     def run(self) -> LiveReport:
         cfg = self.config
-        prepare = MjpgRoundTrip(cfg.jpeg_quality) if cfg.record else decode_only
+        # The MCAP's images need JPEG bytes: the recording's, else kept or made for it.
+        prepare = (MjpgRoundTrip(cfg.jpeg_quality) if cfg.record
+                   else DecodeKeepingJpeg() if cfg.mcap else decode_only)  # fmt: skip
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
-        writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs,
-                              extra=self.contact.fields if self.contact else ())
-        recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
-        udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
+        if cfg.mcap is not None:  # first: a bag that cannot be opened leaves nothing open
+            self._bag = BagStream(cfg.mcap, table_columns(cfg.springs) + tuple(
+                self.contact.fields if self.contact else ()))
+        try:
+            writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs,
+                                  extra=self.contact.fields if self.contact else ())
+            recorder = SessionRecorder(cfg.record, cfg.record_rate_fps) if cfg.record else None
+            udp = UdpSender(cfg.udp_port, cfg.udp_host) if cfg.udp_port is not None else None
+        except BaseException:
+            if self._bag is not None:  # the old bag stays; no temporary file left
+                self._bag.discard()
+            raise
         controls = cfg.controls if cfg.controls is not None else sys.stdin.isatty()
         keys = threading.Thread(target=self._keys, name="camwhisker-keys", daemon=True)
         old_handlers = {}
@@ -400,7 +448,11 @@ class LiveSession:
                 recorder.close()
             if udp is not None:
                 udp.close()
-            self._finish(grabber, proc_ms, e2e_ms, recorder, udp)
+            try:
+                if self._bag is not None:  # stopped too: the summary makes it a bag
+                    self._bag.close()
+            finally:
+                self._finish(grabber, proc_ms, e2e_ms, recorder, udp)
         return self.report
 
     def _frames(self, grabber: Grabber, t_start: float) -> Iterator[Frame]:
@@ -475,6 +527,10 @@ class LiveSession:
                     log.warning("stdout closed: no more JSON lines")
             if udp is not None:
                 udp.send(msg)
+        if self._bag is not None:  # after the control outputs: the bag is for later
+            self._bag.write_row(signal_row(frame.t_s, r, self.config.springs) + list(cells))
+            if item.jpeg is not None:
+                self._bag.write_image(frame.t_s, item.jpeg)
         if rep.rows == 0 and not r.ok:
             self._first_reason = r.reason
         rep.rows += 1
@@ -583,6 +639,9 @@ class LiveSession:
                                                  "requests": self.view.requests,
                                                  "rejected_requests": self.view.rejected},
             contact=contact,
+            mcap=None if self._bag is None else {"file": str(self._bag.path),
+                                                 "rows": self._bag.rows,
+                                                 "images": self._bag.images},
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import fractions
 import math
+from collections.abc import Iterator
 from pathlib import Path
 
 import av
@@ -27,11 +28,15 @@ import numpy as np
 from camwhisker.files.atomic import sync_file, sync_folder
 from camwhisker.io.sources import TIMESTAMP_COLUMNS, timestamps_path
 
-__all__ = ["MjpgRoundTrip", "SessionRecorder", "decode_only", "JPEG_QUALITY"]
+__all__ = ["MjpgRoundTrip", "SessionRecorder", "DecodeKeepingJpeg", "decode_only",
+           "recorded_jpegs", "JPEG_QUALITY", "IMAGE_JPEG_QUALITY"]
 
 #: JPEG quality of frames encoded for a recording: 95 keeps the sensor noise
 #: (the C310's own MJPG is ~q 85-90), at ~2.5 ms per 720p frame on one core.
 JPEG_QUALITY = 95
+#: JPEG quality of frames encoded for an MCAP's images where the session has no JPEG bytes
+#: (no recording, no raw MJPG): a picture to look at, not to process again.
+IMAGE_JPEG_QUALITY = 90
 
 
 def _is_jpeg_bytes(image: np.ndarray) -> bool:
@@ -68,6 +73,32 @@ def decode_only(image: np.ndarray) -> tuple[np.ndarray, None]:
     if _is_jpeg_bytes(image):
         return cv2.imdecode(image.reshape(-1), cv2.IMREAD_COLOR), None
     return image, None
+
+
+class DecodeKeepingJpeg:
+    """``prepare`` for an MCAP without a recording: the frame as :func:`decode_only` gives
+    it (the same pixels as without the MCAP), and JPEG bytes: a camera's own (raw MJPG)
+    as sent, else the frame encoded at ``quality``."""
+
+    def __init__(self, quality: int = IMAGE_JPEG_QUALITY):
+        self.quality = int(quality)
+
+    def __call__(self, image: np.ndarray) -> tuple[np.ndarray, bytes]:
+        if _is_jpeg_bytes(image):
+            return decode_only(image)[0], image.tobytes()
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        return image, buf.tobytes()
+
+
+def recorded_jpegs(video: str | Path) -> Iterator[bytes]:
+    """The JPEG bytes of a recording's frames as muxed, in order (the k-th is its
+    timestamps' video_frame k); the container is closed when the iterator is."""
+    with av.open(str(video)) as container:
+        for packet in container.demux(video=0):
+            if packet.size:  # the demuxer's last, empty packet flushes: not a frame
+                yield bytes(packet)
 
 
 class SessionRecorder:
