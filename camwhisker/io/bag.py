@@ -148,14 +148,6 @@ def _stamp(t_s: float) -> dict:
     return {"sec": sec, "nanosec": nanosec}
 
 
-def _signal_fields(columns: dict, path: Path) -> list[tuple[str, str, str]]:
-    """(column, field, ROS type) of the Signals message, in the table's order."""
-    if "t_s" not in columns:
-        raise BagError(f"{path}: the table has no column t_s for the messages' stamps")
-    numeric = [c for c, v in columns.items() if np.asarray(v).dtype.kind in "biuf"]
-    return _fields(numeric, path)
-
-
 def _fields(names, path: Path) -> list[tuple[str, str, str]]:
     """(column, field, ROS type) of the Signals message for the columns ``names``: all
     but t_s and the text columns, frame uint32, ok bool, the others float64."""
@@ -206,37 +198,12 @@ def write_signal_bag(path: str | Path, columns: dict) -> Path:
     OSError
         Writing failed; it names ``path``, which is left as it was.
     """
-    path = Path(path)
-    _, mcap_ros2 = ros_modules(BagError)
-    fields = _signal_fields(columns, path)
-    t = np.asarray(columns["t_s"], float)
-    bad = np.flatnonzero(~(t >= 0))
-    if bad.size:
-        raise BagError(f"{path}: row {bad[0] + 2}, column t_s: {t[bad[0]]!r} is not a time "
-                       "from 0 on (MCAP's log times are unsigned)")  # fmt: skip
-    cols = {c: np.asarray(columns[c]).tolist() for c, _, _ in fields}
-    forces = all(c in columns for c in ("fz_mN", "mb_Nmm"))
-    theta = np.asarray(columns.get("theta_deg", np.full(t.size, np.nan)), float)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        writer = mcap_ros2.writer.Writer(fh)
-        signals = writer.register_msgdef(SIGNALS_TYPE, _signals_def(fields))
-        wrench = writer.register_msgdef(WRENCH_TYPE, _WRENCH) if forces else None
-        for i, t_s in enumerate(t.tolist()):
-            stamp = _stamp(t_s)
-            ns = stamp["sec"] * _NS + stamp["nanosec"]
-            header = {"stamp": stamp, "frame_id": FRAME_ID}
-            msg = {f: (cols[c][i] == 1 if k == "bool" else cols[c][i]) for c, f, k in fields}
-            writer.write_message(SIGNALS_TOPIC, signals, {"header": header, **msg},
-                                 log_time=ns, publish_time=ns, sequence=i)  # fmt: skip
-            if wrench is None:
-                continue
-            fz, mb = float(columns["fz_mN"][i]), float(columns["mb_Nmm"][i])
-            if math.isfinite(fz) and math.isfinite(mb):
-                writer.write_message(WRENCH_TOPIC, wrench,
-                                     {"header": header, "wrench": _wrench(fz, mb, theta[i])},
-                                     log_time=ns, publish_time=ns, sequence=i)  # fmt: skip
-        writer.finish()
-    return path
+    # Text columns (note) have no field: the numbers alone, as a table row's cells.
+    names = [c for c, v in columns.items() if np.asarray(v).dtype.kind in "biuf"]
+    with BagStream(path, names) as bag:
+        for row in zip(*(np.asarray(columns[c]).tolist() for c in names), strict=True):
+            bag.write_row(row)
+    return Path(path)
 
 
 def write_table_bag(table: str | Path, path: str | Path) -> Path:
@@ -284,8 +251,9 @@ class BagStream:
         self._fields = [(columns.index(c), f, {"uint32": int, "bool": _is_one}.get(k, _number))
                         for c, f, k in fields]  # fmt: skip
         self._t = columns.index("t_s")
-        self._force = ([columns.index(c) for c in ("fz_mN", "mb_Nmm", "theta_deg")]
-                       if {"fz_mN", "mb_Nmm", "theta_deg"} <= set(columns) else None)
+        self._force = ([columns.index(c) for c in ("fz_mN", "mb_Nmm")]
+                       if {"fz_mN", "mb_Nmm"} <= set(columns) else None)
+        self._theta = columns.index("theta_deg") if "theta_deg" in columns else None
         self._point = ([columns.index(c) for c in _POINT_COLUMNS]
                        if set(_POINT_COLUMNS) <= set(columns) else None)  # fmt: skip
         self.rows = self.images = 0
@@ -327,7 +295,8 @@ class BagStream:
         write = self._writer.write_message
         write(SIGNALS_TOPIC, self._signals, msg, log_time=ns, publish_time=ns, sequence=seq)
         if self._force is not None:
-            fz, mb, theta = (_number(cells[i]) for i in self._force)
+            fz, mb = (_number(cells[i]) for i in self._force)
+            theta = _number(cells[self._theta]) if self._theta is not None else math.nan
             if math.isfinite(fz) and math.isfinite(mb):
                 write(WRENCH_TOPIC, self._wrench, {"header": header,
                                                    "wrench": _wrench(fz, mb, theta)},
