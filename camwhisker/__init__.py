@@ -4,7 +4,8 @@
 ``cw.track`` (video -> signal table), the readers ``cw.read_signals``,
 ``cw.read_stage_log``, ``cw.read_pose_log``, ``cw.read_force_log`` and
 ``cw.read_contacts`` (tables as pandas DataFrames), ``cw.calibrate``, ``cw.contacts``,
-``cw.perceive``, and the sensor file (``cw.Sensor``, ``cw.load_sensor``) and calibration
+``cw.perceive``, ``cw.live_session`` and ``cw.live_rows`` (a live session's rows in Python,
+for closed-loop control), and the sensor file (``cw.Sensor``, ``cw.load_sensor``) and calibration
 (``cw.Calibration``, ``cw.read_calibration``, ``cw.write_calibration``).
 
 The packages, in the order the data flows: :mod:`~camwhisker.files`,
@@ -20,7 +21,7 @@ __version__ = "0.1.0"
 _API = ("Sensor", "load_sensor", "Calibration", "read_calibration", "write_calibration",
         "track", "read_signals", "read_stage_log", "read_pose_log", "read_force_log",
         "read_contacts",
-        "calibrate", "contacts", "perceive")  # fmt: skip
+        "calibrate", "contacts", "perceive", "live_session", "live_rows", "LiveRows")  # fmt: skip
 
 __all__ = ["__version__", *_API]
 

@@ -9,6 +9,9 @@ A session, as a notebook runs it (docs/api.md walks through it)::
     table = cw.contacts(signals, cw.read_stage_log("run.stage.csv"), calib)
     obj = cw.perceive([table])
 
+    for row in cw.live_rows(0, sensor="sensor.toml"):          # a live session's rows
+        ...
+
 Every function takes its data first and its options by keyword. ``contacts`` and
 ``perceive`` are named apart from the packages :mod:`camwhisker.contact` and
 :mod:`camwhisker.percept`, which take those attribute names once imported. Paths and
@@ -17,9 +20,13 @@ DataFrames are interchangeable as inputs; a DataFrame is checked as the file wou
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
-from collections.abc import Sequence
+import queue
+import tempfile
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -37,12 +44,13 @@ from camwhisker.sensor.file import Sensor, load_sensor
 if TYPE_CHECKING:
     import pandas as pd
 
+    from camwhisker.live.loop import LiveReport, LiveSession
     from camwhisker.percept.percepts import Percept
 
 __all__ = ["Sensor", "load_sensor", "Calibration", "read_calibration", "write_calibration",
            "track", "read_signals", "read_stage_log", "read_pose_log", "read_force_log",
-           "read_contacts",
-           "calibrate", "contacts", "perceive"]  # fmt: skip
+           "read_contacts", "calibrate", "contacts", "perceive",
+           "live_session", "live_rows", "LiveRows"]  # fmt: skip
 
 def _pandas():
     import pandas as pd  # the core imports without pandas; the API needs it
@@ -325,3 +333,217 @@ def perceive(contacts: Sequence, *, poses: Sequence | None = None) -> Percept:
             name = f"<contacts {i}>"
         parts.append(surfels_from_columns(cols, pose, i, name))
     return _perceive(merge(parts))
+
+
+def _live_session(source, sensor, out, mode: str, max_frames: int | None,
+                  duration_s: float | None, fps: float | None, on_row,
+                  calib) -> LiveSession:  # fmt: skip
+    """A live session on a camera (an index, a node) or a file played at its frame rate."""
+    from camwhisker.live.capture import SourceCapture, open_capture
+    from camwhisker.live.loop import LiveConfig, LiveSession
+    from camwhisker.vision import FrontEndOptions
+
+    spec = str(source)
+    rate = None
+    if not isinstance(source, int) and Path(spec).exists() and not spec.startswith("/dev/"):
+        probe = SourceCapture(spec, fps)  # the file's own rate paces it, as a camera would
+        rate = probe.fps
+        probe.release()
+    elif not isinstance(source, int) and not spec.isdigit() and not spec.startswith("/dev/"):
+        raise FileNotFoundError(f"{spec}: no such file or camera")
+    path = str(calib) if isinstance(calib, (str, Path)) else None
+    calib = read_calibration(calib) if path else calib  # before the capture opens
+    capture = open_capture(spec, playback_fps=rate, fps=fps)
+    config = LiveConfig(mode=mode, options=FrontEndOptions(), controls=False,
+                        max_frames=max_frames, duration_s=duration_s, handle_signals=False,
+                        record_rate_fps=rate or 30.0, on_row=on_row, calib=calib,
+                        calib_path=path)  # fmt: skip
+    return LiveSession(capture, _sensor(sensor), out, config)
+
+
+def live_session(source, *, out: str | Path, on_row: Callable[[dict], object] | None = None,
+         sensor: str | Path | Sensor | None = None, calib: str | Path | Calibration | None = None,
+         mode: str = "latest",
+         max_frames: int | None = None, duration_s: float | None = None,
+         fps: float | None = None) -> LiveReport:  # fmt: skip
+    """Run a live session to its end, as ``camwhisker live SOURCE --out OUT``, with a
+    per-row callback (docs/api.md, "Live rows").
+
+    Parameters
+    ----------
+    source : int, str or path
+        A camera (index or node), or a video file or image folder played at its frame rate.
+    out : path
+        The signal table (``OUT.json`` beside it: the sidecar, with ``latency.on_row_ms``).
+    on_row : callable, optional
+        Called with each row as a dict (``LiveConfig.on_row``: the JSON line's fields) once
+        it is written, in the session's thread; its time delays the next frame.
+    sensor : path or Sensor, optional
+        The build's sensor file; default: the nominal values.
+    calib : path or Calibration, optional
+        Adds the contact fields to every row (``contact``, belief, MF: docs/sensor.md).
+    mode : {"latest", "every"}
+        Drop stale frames (control) or process every frame.
+    max_frames, duration_s : optional
+        Stop after so many rows or seconds; default: the end of the file (a camera: Ctrl-C).
+    fps : float, optional
+        Frame rate of an image folder.
+
+    Returns
+    -------
+    camwhisker.live.loop.LiveReport
+        Rows, latencies (``on_row_ms`` included), drops, why it stopped, problems.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``source`` names no file or camera.
+    camwhisker.live.loop.RowCallbackError
+        ``on_row`` raised: names the callback and frame; the table holds that frame's row.
+    """
+    return _live_session(source, sensor, out, mode, max_frames, duration_s, fps, on_row,
+                         calib).run()
+
+
+_END = object()
+
+
+class _Feed:
+    """What the session's thread shares with :class:`LiveRows` (not the iterator itself,
+    so an iterator dropped after a ``break`` is collected, and its collection stops the
+    session)."""
+
+    def __init__(self, session: LiveSession, maxsize: int):
+        self.session = session
+        self.maxsize = maxsize
+        self.queue: queue.Queue = queue.Queue(maxsize + 1)
+        self.dropped = 0
+        self.report: LiveReport | None = None
+        self.error: BaseException | None = None
+
+    def put(self, row) -> None:
+        # In the session's thread, the only one that puts: it never waits on the consumer;
+        # the oldest row makes room (the queue keeps one place more, for the end).
+        while self.queue.qsize() >= self.maxsize:
+            with contextlib.suppress(queue.Empty):
+                self.queue.get_nowait()
+                self.dropped += 1
+        self.queue.put_nowait(row)
+
+    def run(self) -> None:
+        try:
+            self.report = self.session.run()
+        except BaseException as exc:  # handed to the consumer's thread
+            self.error = exc
+        finally:
+            self.queue.put_nowait(_END)
+
+
+class LiveRows:
+    """The rows of a live session as they come (:func:`live_rows`): an iterator of dicts.
+
+    ``dropped`` counts the rows dropped because the consumer lagged (the oldest go first);
+    ``report`` is the session's LiveReport once it ended. ``close()`` (also on ``with``,
+    and when the iterator is collected after a ``break``) stops the session and joins it.
+    """
+
+    def __init__(self, session: LiveSession, maxsize: int, tmp=None):
+        self._feed = _Feed(session, maxsize)
+        self._tmp = tmp  # a temporary table's folder, removed at the end
+        self._done = False
+        session.config.on_row = self._feed.put
+        self._thread = threading.Thread(target=self._feed.run, name="camwhisker-live-rows",
+                                        daemon=True)  # fmt: skip
+        self._thread.start()
+
+    @property
+    def dropped(self) -> int:
+        return self._feed.dropped
+
+    @property
+    def report(self) -> LiveReport | None:
+        return self._feed.report
+
+    def __iter__(self) -> Iterator[dict]:
+        return self
+
+    def __next__(self) -> dict:
+        if self._done:
+            raise StopIteration
+        row = self._feed.queue.get()
+        if row is _END:
+            self._end()
+            raise StopIteration
+        return row
+
+    def _end(self) -> None:
+        self._done = True
+        self._thread.join()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+        error, self._feed.error = self._feed.error, None
+        if error is not None:
+            raise error
+
+    def close(self) -> None:
+        """Stop the session (its outputs closed, as on Ctrl-C) and wait for it; raises the
+        session's error if it failed and that was not raised yet."""
+        if not self._done:
+            self._feed.session.stop("closed")
+            self._end()
+
+    def __enter__(self) -> LiveRows:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+
+def live_rows(source, *, sensor: str | Path | Sensor | None = None, out: str | Path | None = None,
+              calib: str | Path | Calibration | None = None, mode: str = "latest",
+              max_frames: int | None = None, duration_s: float | None = None,
+              fps: float | None = None, maxsize: int = 256) -> LiveRows:  # fmt: skip
+    """A live session's rows as an iterator, for closed-loop control in Python: the session
+    runs in a background thread; each row (a dict, ``LiveConfig.on_row``'s) is yielded as it
+    comes. Breaking out of the loop stops the session (docs/api.md, "Live rows").
+
+    Parameters
+    ----------
+    source : int, str or path
+        A camera (index or node), or a video file or image folder played at its frame rate.
+    sensor : path or Sensor, optional
+        The build's sensor file; default: the nominal values.
+    out : path, optional
+        Keep the signal table (and its sidecar) there; default: a temporary one, removed.
+    calib, mode, max_frames, duration_s, fps
+        As :func:`live_session`.
+    maxsize : int
+        Rows held for a consumer slower than the camera; beyond, the oldest are dropped
+        and counted (``LiveRows.dropped``).
+
+    Returns
+    -------
+    LiveRows
+        Iterate it; ``dropped`` and, once ended, ``report`` (the LiveReport).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``source`` names no file or camera.
+    ValueError
+        ``maxsize`` below 1.
+    camwhisker.live.loop.RowCallbackError, or the session's own error
+        Re-raised by the iteration (or ``close()``) in the consumer's thread.
+    """
+    if maxsize < 1:
+        raise ValueError(f"maxsize must be at least 1, got {maxsize}")
+    tmp = None
+    if out is None:
+        tmp = tempfile.TemporaryDirectory(prefix="camwhisker-live-")
+        out = Path(tmp.name) / "live.csv"
+    session = _live_session(source, sensor, out, mode, max_frames, duration_s, fps, None, calib)
+    return LiveRows(session, maxsize, tmp)

@@ -31,7 +31,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,7 +59,7 @@ from camwhisker.live.base import (
 from camwhisker.live.capture import describe
 from camwhisker.live.contact import RowContact
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
-from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_message
+from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_fields, result_message
 from camwhisker.live.record import (
     JPEG_QUALITY,
     DecodeKeepingJpeg,
@@ -75,7 +75,7 @@ from camwhisker.vision.stream import Frame, stream
 from camwhisker.vision.tracker import FrameResult, FrontEndOptions
 
 __all__ = ["LiveProcessor", "reprocess_session", "LiveConfig", "LiveSession", "LiveReport",
-           "latency_summary", "run_live"]  # fmt: skip
+           "RowCallbackError", "latency_summary", "run_live"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +88,11 @@ POLL_S = 0.1
 FPS_MISMATCH = 0.1
 #: Keys read from a terminal.
 KEYS = {"r": "rezero", "d": "redetect", "s": "record", "q": "quit"}
+
+
+class RowCallbackError(RuntimeError):
+    """The ``on_row`` callback raised; the session stopped, its outputs closed. The
+    callback's own exception is the ``__cause__``."""
 
 
 class LiveProcessor:
@@ -194,6 +199,16 @@ class LiveConfig:
         carrier they are of (camwhisker.io.poses.Mount).
     mcap : an MCAP file to write the rows to as ROS 2 messages, with each frame's JPEG
         bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90).
+    on_row : called with each row as a dict after the row is written to every output
+        (table, JSON, UDP, view, MCAP), in the session's thread; its return value is ignored.
+        The dict holds the JSON line's fields (frame, seq, t_s, dz_mm, phi_deg, theta_deg,
+        ok, latency_ms, note, the forces and contact fields where set) as plain floats, ints
+        and None, rounded as the table's cells. ``latency_ms`` (capture to result) ends
+        before the outputs and the callback, so it excludes the callback's time; that time
+        is measured per row (the report's and sidecar's ``on_row_ms``) and delays the next
+        frame, which in "latest" mode drops frames when the callback is slower than the
+        camera. A callback that raises stops the session: outputs closed as on Ctrl-C,
+        then :class:`RowCallbackError` naming the callback and frame.
     """
 
     mode: str = "latest"
@@ -222,6 +237,7 @@ class LiveConfig:
     base_poses: bool = False
     mount: object = None  # camwhisker.io.poses.Mount
     mcap: Path | None = None
+    on_row: Callable[[dict], object] | None = None
 
 
 @dataclass
@@ -238,6 +254,8 @@ class LiveReport:
     processing: dict = field(default_factory=dict)
     end_to_end: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
+    #: The ``on_row`` callback's time per row (latency_summary; empty without one).
+    on_row_ms: dict = field(default_factory=dict)
     stopped_by: str = ""
     problems: list[str] = field(default_factory=list)
     #: Something failed (exit status 1): the capture lost, no row ok, or frames of a
@@ -290,6 +308,9 @@ class LiveSession:
         self.base: BaseReceiver | None = None
         self._t0 = math.nan
         self.base_samples: list[tuple] = []
+        #: The on_row callback's time per row (ms), and its failure (said in the problems).
+        self.on_row_ms: list[float] = []
+        self._on_row_error = ""
         cfg = self.config
         if cfg.calib is not None:
             self.contact = RowContact(cfg.calib, 1.0 / cfg.record_rate_fps, cfg.eta_deg,
@@ -535,6 +556,25 @@ class LiveSession:
             self._first_reason = r.reason
         rep.rows += 1
         rep.rows_ok += bool(r.ok)
+        if self.config.on_row is not None:  # last: the row is in every output before it
+            self._call_on_row(item.seq, frame.t_s, r, 1e3 * (done - item.t_s), extra)
+
+    def _call_on_row(self, seq: int, t_s: float, r: FrameResult, latency_ms: float,
+                     extra: dict | None) -> None:  # fmt: skip
+        """Hand the row to ``config.on_row``, timed; a raise stops the session."""
+        row = result_fields(seq, t_s, r, latency_ms, self.config.springs, extra)
+        callback = self.config.on_row
+        tic = time.perf_counter()
+        try:
+            callback(row)
+        except Exception as exc:
+            name = getattr(callback, "__qualname__", None) or repr(callback)
+            self._on_row_error = (f"on_row callback {name} raised at frame {row['frame']}: "
+                                  f"{type(exc).__name__}: {exc}")  # fmt: skip
+            self.stop("on_row error")
+            raise RowCallbackError(self._on_row_error) from exc
+        finally:
+            self.on_row_ms.append(1e3 * (time.perf_counter() - tic))
 
     def _take_base(self) -> None:
         """Move the positions received so far to the contact, on the camera clock
@@ -600,7 +640,12 @@ class LiveSession:
         lost_frames = source.problem if source is not None else ""
         if lost_frames:
             rep.problems.append(lost_frames)
-        rep.failed = bool(stats.lost or not rep.rows_ok or lost_frames)
+        rep.failed = bool(stats.lost or not rep.rows_ok or lost_frames or self._on_row_error)
+        if self._on_row_error:
+            rep.problems.append(self._on_row_error)
+        latency = {"processing": rep.processing, "end_to_end": rep.end_to_end}
+        if cfg.on_row is not None:
+            rep.on_row_ms = latency["on_row_ms"] = latency_summary(self.on_row_ms)
         if stats.lost:
             rep.problems.append(f"capture lost after {cfg.max_reconnects} reconnect attempts")
         applied_fps = self._input.get("settings", {}).get("applied", {}).get("fps")
@@ -627,7 +672,7 @@ class LiveSession:
             stopped_by=rep.stopped_by,
             grabber=rep.grabber,
             dropped=stats.dropped,
-            latency={"processing": rep.processing, "end_to_end": rep.end_to_end},
+            latency=latency,
             events=rep.events,
             recording=None if recorder is None else {
                 "video": str(recorder.video), "timestamps": str(recorder.timestamps),

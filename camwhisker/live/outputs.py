@@ -15,20 +15,20 @@ from camwhisker.files.jsonfile import number
 from camwhisker.io.signals import FORCE_COLUMNS
 from camwhisker.vision.tracker import FrameResult
 
-__all__ = ["result_message", "UdpSender", "DEFAULT_UDP_HOST"]
+__all__ = ["result_fields", "result_message", "UdpSender", "DEFAULT_UDP_HOST"]
 
 #: Results go to this machine only unless the user names another address.
 DEFAULT_UDP_HOST = "127.0.0.1"
 
 
-def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
-                   springs=None, extra: dict | None = None) -> str:  # fmt: skip
-    """One frame's result as compact JSON (a line on stdout, a UDP datagram); with
-    ``springs`` (a Stiffness) the forces too, as the table's columns; ``extra`` (the
-    contact's fields, :mod:`camwhisker.live.contact`) last."""
+def result_fields(seq: int, t_s: float, r: FrameResult, latency_ms: float,
+                  springs=None, extra: dict | None = None) -> dict:  # fmt: skip
+    """One frame's result as plain Python values (floats, ints, str, None), rounded as the
+    table's cells; with ``springs`` (a Stiffness) the forces too, as the table's columns;
+    ``extra`` (the contact's fields, :mod:`camwhisker.live.contact`) last."""
     ok = bool(r.ok)
     msg = {
-        "frame": r.frame, "seq": seq, "t_s": number(t_s, 6),
+        "frame": int(r.frame), "seq": int(seq), "t_s": number(t_s, 6),
         "dz_mm": number(r.dz_mm, 5) if ok else None,
         "phi_deg": number(r.phi_deg, 5) if ok else None,
         "theta_deg": number(r.theta_deg, 3) if ok else None,
@@ -40,7 +40,14 @@ def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
             # The table's 5 significant digits, so a message and its row agree.
             msg[key] = float(f"{value:.5g}") if ok and math.isfinite(value) else None
     msg.update(extra or {})
-    return jsonfile.dumps(msg, separators=(",", ":"))
+    return msg
+
+
+def result_message(seq: int, t_s: float, r: FrameResult, latency_ms: float,
+                   springs=None, extra: dict | None = None) -> str:  # fmt: skip
+    """:func:`result_fields` as compact JSON (a line on stdout, a UDP datagram)."""
+    return jsonfile.dumps(result_fields(seq, t_s, r, latency_ms, springs, extra),
+                          separators=(",", ":"))
 
 
 class UdpSender:
