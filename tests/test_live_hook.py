@@ -130,3 +130,24 @@ def test_a_slow_consumer_gets_the_newest_rows_and_a_count_of_the_rest(sensor):
 def test_a_missing_source_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.avi"):
         cw.live_rows(tmp_path / "nope.avi")
+
+
+def test_live_rows_with_a_calibration_carry_the_tables_contact_cells(tmp_path, sensor):
+    # docs/api.md's closed-loop example reads row["contact"]: with calib= every row has the
+    # belief and MF's fields, and each equals the session's own table cell (contact exactly;
+    # MF's r to the table's printed digits, 0.5e-4 mm).
+    out = tmp_path / "live.csv"
+    rows = list(cw.live_rows(CLIP, sensor=sensor, out=out, mode="every",
+                             calib=SAMPLES / "space" / "calib.toml"))
+    table = _table(out)
+    assert len(rows) == len(table) == 90
+    for row, cells in zip(rows, table, strict=True):
+        assert {"contact_b", "contact", "r_mf_mm", "sigma_mf_mm"} <= set(row)
+        assert str(row["contact"]) == cells["contact"]
+        r = row["r_mf_mm"]
+        assert (r is None and cells["r_mf_mm"] == "") or abs(r - float(cells["r_mf_mm"])) < 0.5e-4
+    # Not vacuous: 81 rows have a belief (from the rest reference on), 81 are in contact and
+    # 29 have MF's r on this clip; the bounds leave room for another machine's last bits.
+    assert sum(c["contact_b"] != "" for c in table) >= 60
+    assert sum(r["contact"] == 1 for r in rows) >= 60
+    assert sum(r["r_mf_mm"] is not None for r in rows) >= 20
