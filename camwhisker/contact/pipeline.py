@@ -175,7 +175,7 @@ def estimate(calib: Calibration, x_mm, dx_mm, phi_deg, dz_mm, travel_sign,
     x_hat, y_hat = reconstruct(x_mm, fused, phi, dz, travel_sign, calib.gm, calib.bend)
     # MF's own point is for tables (percepts weigh it); a live row does not carry it.
     x_mf, y_mf = (reconstruct(x_mm, mf.r_mm, phi, dz, travel_sign, calib.gm, calib.bend)
-                  if fusion is None else (np.full(rg.shape, np.nan),) * 2)  # fmt: skip
+                  if fusion is None else (np.full(rg.shape, np.nan), np.full(rg.shape, np.nan)))
     return {
         "r_gm_mm": rg, "r_mf_mm": mf.r_mm, "mf_outside": mf.outside, "mf_past_top": mf.past_top,
         "sigma_gm_mm": sg, "sigma_mf_mm": sm, "z_score": z, "z_combined": zc,
