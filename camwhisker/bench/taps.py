@@ -165,7 +165,11 @@ def summarise(rows: list[dict]) -> dict:
            "stimuli": {}}  # fmt: skip
     for i, (kind, radius) in enumerate(STIMULI):
         name = f"sphere R{radius:g}" if kind == "sphere" else kind
-        out["stimuli"][name] = _group([r for r in rows if r["stimulus"] == i])
+        mine = [r for r in rows if r["stimulus"] == i]
+        out["stimuli"][name] = _group(mine)
+        if mine:
+            out["stimuli"][name]["points_mm"] = _stats(np.concatenate([r["_contact"]["dist"]
+                                                                       for r in mine]))
     c = {k: np.concatenate([r["_contact"][k] for r in rows]) for k in ("dist", "shaft",
                                                                         "press", "side")}
     out["contact_mm"] = {"dist": _stats(c["dist"]),
@@ -191,11 +195,12 @@ def format_summary(s: dict) -> str:
              f"95 % intervals cover the truth: {cover} of parameters, all of a trial's in "
              f"{s['trials_all_covered']} of {s['trials_checked']} trials",
              f"{'stimulus':<13}{'id':>7}  {'centre mm':>12}{'radius mm':>12}{'normal deg':>12}"
-             f"{'dist mm':>12}   (median / p95)"]  # fmt: skip
+             f"{'dist mm':>12}{'points mm':>12}   (median / p95)"]  # fmt: skip
     for name, g in s["stimuli"].items():
         lines.append(f"{name:<13}{g['identified']:>3} of {g['trials']:<2} "
-                     + "".join(f"{_cell(g, k):>12}" for k in ("center_err_mm", "radius_err_mm",
-                                                              "normal_err_deg", "distance_err_mm")))
+                     + "".join(f" {_cell(g, k):>11}" for k in ("center_err_mm", "radius_err_mm",
+                                                               "normal_err_deg", "distance_err_mm",
+                                                               "points_mm")))
     lines.append(f"seed 000: spheres located within {PAPER['sphere_center_mm']} mm; plane "
                  f"{PAPER['plane_distance_mm']} mm, {PAPER['plane_normal_deg']} deg")
     c = s["contact_mm"]

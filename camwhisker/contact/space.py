@@ -6,7 +6,9 @@ applies along that direction: the base's travel across the shaft toward theta, r
 from the pose log, is the stage position (:func:`travel_log`); GM, MF, Z, the fusion and
 eq. 12 run as for a stage (:func:`~camwhisker.contact.pipeline.contact_rows`), and eq.
 12's point, in the plane of the shaft and theta, is placed in W by the base's pose at
-the frame (:func:`contact_rows_in_space`).
+the frame (:func:`contact_rows_in_space`). Where the contact's travel follows a contact
+sliding toward the base along a smooth object (:mod:`camwhisker.contact.slide`), r_hat
+and eq. 12's point come from that slide (:func:`with_slide`); a stage's own tables never do.
 
 In S (section 9): the whisker at rest lies along z_S; a tilt toward psi = theta + 180 deg
 is the object's push, so (cos psi, sin psi, 0) is the estimate of the surface normal.
@@ -29,7 +31,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from camwhisker.contact.pipeline import CONTACT_COLUMNS, Calibration, RunAnalysis, contact_rows
+from camwhisker.contact.pipeline import (
+    CONTACT_COLUMNS,
+    Calibration,
+    RunAnalysis,
+    contact_rows,
+    smooth_half_frames,
+)
+from camwhisker.contact.shape import reconstruct
+from camwhisker.contact.slide import fit_slide
+from camwhisker.contact.smooth import local_line
 from camwhisker.contact.stage import (
     CONTACT_PHI_DEG,
     STATIONARY_TOL_MM,
@@ -39,7 +50,7 @@ from camwhisker.contact.stage import (
 from camwhisker.io.poses import MAX_GAP_S, PoseLog
 
 __all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "STILL_TURN_DEG", "MIN_TRAVEL_MM", "MIN_CLOCK_SCORE",
-           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space",
+           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space", "with_slide",
            "placed_in_world"]  # fmt: skip
 
 #: The contact point and the surface normal's estimate in W, after the section 7 columns.
@@ -246,7 +257,35 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
         cols, run = contact_rows(signals, travel_log(poses, theta, reach_mm=calib.l_w_mm),
                                  calib, offset_s, mode)  # fmt: skip
         _check_clock(run, poses)
+        cols = with_slide(cols, run, calib, mode)
     return placed_in_world(cols, run, poses, theta), run, theta
+
+
+def with_slide(cols: dict, run: RunAnalysis, calib: Calibration, mode: str) -> dict:
+    """The contact table with r_hat_mm (and r_hat_pause_mm, eq. 12's point) from the contact's
+    slide along a smooth object where :func:`~camwhisker.contact.slide.fit_slide` takes it;
+    the table as it was elsewhere. GM, MF and the fusion's columns stay theirs."""
+    contact = np.isfinite(np.asarray(cols["dx_mm"], float))
+    x = run.travel_sign * np.asarray(cols["x_mm"], float)
+    phi = np.asarray(cols["phi_deg"], float)
+    fit = fit_slide(calib.gm, x[contact], phi[contact])
+    if fit is None or not fit.taken:
+        return cols
+    out = dict(cols)
+    if mode == "pause":
+        phi_at, dz_at = cols["phi_pause_deg"], cols["dz_pause_mm"]
+    else:
+        t = np.asarray(cols["t_s"], float)
+        h = smooth_half_frames(float(np.median(np.diff(t))) if t.size > 1 else 0.0)
+        phi_at, dz_at = local_line(phi, h), local_line(np.asarray(cols["dz_mm"], float), h)
+    r = np.where(np.isfinite(cols["r_hat_mm"]) & contact, fit.r_mm(phi_at), cols["r_hat_mm"])
+    out["r_hat_mm"] = r
+    out["x_hat_mm"], out["y_hat_mm"] = reconstruct(cols["x_mm"], r, phi_at, dz_at,
+                                                   run.travel_sign, calib.gm, calib.bend)
+    pause = np.asarray(cols["r_hat_pause_mm"], float)
+    out["r_hat_pause_mm"] = np.where(np.isfinite(pause) & contact,
+                                     fit.r_mm(cols["phi_pause_deg"]), pause)
+    return out
 
 
 def placed_in_world(cols: dict, run: RunAnalysis, poses: PoseLog, theta: float) -> dict:
