@@ -198,8 +198,9 @@ class VideoSource:
     decode_threads : int, optional
         Threads FFmpeg may decode with (``cv2.CAP_PROP_N_THREADS``); default:
         OpenCV's choice, all cores. Workers of a parallel batch pass 1, or a
-        single worker would already use every core for decoding. (An MJPG
-        frame is decoded on the reading thread.)
+        single worker would already use every core for decoding. MJPG frames
+        are decoded a few frames ahead on a second thread, or with 1 on the
+        reading thread.
 
     Raises
     ------
@@ -212,6 +213,7 @@ class VideoSource:
     def __init__(self, path: str | Path, decode_threads: int | None = None):
         self.path = Path(path)
         self._params = [] if decode_threads is None else [cv2.CAP_PROP_N_THREADS, decode_threads]
+        self._decode_ahead = decode_threads != 1
         if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: no such file")
         if self.path.is_dir():
@@ -324,7 +326,9 @@ class VideoSource:
         lost: list[int] = []
         failed: list[int] = []  # undecodable packets not yet followed by a decoded one
         ended = False
-        images = _decoded_ahead(_jpeg_packets(self.path))
+        packets = _jpeg_packets(self.path)
+        images = (_decoded_ahead(packets) if self._decode_ahead
+                  else (_decode_or_none(data) for data in packets))  # fmt: skip
         try:
             for index, image in enumerate(images):
                 if image is None or image.shape != self.shape:
@@ -339,6 +343,7 @@ class VideoSource:
             ended = True
         finally:
             images.close()
+            packets.close()
             self.frames_read = read
             self.lost_frames = lost
             self.problem = self._problems(i, lost, known, ended)
