@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -10,6 +11,8 @@ import numpy as np
 import pytest
 
 from camwhisker.io.sources import JPEG_DECODER, VideoSource, decode_jpeg, open_source
+from camwhisker.live.capture import DRIVER_CLOCK, READ_CLOCK
+from camwhisker.live.grabber import Grabber
 from camwhisker.live.record import (
     DecodeKeepingJpeg,
     MjpgRoundTrip,
@@ -88,3 +91,47 @@ def test_bytes_that_are_not_a_jpeg_are_refused_not_half_decoded():
 def test_other_codecs_keep_opencv():
     mp4 = SAMPLE.with_name("nominal.mp4")
     assert VideoSource(mp4).decoder == "OpenCV (FFmpeg)"
+
+
+class StampedCapture:
+    """Three tiny frames, each with a driver time ``offset_s`` from the read's monotonic
+    time (a V4L2 buffer's: a few ms before; another clock's: far off), then the end."""
+
+    def __init__(self, offset_s: float):
+        self.offset_s, self.n, self.stamps = offset_s, 0, []
+
+    @property
+    def ended(self):
+        return self.n >= 3
+
+    def read(self):
+        if self.n >= 3:
+            return False, None
+        self.n += 1
+        self.stamps.append(time.monotonic() + self.offset_s)
+        return True, np.zeros((4, 4, 3), np.uint8)
+
+    def capture_time_s(self):
+        return self.stamps[-1]
+
+
+def _grab_all(capture) -> tuple[list, Grabber]:
+    g = Grabber(capture, "every").start()
+    items = []
+    while (item := g.get(5.0)) is not None:
+        items.append(item)
+    g.stop()
+    return items, g
+
+
+def test_frames_carry_the_drivers_buffer_time_where_it_is_on_the_monotonic_clock():
+    cap = StampedCapture(-0.004)
+    items, g = _grab_all(cap)
+    assert [i.t_s for i in items] == cap.stamps  # the driver's times, exactly
+    assert g.stats.clock == DRIVER_CLOCK and g.stats.driver_times == 3
+    far = StampedCapture(-1e6)  # e.g. a driver on the wall clock, or a file's position
+    tic = time.monotonic()
+    items, g = _grab_all(far)
+    assert g.stats.clock == READ_CLOCK and g.stats.driver_times == 0
+    # the read's own time: after the test's clock reading, within the 5 s get timeout
+    assert all(tic <= i.t_s <= tic + 5.0 for i in items)

@@ -12,7 +12,9 @@ and, where it has them:
 - ``reopen() -> bool``: open the device again after a failure;
 - ``ended``: True once a file has no more frames (a failed read is then the
   end, not an unplugged camera);
-- ``describe() -> dict``: what it is and its applied settings, for the sidecar.
+- ``describe() -> dict``: what it is and its applied settings, for the sidecar;
+- ``capture_time_s() -> float or None``: the driver's time of the buffer just
+  read (:func:`capture_time`).
 
 :class:`CameraCapture` opens a V4L2 camera, applies a :class:`CameraProfile`
 and discards warm-up frames, on open and on every reopen.
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -42,10 +45,17 @@ from camwhisker.live.cameras import (
 )
 
 __all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is_ended",
-           "describe"]  # fmt: skip
+           "describe", "capture_time", "DRIVER_CLOCK", "READ_CLOCK"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
+#: Where a frame's t_s comes from, for the sidecar: the driver's buffer time, or the
+#: time the read returned (after OpenCV's decode, its jitter included).
+DRIVER_CLOCK = "driver buffer time (CAP_PROP_POS_MSEC, CLOCK_MONOTONIC)"
+READ_CLOCK = "time.monotonic() after the read"
+#: A driver time this far from the read's monotonic time is on another clock (a file's
+#: position, the wall clock of some drivers): not used.
+CLOCK_CHECK_S = 1.0
 
 
 @contextlib.contextmanager
@@ -79,6 +89,17 @@ def is_ended(cap) -> bool:
         count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
         return count > 0 and cap.get(cv2.CAP_PROP_POS_FRAMES) >= count
     return False
+
+
+def capture_time(cap, read_s: float) -> float | None:
+    """The driver's time (s, ``time.monotonic()``'s clock) of the frame ``cap`` just read,
+    where it gives one on that clock: at most :data:`CLOCK_CHECK_S` before ``read_s``,
+    the monotonic time the read returned. None otherwise."""
+    getter = getattr(cap, "capture_time_s", None)
+    t_s = getter() if getter is not None else None
+    if t_s is None or not math.isfinite(t_s) or not 0.0 <= read_s - t_s <= CLOCK_CHECK_S:
+        return None
+    return t_s
 
 
 def describe(cap) -> dict:
@@ -151,6 +172,13 @@ class CameraCapture:
         if self._cap is None:
             return False, None
         return self._cap.read()
+
+    def capture_time_s(self) -> float | None:
+        """The V4L2 buffer's time (s) of the frame just read; None where not given (0)."""
+        if self._cap is None:
+            return None
+        ms = self._cap.get(cv2.CAP_PROP_POS_MSEC)
+        return ms / 1e3 if ms > 0 else None
 
     def reopen(self) -> bool:
         """Release and open again (profile and warm-up included); False if it failed."""
