@@ -56,6 +56,8 @@ READ_CLOCK = "time.monotonic() after the read"
 #: A driver time this far from the read's monotonic time is on another clock (a file's
 #: position, the wall clock of some drivers): not used.
 CLOCK_CHECK_S = 1.0
+#: A size or rate read back within this of what was asked took (drivers round a rate).
+MODE_TOLERANCE = 0.5
 
 
 @contextlib.contextmanager
@@ -127,6 +129,10 @@ class CameraCapture:
     opener : callable, optional
         ``opener(target) -> cv2.VideoCapture``; default opens through V4L2.
         Tests pass one that opens a file.
+    require_mode : bool
+        The profile's size and frame rate were asked for by the user: where the
+        camera's read-back differs, opening fails (a mismatch is otherwise a
+        warning).
 
     Raises
     ------
@@ -140,8 +146,10 @@ class CameraCapture:
         profile: CameraProfile = C310_PROFILE,
         raw_mjpg: bool = False,
         opener: Callable[[int | str], cv2.VideoCapture] | None = None,
+        require_mode: bool = False,
     ):
         self.spec = spec
+        self.require_mode = require_mode
         self.target = resolve_camera(spec) if opener is None else spec
         self.profile = profile
         self.raw_mjpg = raw_mjpg
@@ -157,6 +165,8 @@ class CameraCapture:
         if not cap.isOpened():
             raise CaptureError(f"camera {self.spec}: cannot open {self.target}")
         self.settings = apply_profile(cap, self.profile)
+        if self.require_mode:
+            self._check_mode(cap)
         if self.raw_mjpg:
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0.0)
             self.settings.applied["convert_rgb"] = float(cap.get(cv2.CAP_PROP_CONVERT_RGB))
@@ -167,6 +177,19 @@ class CameraCapture:
         self.settings.warmup_discarded = n
         self._cap = cap
         self.opens += 1
+
+    def _check_mode(self, cap) -> None:
+        """Refuse a camera that did not take the size and rate asked for (released)."""
+        asked, got = self.settings.requested, self.settings.applied
+        keys = ("width_px", "height_px", "fps")
+        if all(abs(got[k] - float(asked[k])) <= MODE_TOLERANCE for k in keys):
+            return
+        cap.release()
+        raise CaptureError(
+            f"camera {self.spec}: asked for {asked['width_px']}x{asked['height_px']} px at "
+            f"{asked['fps']:g} fps, it gives {got['width_px']:g}x{got['height_px']:g} px at "
+            f"{got['fps']:g} fps (`v4l2-ctl -d {self.target} --list-formats-ext` lists the "
+            "modes it offers)")
 
     def read(self) -> tuple[bool, np.ndarray | None]:
         if self._cap is None:
@@ -252,6 +275,7 @@ def open_capture(
     playback_fps: float | None = None,
     fps: float | None = None,
     raw_mjpg: bool = False,
+    require_mode: bool = False,
 ):
     """Open what ``spec`` names: a camera, or a file / folder.
 
@@ -267,9 +291,11 @@ def open_capture(
         is read as fast as it decodes.
     fps : float, optional
         Frame rate of an image folder.
+    require_mode : bool
+        For a camera: refuse it where it does not take the profile's size and rate.
     """
     if _names_camera(str(spec)):
-        return CameraCapture(spec, profile, raw_mjpg)
+        return CameraCapture(spec, profile, raw_mjpg, require_mode=require_mode)
     if playback_fps:
         from camwhisker.live.playback import PlaybackSource
 
