@@ -53,8 +53,10 @@ def _packets(video: Path, limit: int) -> list[bytes]:
     return out
 
 
-def decoder_ms(video: Path, frames: int = 200) -> dict[str, float]:
-    """Median ms per frame of each decoder over the first ``frames`` frames of ``video``."""
+def decoder_ms(video: Path, frames: int = 200) -> dict[str, tuple[float, float]]:
+    """Median wall and CPU ms per frame of each decoder over the first ``frames`` frames
+    of ``video``, the decoders taking turns on each frame (a loaded machine's drift
+    falls on all alike)."""
     import av
     import cv2
 
@@ -69,15 +71,16 @@ def decoder_ms(video: Path, frames: int = 200) -> dict[str, float]:
         "decode_jpeg (libjpeg-turbo)": decode_jpeg,
         "PyAV decode + bgr24": lambda d: ctx.decode(av.Packet(d))[0].to_ndarray(format="bgr24"),
     }
-    out = {}
-    for name, decode in decoders.items():
-        times = []
-        for data in packets:
-            tic = time.perf_counter()
+    wall: dict[str, list[float]] = {name: [] for name in decoders}
+    cpu: dict[str, list[float]] = {name: [] for name in decoders}
+    for data in packets:
+        for name, decode in decoders.items():
+            tic, tic_cpu = time.perf_counter(), time.thread_time()
             decode(data)
-            times.append(time.perf_counter() - tic)
-        out[name] = 1e3 * statistics.median(times)
-    return out
+            wall[name].append(time.perf_counter() - tic)
+            cpu[name].append(time.thread_time() - tic_cpu)
+    return {name: (1e3 * statistics.median(wall[name]), 1e3 * statistics.median(cpu[name]))
+            for name in decoders}  # fmt: skip
 
 
 def _run(cmd: list[str], cores: str | None) -> tuple[float, str]:
@@ -123,9 +126,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="also time a batch of CLIP after removing the kernels' caches, and again")
     args = p.parse_args(argv)
     n = _frames(args.video)
-    print(f"{args.video.name}: {n} frames; decoders, ms per frame (median, one thread):")
-    for name, ms in decoder_ms(args.video).items():
-        print(f"  {name}: {ms:.2f}")
+    print(f"{args.video.name}: {n} frames; decoders, ms per frame (median, one thread, "
+          "taking turns):")
+    for name, (wall_ms, cpu_ms) in decoder_ms(args.video).items():
+        print(f"  {name}: {wall_ms:.2f} wall, {cpu_ms:.2f} CPU")
     read, batch = [], []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "t.csv"
