@@ -36,7 +36,7 @@ from camwhisker.live.cameras import (
     parse_querycap,
     resolve_camera,
 )
-from camwhisker.live.capture import CameraCapture
+from camwhisker.live.capture import READ_CLOCK, CameraCapture
 from camwhisker.live.grabber import Grabber
 from camwhisker.live.loop import LiveConfig, run_live
 from camwhisker.live.record import MjpgRoundTrip
@@ -161,6 +161,8 @@ def test_camera_path_records_settings_in_the_sidecar(tmp_path):
     assert "auto_wb: requested 0.0, applied -1.0" in settings["mismatches"]
     assert settings["requested"]["fourcc"] == "MJPG" and meta["input"]["kind"] == "camera"
     assert rep.rows == 5 and rep.rows_ok == 5
+    # A file's CAP_PROP_POS_MSEC is its position, not a monotonic time: the read's time.
+    assert rep.grabber["clock"] == READ_CLOCK and meta["grabber"]["clock"] == READ_CLOCK
     measured = rep.grabber["fps_measured"]  # a file decodes faster than the 30 fps it states
     if abs(measured - 30.0) > 3.0:
         assert f"the camera reports 30 fps; measured {measured:.1f}" in rep.problems

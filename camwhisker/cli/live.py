@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -182,6 +183,10 @@ def add_live(sub) -> None:
         help="leave auto white balance and exposure as the camera has them",
     )
     p.add_argument("--exposure", type=float, help="manual exposure (driver units)")
+    p.add_argument("--size", metavar="WxH", help="camera: ask for this frame size (default "
+                   "1280x720); an error where the camera does not take it")  # fmt: skip
+    p.add_argument("--fps", type=float, metavar="F", help="camera: ask for this frame rate "
+                   "(default 30); an error where the camera does not take it")  # fmt: skip
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
     _mcap_arg(p, live=True)
     mode_arg(p)
@@ -190,6 +195,23 @@ def add_live(sub) -> None:
     springs_arg(p)
     _contact_args(p, live=True)
     p.set_defaults(func=_run_live)
+
+
+def _mode_of(args, profile):
+    """``profile`` with the size and rate of ``--size WxH`` and ``--fps F``."""
+    from dataclasses import replace
+
+    if args.size is not None:
+        w, _, h = args.size.lower().partition("x")
+        if not (w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0):
+            raise CommandError(f"--size must be WIDTHxHEIGHT in px, e.g. 1280x720, got "
+                               f"{args.size!r}")  # fmt: skip
+        profile = replace(profile, width_px=int(w), height_px=int(h))
+    if args.fps is not None:
+        if not (math.isfinite(args.fps) and args.fps > 0):
+            raise CommandError(f"--fps must be positive, got {args.fps}")
+        profile = replace(profile, fps=args.fps)
+    return profile
 
 
 def _run_live(args) -> int:
@@ -215,12 +237,17 @@ def _run_live(args) -> int:
         profile = replace(profile, auto_wb=None, auto_exposure=None)
     if args.exposure is not None:
         profile = replace(profile, exposure=args.exposure)
+    profile = _mode_of(args, profile)
     sensor = load_sensor(args.sensor)
     options = FrontEndOptions(mode=args.mode, features=feature_hints(args, sensor))
     calib = _calib_of(args)
     mount = _mount_of(args)  # before the capture opens: a bad one leaves nothing open
     mcap = _mcap_of(args)
-    capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg)
+    try:
+        capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg,
+                               require_mode=args.size is not None or args.fps is not None)
+    except OSError as exc:  # a camera that does not take the mode asked for
+        raise CommandError(str(exc)) from None
     if args.loop and hasattr(capture, "loop"):
         capture.loop = True
     config = LiveConfig(

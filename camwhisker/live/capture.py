@@ -12,7 +12,9 @@ and, where it has them:
 - ``reopen() -> bool``: open the device again after a failure;
 - ``ended``: True once a file has no more frames (a failed read is then the
   end, not an unplugged camera);
-- ``describe() -> dict``: what it is and its applied settings, for the sidecar.
+- ``describe() -> dict``: what it is and its applied settings, for the sidecar;
+- ``capture_time_s() -> float or None``: the driver's time of the buffer just
+  read (:func:`capture_time`).
 
 :class:`CameraCapture` opens a V4L2 camera, applies a :class:`CameraProfile`
 and discards warm-up frames, on open and on every reopen.
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -42,10 +45,19 @@ from camwhisker.live.cameras import (
 )
 
 __all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is_ended",
-           "describe"]  # fmt: skip
+           "describe", "capture_time", "DRIVER_CLOCK", "READ_CLOCK"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
+#: Where a frame's t_s comes from, for the sidecar: the driver's buffer time, or the
+#: time the read returned (after OpenCV's decode, its jitter included).
+DRIVER_CLOCK = "driver buffer time (CAP_PROP_POS_MSEC, CLOCK_MONOTONIC)"
+READ_CLOCK = "time.monotonic() after the read"
+#: A driver time this far from the read's monotonic time is on another clock (a file's
+#: position, the wall clock of some drivers): not used.
+CLOCK_CHECK_S = 1.0
+#: A size or rate read back within this of what was asked took (drivers round a rate).
+MODE_TOLERANCE = 0.5
 
 
 @contextlib.contextmanager
@@ -81,6 +93,17 @@ def is_ended(cap) -> bool:
     return False
 
 
+def capture_time(cap, read_s: float) -> float | None:
+    """The driver's time (s, ``time.monotonic()``'s clock) of the frame ``cap`` just read,
+    where it gives one on that clock: at most :data:`CLOCK_CHECK_S` before ``read_s``,
+    the monotonic time the read returned. None otherwise."""
+    getter = getattr(cap, "capture_time_s", None)
+    t_s = getter() if getter is not None else None
+    if t_s is None or not math.isfinite(t_s) or not 0.0 <= read_s - t_s <= CLOCK_CHECK_S:
+        return None
+    return t_s
+
+
 def describe(cap) -> dict:
     """What the capture is, for the sidecar."""
     if hasattr(cap, "describe"):
@@ -106,6 +129,10 @@ class CameraCapture:
     opener : callable, optional
         ``opener(target) -> cv2.VideoCapture``; default opens through V4L2.
         Tests pass one that opens a file.
+    require_mode : bool
+        The profile's size and frame rate were asked for by the user: where the
+        camera's read-back differs, opening fails (a mismatch is otherwise a
+        warning).
 
     Raises
     ------
@@ -119,8 +146,10 @@ class CameraCapture:
         profile: CameraProfile = C310_PROFILE,
         raw_mjpg: bool = False,
         opener: Callable[[int | str], cv2.VideoCapture] | None = None,
+        require_mode: bool = False,
     ):
         self.spec = spec
+        self.require_mode = require_mode
         self.target = resolve_camera(spec) if opener is None else spec
         self.profile = profile
         self.raw_mjpg = raw_mjpg
@@ -136,6 +165,8 @@ class CameraCapture:
         if not cap.isOpened():
             raise CaptureError(f"camera {self.spec}: cannot open {self.target}")
         self.settings = apply_profile(cap, self.profile)
+        if self.require_mode:
+            self._check_mode(cap)
         if self.raw_mjpg:
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0.0)
             self.settings.applied["convert_rgb"] = float(cap.get(cv2.CAP_PROP_CONVERT_RGB))
@@ -147,10 +178,30 @@ class CameraCapture:
         self._cap = cap
         self.opens += 1
 
+    def _check_mode(self, cap) -> None:
+        """Refuse a camera that did not take the size and rate asked for (released)."""
+        asked, got = self.settings.requested, self.settings.applied
+        keys = ("width_px", "height_px", "fps")
+        if all(abs(got[k] - float(asked[k])) <= MODE_TOLERANCE for k in keys):
+            return
+        cap.release()
+        raise CaptureError(
+            f"camera {self.spec}: asked for {asked['width_px']}x{asked['height_px']} px at "
+            f"{asked['fps']:g} fps, it gives {got['width_px']:g}x{got['height_px']:g} px at "
+            f"{got['fps']:g} fps (`v4l2-ctl -d {self.target} --list-formats-ext` lists the "
+            "modes it offers)")
+
     def read(self) -> tuple[bool, np.ndarray | None]:
         if self._cap is None:
             return False, None
         return self._cap.read()
+
+    def capture_time_s(self) -> float | None:
+        """The V4L2 buffer's time (s) of the frame just read; None where not given (0)."""
+        if self._cap is None:
+            return None
+        ms = self._cap.get(cv2.CAP_PROP_POS_MSEC)
+        return ms / 1e3 if ms > 0 else None
 
     def reopen(self) -> bool:
         """Release and open again (profile and warm-up included); False if it failed."""
@@ -224,6 +275,7 @@ def open_capture(
     playback_fps: float | None = None,
     fps: float | None = None,
     raw_mjpg: bool = False,
+    require_mode: bool = False,
 ):
     """Open what ``spec`` names: a camera, or a file / folder.
 
@@ -239,9 +291,11 @@ def open_capture(
         is read as fast as it decodes.
     fps : float, optional
         Frame rate of an image folder.
+    require_mode : bool
+        For a camera: refuse it where it does not take the profile's size and rate.
     """
     if _names_camera(str(spec)):
-        return CameraCapture(spec, profile, raw_mjpg)
+        return CameraCapture(spec, profile, raw_mjpg, require_mode=require_mode)
     if playback_fps:
         from camwhisker.live.playback import PlaybackSource
 

@@ -10,8 +10,10 @@ handed on stale because the processing took long. Two modes:
   dropped unless it overflows (then the newest is dropped and counted).
 
 Every item carries a sequence number (0, 1, 2, ... over everything the
-grabber produced) and the monotonic time it was read, so a consumer sees each
-drop as a gap in ``seq``. The grabber measures the real frame rate.
+grabber produced) and its monotonic time: the driver's buffer time where the
+capture gives one on that clock (a V4L2 camera), else the time the read
+returned; :attr:`GrabberStats.clock` says which. A consumer sees each drop as a
+gap in ``seq``. The grabber measures the real frame rate.
 
 A failed read (``(False, None)``, an empty image, or a :class:`OSError` /
 ``cv2.error``) of a capture that has not ended yields a gap item (``image`` is
@@ -34,7 +36,7 @@ import av
 import cv2
 import numpy as np
 
-from camwhisker.live.capture import is_ended
+from camwhisker.live.capture import DRIVER_CLOCK, READ_CLOCK, capture_time, is_ended
 
 __all__ = ["Grabbed", "GrabberStats", "Grabber", "MODES"]
 
@@ -58,7 +60,8 @@ FPS_WINDOW = 30
 class Grabbed:
     """One grabbed item. ``image`` None marks a failed read (``error`` says why).
 
-    ``t_s`` is ``time.monotonic()`` just after the read returned; ``jpeg`` the
+    ``t_s`` is the driver's buffer time where the capture gives it, else
+    ``time.monotonic()`` just after the read returned; ``jpeg`` the
     frame's JPEG bytes where the preparation made or kept them (recording)."""
 
     seq: int
@@ -86,6 +89,10 @@ class GrabberStats:
     first_t_s: float = float("nan")
     last_t_s: float = float("nan")
     errors: list[str] = field(default_factory=list)
+    #: Where the frames' t_s came from (capture.DRIVER_CLOCK, READ_CLOCK, or both
+    #: joined by " and " where the driver gave times for some frames only).
+    clock: str = ""
+    driver_times: int = 0
 
 
 class Grabber:
@@ -204,6 +211,17 @@ class Grabber:
         self._put(Grabbed(s.grabbed, t_s, image, error, jpeg))
         s.grabbed += 1
 
+    def _stamp(self, read_s: float) -> float:
+        """The frame's time: the driver's where given (:func:`capture_time`), else
+        ``read_s``; counted in the stats."""
+        s = self.stats
+        driver_s = capture_time(self.capture, read_s)
+        s.driver_times += driver_s is not None
+        clocks = [c for c, n in ((DRIVER_CLOCK, s.driver_times),
+                                 (READ_CLOCK, s.frames + 1 - s.driver_times)) if n]  # fmt: skip
+        s.clock = " and ".join(clocks)
+        return read_s if driver_s is None else driver_s
+
     def _run(self) -> None:
         s = self.stats
         failures = 0
@@ -212,6 +230,7 @@ class Grabber:
                 image, error = self._read()
                 t_s = time.monotonic()
                 if image is not None:
+                    t_s = self._stamp(t_s)
                     if failures:
                         s.reconnects += 1
                         log.warning("capture back after %d failed read(s)", failures)
