@@ -132,18 +132,34 @@ def test_runs_with_pose_logs_are_placed_in_space(ran, tmp_path):
     s = _strict(out / "summary.json")
     assert sorted(r["name"] for r in s["runs"] if r["log"] == "pose") == list(objects)
     assert s["space"]["runs"] == list(objects) and (out / "map.ply").stat().st_size > 1000
+    def in_w(x, y):
+        return shift + turn.apply(np.column_stack([x, 0 * x, y]))
+
     for name in objects:
         flat = read_columns(ran / "out" / "contact" / f"{name}.csv", ("x_hat_mm", "y_hat_mm"))
         placed = read_columns(out / "contact" / f"{name}.csv", ("px_mm", "py_mm", "pz_mm"))
-        want = shift + turn.apply(np.column_stack([flat["x_hat_mm"], 0 * flat["x_hat_mm"],
-                                                   flat["y_hat_mm"]]))  # fmt: skip
+        want = in_w(flat["x_hat_mm"], flat["y_hat_mm"])
         got = np.column_stack([placed["px_mm"], placed["py_mm"], placed["pz_mm"]])
         both = np.isfinite(got).all(axis=1)
         assert np.array_equal(both, np.isfinite(want).all(axis=1)) and both.sum() > 50
-        # The pressing direction is the tracked theta's mean (within ~0.1 deg of the
-        # axis on these videos): it turns a point 100 mm up the shaft by under 0.2 mm;
-        # the tables' 6 printed digits add 0.001 mm.
-        assert np.max(np.linalg.norm(got[both] - want[both], axis=1)) < 0.3, name
+        miss = np.linalg.norm(got[both] - want[both], axis=1)
+        if name == "box_box":
+            # The pressing direction is the tracked theta's mean (within ~0.1 deg of the
+            # axis on these videos): it turns a point 100 mm up the shaft by under 0.2 mm;
+            # the tables' 6 printed digits add 0.001 mm.
+            assert np.max(miss) < 0.3, name
+            continue
+        # A bottle's contact slides down it: a 3-D table fits the slide over the whole
+        # contact (contact.slide), a stage's table does not; the slide's points are the
+        # nearer the truth (median: bottle_left 0.32 mm against 1.32, bottle_right 0.33
+        # against 0.75).
+        truth = read_columns(EXPERIMENT / f"{name}.contact_truth.csv",
+                             ("contact_x_mm", "contact_y_mm"))
+        true = in_w(truth["contact_x_mm"], truth["contact_y_mm"])[both]
+        seen = np.isfinite(true).all(axis=1)
+        err_got = np.median(np.linalg.norm(got[both][seen] - true[seen], axis=1))
+        err_want = np.median(np.linalg.norm(want[both][seen] - true[seen], axis=1))
+        assert err_got < err_want, name
 
 
 def test_a_run_whose_contact_fails_is_named_and_the_others_are_done(ran, tmp_path, capsys):
