@@ -1,5 +1,6 @@
-"""camwhisker learn / predict (issue #24): a known relation recovered through the model
-directory, angles across +-180 deg, and every bad input named.
+"""camwhisker learn / predict: a known relation recovered through the model directory by
+the conv kind, angles across +-180 deg, and every bad input named (the knn kind:
+test_learn_knn.py).
 
 The tables: inputs a, b (the cosine and sine of a slowly turning angle, through +-180 deg
 every few hundred rows) and c (noise); targets y = 2 c[t] - c[t - 3] (needs the window's
@@ -42,7 +43,8 @@ def _table(path, seed, rows=ROWS):
 
 def _learn_args(tables, out, *extra):
     args = ["learn", "--inputs", "a,b,c", "--targets", "y", "--angle-targets", "z",
-            "--window", str(WINDOW), "--out", str(out), "--epochs", "8"]  # fmt: skip
+            "--window", str(WINDOW), "--out", str(out), "--epochs", "8",
+            "--kind", "conv"]  # fmt: skip
     for t in tables:
         args += ["--table", str(t)]
     return args + list(extra)
@@ -78,9 +80,14 @@ def test_model_directory_records_the_training(trained):
     config = json.loads((trained / "model" / "config.json").read_text())
     assert config["inputs"] == ["a", "b", "c"] and config["angle_targets"] == ["z"]
     assert config["window"] == WINDOW and config["format"] == 1
-    # three tables of 2000 rows: the last (>= 20 % of the rows) held out for validation
-    assert config["training"]["training_rows"] == 2 * ROWS
-    assert config["training"]["validation_tables"][0].endswith("t2.csv")
+    # three tables of 2000 rows: each one's last 20 % held out to choose the epoch, then
+    # the final model fitted on every row
+    training = config["training"]
+    assert training["training_rows"] == 3 * (ROWS * 4 // 5)
+    assert len(training["validation_tables"]) == 3 and training["validation"] == "time"
+    assert training["final_training_rows"] == 3 * ROWS
+    assert config["architecture"]["kind"] == "conv"
+    assert len(training["history"]) == training["epochs_run"] >= training["best_epoch"] >= 1
     assert len(config["normalisation"]["input_mean"]) == 3
     assert len(config["weights"]["weights.npz"]) == 64
 
@@ -144,7 +151,8 @@ def test_core_imports_without_torch_and_learn_names_the_extra(tmp_path):
         "import sys; sys.modules['torch'] = None\n"  # makes `import torch` fail
         "import camwhisker.cli, camwhisker.learn.series, camwhisker.learn.predict\n"
         "sys.exit(camwhisker.cli.main(['learn', '--table', sys.argv[1], '--table', sys.argv[1],"
-        " '--inputs', 'a,b', '--targets', 'y', '--window', '8', '--out', sys.argv[2]]))\n"
+        " '--inputs', 'a,b', '--targets', 'y', '--window', '8', '--out', sys.argv[2],"
+        " '--kind', 'conv']))\n"
     )
     r = subprocess.run([sys.executable, "-c", code, str(table), str(tmp_path / "m")],
                        capture_output=True, text=True)  # fmt: skip

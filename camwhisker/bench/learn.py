@@ -36,7 +36,7 @@ from camwhisker.learn.series import (
     split_by_table,
     window_ends,
 )
-from camwhisker.learn.train import target_errors
+from camwhisker.learn.train import KINDS, target_errors
 
 __all__ = ["COLUMNS", "WINDOW", "RATE_HZ", "whisker_tables", "window_gru", "RidgeWindows",
            "main"]
@@ -249,9 +249,29 @@ def main(argv: list[str] | None = None) -> int:
                    help="an input set to train and compare (repeat for several); some of "
                         f"{', '.join(SENSOR_INPUTS)}; default: "
                         + "; ".join(",".join(v) for v in SensorOptions.variants))
+    o.add_argument("--kind", choices=KINDS, default=SensorOptions.kind, help="model kind")
     o.add_argument("--out", metavar="DIR", help="save each model as DIR/<level>/<variant>")
+    r = sub.add_parser("real", help="on a real whisker's recordings, the authors' metric")
+    r.add_argument("--data", required=True, metavar="PATH.npz",
+                   help="the recordings (camwhisker.bench.learn_real: keys and metric)")
+    r.add_argument("--kind", action="append", choices=KINDS,
+                   help=f"learn's model kind (repeat for several; default {KINDS[0]})")
     args = p.parse_args(argv)
-    return {"compare": compare, "scale": scale, "sensor": sensor}[args.what](args)
+    return {"compare": compare, "scale": scale, "sensor": sensor, "real": real}[args.what](args)
+
+
+def real(args) -> int:
+    """learn and the kNN reference on the time split of a real whisker's recordings."""
+    from camwhisker.bench.learn_real import format_real, run_real
+    from camwhisker.learn.series import LearnError
+
+    try:
+        result = run_real(args.data, tuple(args.kind or KINDS[:1]), progress=True)
+    except LearnError as exc:
+        print(f"camwhisker dev learn-bench real: {exc}", file=sys.stderr)
+        return 2
+    print(format_real(result))
+    return 0
 
 
 def sensor(args) -> int:
@@ -260,7 +280,8 @@ def sensor(args) -> int:
 
     variants = tuple(tuple(c.strip() for c in v.split(",") if c.strip())
                      for v in args.inputs or ()) or SensorOptions.variants
-    opts = SensorOptions(window=args.window, epochs=args.epochs, variants=variants)
+    opts = SensorOptions(window=args.window, epochs=args.epochs, variants=variants,
+                         kind=args.kind)  # fmt: skip
     try:
         for v in variants:
             sensor_columns(v)
