@@ -30,12 +30,19 @@ Y_RMSE_SHARE_MAX = 0.2
 Z_MAE_MAX_DEG = 4.0
 
 
-def _table(path, seed, rows=ROWS):
+def _table(path, seed, rows=ROWS, smooth=False):
+    """``smooth``: c a sum of three sines and y = c[t] + 5 (c[t] - c[t - 4]) instead (a
+    relation of the window's level and slope: test_learn_knn.py)."""
     rng = np.random.default_rng(seed)
     angle = np.cumsum(rng.uniform(0.5, 2.5, rows)) + rng.uniform(0, 360)
     z = (angle + 180.0) % 360.0 - 180.0
-    c = rng.standard_normal(rows)
-    y = 2.0 * c - np.concatenate([np.zeros(3), c[:-3]])
+    if smooth:
+        t = np.arange(rows)
+        c = sum(np.sin(2 * np.pi * t / p + rng.uniform(0, 2 * np.pi)) for p in (37, 91, 210))
+        y = c + 5.0 * (c - np.concatenate([np.zeros(4), c[:-4]]))
+    else:
+        c = rng.standard_normal(rows)
+        y = 2.0 * c - np.concatenate([np.zeros(3), c[:-3]])
     a, b = np.cos(np.radians(angle)), np.sin(np.radians(angle))
     write_csv(path, {"t_s": np.arange(rows) / 100.0, "a": a, "b": b, "c": c, "y": y, "z": z})
     return path
@@ -63,16 +70,22 @@ def test_round_trip_recovers_the_relation_and_the_angle_across_180(trained, tmp_
     out = tmp_path / "p.csv"
     assert main(["predict", "--model", str(trained / "model"), "--table", str(table),
                  "--out", str(out)]) == 0  # fmt: skip
+    check_predictions(out, table, WINDOW, Y_RMSE_SHARE_MAX, Z_MAE_MAX_DEG)
+
+
+def check_predictions(out, table, window, y_share_max, z_mae_max_deg):
+    """The predictions ``out`` of ``table`` (:func:`_table`): y's RMSE under ``y_share_max``
+    of its std, z's mean absolute error under ``z_mae_max_deg`` overall and near +-180."""
     pred, truth = read_columns(out), read_columns(table)
-    assert list(pred) == ["y", "z"] and pred["y"].size == ROWS
-    assert np.isnan(pred["y"][: WINDOW - 1]).all() and np.isfinite(pred["y"][WINDOW - 1 :]).all()
-    rows = slice(WINDOW - 1, None)
+    assert list(pred) == ["y", "z"] and pred["y"].size == truth["y"].size
+    assert np.isnan(pred["y"][: window - 1]).all() and np.isfinite(pred["y"][window - 1 :]).all()
+    rows = slice(window - 1, None)
     rmse = np.sqrt(np.mean((pred["y"][rows] - truth["y"][rows]) ** 2))
-    assert rmse < Y_RMSE_SHARE_MAX * truth["y"].std()
+    assert rmse < y_share_max * truth["y"].std()
     err = (pred["z"][rows] - truth["z"][rows] + 180.0) % 360.0 - 180.0
     near = np.abs(truth["z"][rows]) > 170.0
     assert near.sum() > 20  # the table does cross +-180 deg
-    assert np.abs(err[near]).mean() < Z_MAE_MAX_DEG and np.abs(err).mean() < Z_MAE_MAX_DEG
+    assert np.abs(err[near]).mean() < z_mae_max_deg and np.abs(err).mean() < z_mae_max_deg
     assert (np.abs(pred["z"][rows]) <= 180.0).all()
 
 

@@ -16,10 +16,11 @@ import sys
 import numpy as np
 import pytest
 
-from camwhisker.files.tables import read_columns, write_csv
 from camwhisker.learn import knn as knn_module
 from camwhisker.learn.knn import K_CHOICES, window_features
 from camwhisker.learn.series import LearnError, Series, split_in_time
+from tests.test_learn import _table as learn_table
+from tests.test_learn import check_predictions
 
 WINDOW = 8
 ROWS = 2000
@@ -32,15 +33,7 @@ Z_MAE_MAX_DEG = 5.0
 
 
 def _table(path, seed, rows=ROWS):
-    rng = np.random.default_rng(seed)
-    angle = np.cumsum(rng.uniform(0.5, 2.5, rows)) + rng.uniform(0, 360)
-    z = (angle + 180.0) % 360.0 - 180.0
-    t = np.arange(rows)
-    c = sum(np.sin(2 * np.pi * t / p + rng.uniform(0, 2 * np.pi)) for p in (37.0, 91.0, 210.0))
-    y = c + 5.0 * (c - np.concatenate([np.zeros(4), c[:-4]]))
-    a, b = np.cos(np.radians(angle)), np.sin(np.radians(angle))
-    write_csv(path, {"a": a, "b": b, "c": c, "y": y, "z": z})
-    return path
+    return learn_table(path, seed, rows, smooth=True)
 
 
 # learn and predict with torch made unimportable: the knn kind needs none
@@ -68,15 +61,7 @@ def test_round_trip_without_torch_recovers_the_relation_and_the_angle(trained, t
                         str(trained / "model"), "--table", str(table), "--out", str(out)],
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0, r.stderr
-    pred, truth = read_columns(out), read_columns(table)
-    assert np.isnan(pred["y"][: WINDOW - 1]).all() and np.isfinite(pred["y"][WINDOW - 1 :]).all()
-    rows = slice(WINDOW - 1, None)
-    rmse = np.sqrt(np.mean((pred["y"][rows] - truth["y"][rows]) ** 2))
-    assert rmse < Y_RMSE_SHARE_MAX * truth["y"].std()
-    err = (pred["z"][rows] - truth["z"][rows] + 180.0) % 360.0 - 180.0
-    near = np.abs(truth["z"][rows]) > 170.0
-    assert near.sum() > 20  # the table does cross +-180 deg
-    assert np.abs(err[near]).mean() < Z_MAE_MAX_DEG and np.abs(err).mean() < Z_MAE_MAX_DEG
+    check_predictions(out, table, WINDOW, Y_RMSE_SHARE_MAX, Z_MAE_MAX_DEG)
 
 
 def test_model_directory_holds_every_row_and_the_chosen_k(trained):
