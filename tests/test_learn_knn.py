@@ -16,6 +16,7 @@ import sys
 import numpy as np
 import pytest
 
+from camwhisker.cli import main
 from camwhisker.learn import knn as knn_module
 from camwhisker.learn.knn import K_CHOICES, window_features
 from camwhisker.learn.series import LearnError, Series, split_in_time
@@ -106,3 +107,16 @@ def test_features_do_not_depend_on_the_chunk(monkeypatch):
     expect = [w[-1, 0], w[:, 0].mean(), slope, w[:, 0].min(), w[:, 0].max()]
     np.testing.assert_allclose(whole[3, 0::2][:5], expect, atol=1e-12)
     assert whole[3, -1] == pytest.approx(np.abs(np.diff(w, axis=0)).mean(), abs=1e-12)
+
+
+def test_fewer_training_windows_than_k_uses_them_all(tmp_path):
+    # one table of 40 rows, window 8: its first 32 rows hold 25 training windows, under 40
+    table = str(_table(tmp_path / "s.csv", 5, rows=40))
+    assert main(["learn", "--inputs", "a,b,c", "--targets", "y", "--angle-targets", "z",
+                 "--window", str(WINDOW), "--table", table, "--out",
+                 str(tmp_path / "m")]) == 0  # fmt: skip
+    config = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert set(config["training"]["validation_score_per_k"]) == {"5", "10", "20", "25"}
+    assert config["architecture"]["k"] in (5, 10, 20, 25)
+    assert main(["predict", "--model", str(tmp_path / "m"), "--table", table,
+                 "--out", str(tmp_path / "p.csv")]) == 0  # fmt: skip

@@ -95,6 +95,7 @@ class WindowKnn:
     def neighbours(self, x: np.ndarray, ends: np.ndarray, k: int) -> np.ndarray:
         """Indices shape (B, k) into the training windows of the ``k`` nearest of each
         window of ``x`` (normalised inputs) ending at ``ends``."""
+        k = min(k, self.tree.n)  # fewer training windows than k: all of them
         out = []
         for i in range(0, ends.size, CHUNK):
             f = (window_features(x, ends[i : i + CHUNK], self.window) - self.mean) * self.scale
@@ -118,9 +119,11 @@ class WindowKnn:
                  target_std: np.ndarray) -> dict[int, float]:  # fmt: skip
         """Set ``k`` to the one of :data:`K_CHOICES` with the least mean
         :func:`encoded_distance` on the windows of ``x`` ending at ``ends`` (raw ``truth``
-        per window); returns that score per k."""
-        idx = self.neighbours(x, ends, max(K_CHOICES))
+        per window; a k over the training windows' count tried as that count); returns
+        that score per k."""
+        choices = sorted({min(k, self.tree.n) for k in K_CHOICES})
+        idx = self.neighbours(x, ends, choices[-1])
         scores = {k: float(encoded_distance(self.estimate(idx[:, :k]), truth, columns,
-                                            target_std).mean()) for k in K_CHOICES}  # fmt: skip
+                                            target_std).mean()) for k in choices}  # fmt: skip
         self.k = min(scores, key=scores.get)
         return scores
