@@ -1,5 +1,6 @@
-"""camwhisker learn / predict (issue #24): a known relation recovered through the model
-directory, angles across +-180 deg, and every bad input named.
+"""camwhisker learn / predict: a known relation recovered through the model directory by
+the conv kind, angles across +-180 deg, and every bad input named (the knn kind:
+test_learn_knn.py).
 
 The tables: inputs a, b (the cosine and sine of a slowly turning angle, through +-180 deg
 every few hundred rows) and c (noise); targets y = 2 c[t] - c[t - 3] (needs the window's
@@ -29,12 +30,19 @@ Y_RMSE_SHARE_MAX = 0.2
 Z_MAE_MAX_DEG = 4.0
 
 
-def _table(path, seed, rows=ROWS):
+def _table(path, seed, rows=ROWS, smooth=False):
+    """``smooth``: c a sum of three sines and y = c[t] + 5 (c[t] - c[t - 4]) instead (a
+    relation of the window's level and slope: test_learn_knn.py)."""
     rng = np.random.default_rng(seed)
     angle = np.cumsum(rng.uniform(0.5, 2.5, rows)) + rng.uniform(0, 360)
     z = (angle + 180.0) % 360.0 - 180.0
-    c = rng.standard_normal(rows)
-    y = 2.0 * c - np.concatenate([np.zeros(3), c[:-3]])
+    if smooth:
+        t = np.arange(rows)
+        c = sum(np.sin(2 * np.pi * t / p + rng.uniform(0, 2 * np.pi)) for p in (37, 91, 210))
+        y = c + 5.0 * (c - np.concatenate([np.zeros(4), c[:-4]]))
+    else:
+        c = rng.standard_normal(rows)
+        y = 2.0 * c - np.concatenate([np.zeros(3), c[:-3]])
     a, b = np.cos(np.radians(angle)), np.sin(np.radians(angle))
     write_csv(path, {"t_s": np.arange(rows) / 100.0, "a": a, "b": b, "c": c, "y": y, "z": z})
     return path
@@ -42,7 +50,8 @@ def _table(path, seed, rows=ROWS):
 
 def _learn_args(tables, out, *extra):
     args = ["learn", "--inputs", "a,b,c", "--targets", "y", "--angle-targets", "z",
-            "--window", str(WINDOW), "--out", str(out), "--epochs", "8"]  # fmt: skip
+            "--window", str(WINDOW), "--out", str(out), "--epochs", "8",
+            "--kind", "conv"]  # fmt: skip
     for t in tables:
         args += ["--table", str(t)]
     return args + list(extra)
@@ -61,16 +70,22 @@ def test_round_trip_recovers_the_relation_and_the_angle_across_180(trained, tmp_
     out = tmp_path / "p.csv"
     assert main(["predict", "--model", str(trained / "model"), "--table", str(table),
                  "--out", str(out)]) == 0  # fmt: skip
+    check_predictions(out, table, WINDOW, Y_RMSE_SHARE_MAX, Z_MAE_MAX_DEG)
+
+
+def check_predictions(out, table, window, y_share_max, z_mae_max_deg):
+    """The predictions ``out`` of ``table`` (:func:`_table`): y's RMSE under ``y_share_max``
+    of its std, z's mean absolute error under ``z_mae_max_deg`` overall and near +-180."""
     pred, truth = read_columns(out), read_columns(table)
-    assert list(pred) == ["y", "z"] and pred["y"].size == ROWS
-    assert np.isnan(pred["y"][: WINDOW - 1]).all() and np.isfinite(pred["y"][WINDOW - 1 :]).all()
-    rows = slice(WINDOW - 1, None)
+    assert list(pred) == ["y", "z"] and pred["y"].size == truth["y"].size
+    assert np.isnan(pred["y"][: window - 1]).all() and np.isfinite(pred["y"][window - 1 :]).all()
+    rows = slice(window - 1, None)
     rmse = np.sqrt(np.mean((pred["y"][rows] - truth["y"][rows]) ** 2))
-    assert rmse < Y_RMSE_SHARE_MAX * truth["y"].std()
+    assert rmse < y_share_max * truth["y"].std()
     err = (pred["z"][rows] - truth["z"][rows] + 180.0) % 360.0 - 180.0
     near = np.abs(truth["z"][rows]) > 170.0
     assert near.sum() > 20  # the table does cross +-180 deg
-    assert np.abs(err[near]).mean() < Z_MAE_MAX_DEG and np.abs(err).mean() < Z_MAE_MAX_DEG
+    assert np.abs(err[near]).mean() < z_mae_max_deg and np.abs(err).mean() < z_mae_max_deg
     assert (np.abs(pred["z"][rows]) <= 180.0).all()
 
 
@@ -78,9 +93,14 @@ def test_model_directory_records_the_training(trained):
     config = json.loads((trained / "model" / "config.json").read_text())
     assert config["inputs"] == ["a", "b", "c"] and config["angle_targets"] == ["z"]
     assert config["window"] == WINDOW and config["format"] == 1
-    # three tables of 2000 rows: the last (>= 20 % of the rows) held out for validation
-    assert config["training"]["training_rows"] == 2 * ROWS
-    assert config["training"]["validation_tables"][0].endswith("t2.csv")
+    # three tables of 2000 rows: each one's last 20 % held out to choose the epoch, then
+    # the final model fitted on every row
+    training = config["training"]
+    assert training["training_rows"] == 3 * (ROWS * 4 // 5)
+    assert len(training["validation_tables"]) == 3 and training["validation"] == "time"
+    assert training["final_training_rows"] == 3 * ROWS
+    assert config["architecture"]["kind"] == "conv"
+    assert len(training["history"]) == training["epochs_run"] >= training["best_epoch"] >= 1
     assert len(config["normalisation"]["input_mean"]) == 3
     assert len(config["weights"]["weights.npz"]) == 64
 
@@ -144,7 +164,8 @@ def test_core_imports_without_torch_and_learn_names_the_extra(tmp_path):
         "import sys; sys.modules['torch'] = None\n"  # makes `import torch` fail
         "import camwhisker.cli, camwhisker.learn.series, camwhisker.learn.predict\n"
         "sys.exit(camwhisker.cli.main(['learn', '--table', sys.argv[1], '--table', sys.argv[1],"
-        " '--inputs', 'a,b', '--targets', 'y', '--window', '8', '--out', sys.argv[2]]))\n"
+        " '--inputs', 'a,b', '--targets', 'y', '--window', '8', '--out', sys.argv[2],"
+        " '--kind', 'conv']))\n"
     )
     r = subprocess.run([sys.executable, "-c", code, str(table), str(tmp_path / "m")],
                        capture_output=True, text=True)  # fmt: skip

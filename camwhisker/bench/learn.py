@@ -10,11 +10,15 @@ the moment's rate (speed / r**2) gives r: the estimate needs the window's histor
 
 ``camwhisker dev learn-bench compare [--rows N]``: a GRU, a 1-D convolution and a
 ridge on random window features, trained on the same tables, scored on other seeds' tables.
-``camwhisker dev learn-bench scale [--rows 1500000]``: ``learn``'s defaults on 1.5 M
-rows of 3 channels, window 40: training time, inference per sample at batch 1 and batched.
-``camwhisker dev learn-bench sensor [--seed 0] [--out DIR]``: on our sensor's simulated
-runs, trained on the calibration runs of a seed, against GM, MF and fused on runs of seed + 1
-(:mod:`camwhisker.bench.learn_sensor`).
+``camwhisker dev learn-bench scale [--rows 1500000]``: ``learn --kind conv``'s defaults on
+1.5 M rows of 3 channels, window 40: training time, inference per sample at batch 1 and
+batched.
+``camwhisker dev learn-bench sensor [--seed 0] [--kind conv] [--out DIR]``: on our sensor's
+simulated runs, trained on the calibration runs of a seed, against GM, MF and fused on runs
+of seed + 1 (:mod:`camwhisker.bench.learn_sensor`).
+``camwhisker dev learn-bench real --data PATH.npz [--kind knn] [--kind conv]``: on a real
+whisker's recordings, ``learn`` and a kNN reference with the authors' metric on the time
+split (:mod:`camwhisker.bench.learn_real`).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from camwhisker.learn.series import (
     split_by_table,
     window_ends,
 )
-from camwhisker.learn.train import target_errors
+from camwhisker.learn.train import KINDS, target_errors
 
 __all__ = ["COLUMNS", "WINDOW", "RATE_HZ", "whisker_tables", "window_gru", "RidgeWindows",
            "main"]
@@ -194,7 +198,7 @@ def compare(args) -> int:
     for kind in ("gru", "conv"):
         torch.manual_seed(0)
         net = (window_gru(len(COLUMNS.inputs), COLUMNS.n_encoded) if kind == "gru" else None)
-        opts = TrainOptions(epochs=args.epochs)
+        opts = TrainOptions(kind="conv", epochs=args.epochs)
         trained = train(training, validation, COLUMNS, WINDOW, opts, progress=False, net=net)
         norm = trained.norm
         rows.append(_row(f"{kind} 32 (best epoch {trained.summary['best_epoch']})",
@@ -213,13 +217,13 @@ def compare(args) -> int:
 
 
 def scale(args) -> int:
-    """learn's defaults on ``args.rows`` rows (seed 0); speed on seed 1's windows."""
+    """learn --kind conv's defaults on ``args.rows`` rows (seed 0); speed on seed 1's windows."""
     from camwhisker.learn.train import TrainOptions, train
 
     t = time.perf_counter()
     tables = whisker_tables(args.rows, seed=0)
     training, validation = split_by_table(tables, WINDOW)
-    opts = TrainOptions()
+    opts = TrainOptions(kind="conv")
     trained = train(training, validation, COLUMNS, WINDOW, opts, progress=True)
     s = trained.summary
     print(f"{args.rows:,} rows x {len(COLUMNS.inputs)} channels, window {WINDOW}, "
@@ -238,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("compare", help="GRU, convolution and ridge on one task")
     c.add_argument("--rows", type=int, default=300_000, help="training rows")
     c.add_argument("--epochs", type=int, default=15)
-    s = sub.add_parser("scale", help="learn's defaults on 1.5 M rows: time and speed")
+    s = sub.add_parser("scale", help="learn --kind conv on 1.5 M rows: time and speed")
     s.add_argument("--rows", type=int, default=1_500_000)
     o = sub.add_parser("sensor", help="on our sensor's simulated runs, beside GM, MF, fused")
     o.add_argument("--seed", type=int, default=0,
@@ -249,9 +253,29 @@ def main(argv: list[str] | None = None) -> int:
                    help="an input set to train and compare (repeat for several); some of "
                         f"{', '.join(SENSOR_INPUTS)}; default: "
                         + "; ".join(",".join(v) for v in SensorOptions.variants))
+    o.add_argument("--kind", choices=KINDS, default=SensorOptions.kind, help="model kind")
     o.add_argument("--out", metavar="DIR", help="save each model as DIR/<level>/<variant>")
+    r = sub.add_parser("real", help="on a real whisker's recordings, the authors' metric")
+    r.add_argument("--data", required=True, metavar="PATH.npz",
+                   help="the recordings (camwhisker.bench.learn_real: keys and metric)")
+    r.add_argument("--kind", action="append", choices=KINDS,
+                   help=f"learn's model kind (repeat for several; default {KINDS[0]})")
     args = p.parse_args(argv)
-    return {"compare": compare, "scale": scale, "sensor": sensor}[args.what](args)
+    return {"compare": compare, "scale": scale, "sensor": sensor, "real": real}[args.what](args)
+
+
+def real(args) -> int:
+    """learn and the kNN reference on the time split of a real whisker's recordings."""
+    from camwhisker.bench.learn_real import format_real, run_real
+    from camwhisker.learn.series import LearnError
+
+    try:
+        result = run_real(args.data, tuple(args.kind or KINDS[:1]), progress=True)
+    except LearnError as exc:
+        print(f"camwhisker dev learn-bench real: {exc}", file=sys.stderr)
+        return 2
+    print(format_real(result))
+    return 0
 
 
 def sensor(args) -> int:
@@ -260,7 +284,8 @@ def sensor(args) -> int:
 
     variants = tuple(tuple(c.strip() for c in v.split(",") if c.strip())
                      for v in args.inputs or ()) or SensorOptions.variants
-    opts = SensorOptions(window=args.window, epochs=args.epochs, variants=variants)
+    opts = SensorOptions(window=args.window, epochs=args.epochs, variants=variants,
+                         kind=args.kind)  # fmt: skip
     try:
         for v in variants:
             sensor_columns(v)

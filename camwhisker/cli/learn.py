@@ -15,7 +15,8 @@ def _names(text: str | None, flag: str) -> tuple[str, ...]:
 
 
 def add_learn(sub) -> None:
-    from camwhisker.learn.train import TrainOptions
+    from camwhisker.learn.series import SPLITS
+    from camwhisker.learn.train import KINDS, TrainOptions
 
     d = TrainOptions()
     p = sub.add_parser(
@@ -23,10 +24,10 @@ def add_learn(sub) -> None:
         help="tables -> a model that estimates target columns from windows of input columns",
         description="Train a time-series estimator (docs/learn.md): from the last --window "
         "rows of the input columns to the target columns at the window's last row. Each "
-        "table is one continuous recording at a fixed rate (windows never span two). Inputs "
-        "and targets are normalised from the training tables; angle targets are learned on "
-        "the circle. The last tables (one table: its last rows), at least 20 % of the rows, "
-        "are held out to choose the epoch. Needs torch (the 'learn' extra).",
+        "table is one continuous recording at a fixed rate (windows never span two). "
+        "Angle targets are learned on the circle. Validation windows (by default each "
+        "table's last 20 %% of rows) choose the model's setting; the final model is then "
+        "fitted on every row. The conv kind needs torch (the 'learn' extra).",
     )
     p.add_argument("--table", action="append", required=True, metavar="T.csv",
                    help="a table (CSV with a header); repeat once per recording")  # fmt: skip
@@ -37,18 +38,24 @@ def add_learn(sub) -> None:
     p.add_argument("--window", type=int, required=True, metavar="N",
                    help="rows per window, the last one the row estimated")  # fmt: skip
     p.add_argument("--out", required=True, metavar="MODEL", help="model directory to write")
+    p.add_argument("--kind", choices=KINDS, default=d.kind,
+                   help="knn: the nearest training windows (summary features); conv: a "
+                        "causal convolutional network (default: %(default)s)")
+    p.add_argument("--validation", choices=tuple(SPLITS), default=d.validation,
+                   help="time: each table's last 20 %% of rows held out; tables: the last "
+                        "tables, at least 20 %% of the rows (default: %(default)s)")
     p.add_argument("--epochs", type=int, default=d.epochs, metavar="N",
-                   help="most epochs (training stops earlier when validation stops improving)")
+                   help="conv: most epochs (fewer when validation stops improving)")
     p.add_argument("--samples-per-epoch", type=int, default=d.samples_per_epoch, metavar="N",
-                   help="windows drawn per epoch (all, when the tables hold fewer)")
+                   help="conv: windows drawn per epoch (all, when the tables hold fewer)")
     p.add_argument("--seed", type=int, default=d.seed, help="random seed")
     p.set_defaults(func=_run_learn)
 
 
 def _run_learn(args) -> int:
     from camwhisker.learn.modeldir import save_model
-    from camwhisker.learn.series import Columns, read_series, split_by_table
-    from camwhisker.learn.train import TrainOptions, train
+    from camwhisker.learn.series import Columns, read_series
+    from camwhisker.learn.train import TrainOptions, learn
 
     columns = Columns(_names(args.inputs, "--inputs"), _names(args.targets, "--targets"),
                       _names(args.angle_targets, "--angle-targets"))  # fmt: skip
@@ -62,18 +69,21 @@ def _run_learn(args) -> int:
         if value < 1:
             raise CommandError(f"{flag} must be >= 1, got {value}")
     series = [read_series(t, columns, args.window, with_targets=True) for t in args.table]
-    training, validation = split_by_table(series, args.window)
-    opts = TrainOptions(epochs=args.epochs, samples_per_epoch=args.samples_per_epoch,
-                        seed=args.seed)  # fmt: skip
-    trained = train(training, validation, columns, args.window, opts)
+    opts = TrainOptions(kind=args.kind, validation=args.validation, epochs=args.epochs,
+                        samples_per_epoch=args.samples_per_epoch, seed=args.seed)  # fmt: skip
+    trained = learn(series, columns, args.window, opts)
     out = save_model(args.out, trained.net, columns, args.window, trained.norm, trained.arch,
                      trained.summary)  # fmt: skip
     s = trained.summary
-    print(f"best epoch {s['best_epoch']} of {s['epochs_run']}, {s['train_s']:.1f} s; "
-          f"validation ({', '.join(s['validation_tables'])}):")
+    chose = (f"k {trained.arch['k']}" if args.kind == "knn"
+             else f"best epoch {s['best_epoch']} of {s['epochs_run']}")  # fmt: skip
+    print(f"{args.kind}: {chose} on {s['validation_windows_scored']} validation windows "
+          f"({args.validation} split), {s['train_s'] + s.get('final_s', 0.0):.1f} s; "
+          f"validation errors:")
     for name, err in s["validation_errors"].items():
         print(f"  {name}: " + ", ".join(f"{k} {v:.4g}" for k, v in err.items()))
-    print(f"wrote {out}")
+    print(f"final model fitted on all {s.get('final_training_rows', s['training_rows'])} "
+          f"rows; wrote {out}")
     return 0
 
 

@@ -17,6 +17,7 @@ from camwhisker import __version__
 from camwhisker.files import jsonfile
 from camwhisker.files.atomic import atomic_path, atomic_write_text
 from camwhisker.files.digest import sha256_file
+from camwhisker.learn.knn import WindowKnn
 from camwhisker.learn.net import build_net, import_torch
 from camwhisker.learn.series import Columns, LearnError, Normalisation
 
@@ -43,7 +44,10 @@ def save_model(out: str | Path, net, columns: Columns, window: int, norm: Normal
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise LearnError(f"{out}: exists and is not a directory")
-    state = {k: v.detach().cpu().numpy() for k, v in net.state_dict().items()}
+    if isinstance(net, WindowKnn):
+        state = net.state()
+    else:
+        state = {k: v.detach().cpu().numpy() for k, v in net.state_dict().items()}
     with atomic_path(out / WEIGHTS) as tmp:
         np.savez(tmp, **state)
     config = {
@@ -93,7 +97,6 @@ def load_model(model: str | Path) -> Model:
     LearnError
         Naming the file: missing, unreadable, of another format, or altered since training.
     """
-    torch = import_torch()
     model = Path(model)
     config = _read_config(model)
     for name, digest in config["weights"].items():
@@ -108,12 +111,25 @@ def load_model(model: str | Path) -> Model:
     try:
         norm = Normalisation.from_json(config["normalisation"])
         window = int(config["window"])
-        net = build_net(config["architecture"], len(columns.inputs), columns.n_encoded)
         with np.load(model / WEIGHTS, allow_pickle=False) as npz:
-            state = {k: torch.from_numpy(npz[k]) for k in npz.files}
-        net.load_state_dict(state)
+            state = {k: npz[k] for k in npz.files}
+        net = _estimator(config["architecture"], state, columns, window)
     except (KeyError, TypeError, RuntimeError, ValueError) as exc:
         raise LearnError(f"{model}: the config and weights do not make a model "
                          f"({str(exc).splitlines()[0]})") from None
-    net.eval()
     return Model(net, columns, window, norm, config)
+
+
+def _estimator(arch: dict, state: dict, columns: Columns, window: int):
+    """The model of ``arch``'s kind from its stored arrays (torch only for a network)."""
+    if arch.get("kind") == "knn":
+        if state["rows"].shape[1] != len(columns.inputs) or \
+                state["targets"].shape[1] != len(columns.all_targets):
+            raise ValueError("the stored rows do not match the config's columns")
+        return WindowKnn(state["rows"], state["targets"], state["lengths"], window,
+                         len(columns.angle_targets), k=int(arch["k"]))  # fmt: skip
+    torch = import_torch()
+    net = build_net(arch, len(columns.inputs), columns.n_encoded)
+    net.load_state_dict({k: torch.from_numpy(v) for k, v in state.items()})
+    net.eval()
+    return net

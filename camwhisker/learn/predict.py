@@ -8,8 +8,8 @@ import numpy as np
 
 from camwhisker.files.tables import write_csv
 from camwhisker.learn.modeldir import Model
-from camwhisker.learn.series import decode_targets, read_series, segments, window_ends
-from camwhisker.learn.train import predict_encoded
+from camwhisker.learn.series import read_series, segments, window_ends
+from camwhisker.learn.train import predict_raw
 
 __all__ = ["predict_rows", "predict_segments", "predict_table", "write_predictions"]
 
@@ -23,8 +23,7 @@ def predict_rows(model: Model, inputs: np.ndarray) -> np.ndarray:
     if x.shape[0] < model.window:
         return out
     ends = window_ends([x.shape[0]], model.window)
-    out[ends] = decode_targets(predict_encoded(model.net, x, ends, model.window), model.columns,
-                               model.norm)  # fmt: skip
+    out[ends] = predict_raw(model.net, x, ends, model.window, model.columns, model.norm)
     return out
 
 

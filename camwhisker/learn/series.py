@@ -17,7 +17,8 @@ from camwhisker.files.tables import read_columns
 
 __all__ = ["LearnError", "Columns", "Series", "Normalisation", "read_series",
            "fit_normalisation", "encode_targets", "decode_targets", "window_ends",
-           "gather_windows", "split_by_table", "segments"]  # fmt: skip
+           "gather_windows", "split_by_table", "split_in_time", "split_tables", "SPLITS",
+           "segments"]  # fmt: skip
 
 #: Share of the rows held out for validation when one table is given (its last rows).
 VALIDATION_SHARE = 0.2
@@ -171,3 +172,34 @@ def split_by_table(series: list[Series], window: int) -> tuple[list[Series], lis
                          f"{window} rows or more; give a second table")
     return ([Series(s.path, s.inputs[:cut], s.targets[:cut])],
             [Series(s.path, s.inputs[cut:], s.targets[cut:])])
+
+
+def split_in_time(series: list[Series], window: int) -> tuple[list[Series], list[Series]]:
+    """(training, validation) tables: each table's last :data:`VALIDATION_SHARE` of rows held
+    out (its first rows kept), so every table's configuration is learned; a table too short
+    to leave a window on both sides stays whole in training."""
+    training, validation = [], []
+    for s in series:
+        n = s.inputs.shape[0]
+        cut = int(round(n * (1.0 - VALIDATION_SHARE)))
+        if cut < window or n - cut < window:
+            training.append(s)
+            continue
+        training.append(Series(s.path, s.inputs[:cut], s.targets[:cut]))
+        validation.append(Series(s.path, s.inputs[cut:], s.targets[cut:]))
+    if not validation:
+        raise LearnError(f"no table holds {2 * window} rows or more, too few to hold out a "
+                         f"validation part of {window} rows after the training part "
+                         f"({', '.join(str(s.path) for s in series[:3])})")
+    return training, validation
+
+
+#: The validation splits: name -> function (series, window) -> (training, validation).
+SPLITS = {"time": split_in_time, "tables": split_by_table}
+
+
+def split_tables(series: list[Series], window: int, how: str = "time"):
+    """(training, validation) tables by the split ``how`` (:data:`SPLITS`)."""
+    if how not in SPLITS:
+        raise LearnError(f"unknown validation split {how!r} (known: {', '.join(SPLITS)})")
+    return SPLITS[how](series, window)
