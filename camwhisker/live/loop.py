@@ -358,9 +358,10 @@ class LiveSession:
                 self._lsl = LslOutlet(cfg.lsl, table_columns(cfg.springs) + tuple(
                     self.contact.fields if self.contact else ()))
             except LslError:
-                for opened in (self.view, self.base):
-                    if opened is not None:
-                        opened.close() if opened is self.view else opened.stop()
+                if self.view is not None:
+                    self.view.close()
+                if self.base is not None:
+                    self.base.stop()
                 capture.release()
                 raise
 
