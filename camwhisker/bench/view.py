@@ -14,7 +14,8 @@ in one run so that a drift of the machine's speed falls on both:
 With ``--robots`` the arms are ``off`` (neither) and ``on``: the rows written to an
 MCAP file with each frame's JPEG (``live --mcap``) and pushed to an LSL outlet
 (``live --lsl``) that an inlet in this process reads as it comes (no browser);
-``--robots lsl`` or ``--robots mcap``: the one alone.
+``--robots lsl`` or ``--robots mcap``: the one alone. With LSL on, the push's own time
+per row is printed too.
 
 One headless Chromium runs through the whole run; in the closed arm it shows
 a blank page. Each session gives ``--rows`` rows; its first :data:`SKIP_ROWS`
@@ -92,6 +93,17 @@ class _TimedSession(LiveSession):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.latencies: tuple[list[float], list[float], list[float]] = ([], [], [])
+        #: The LSL output's own time per row (ms; empty without ``--lsl``).
+        self.push_ms: list[float] = []
+        if self._lsl is not None:
+            push = self._lsl.push_row
+
+            def timed(cells, t_s):
+                tic = time.perf_counter()
+                push(cells, t_s)
+                self.push_ms.append(1e3 * (time.perf_counter() - tic))
+
+            self._lsl.push_row = timed
 
     def _row(self, frame, r, proc_s, writer, recorder, udp, proc_ms, e2e_ms):
         out_ms = self.latencies[2]
@@ -125,7 +137,7 @@ def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driv
              robots: tuple[str, ...] = ()):  # fmt: skip
     """One session of ``rows`` rows; with ``view`` its page open in ``driver``; with
     ``robots`` those outputs on ("mcap", "lsl"), the LSL outlet read. Returns (processing
-    ms, end-to-end ms, to-outputs ms, pictures drawn)."""
+    ms, end-to-end ms, to-outputs ms, LSL push ms, pictures drawn)."""
     name = f"camwhisker-bench-{os.getpid()}"
     config = LiveConfig(controls=False, handle_signals=False, max_frames=rows,
                         view_port=0 if view else None,
@@ -146,7 +158,7 @@ def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driv
         driver.get("about:blank")
     proc, e2e, outs = session.latencies
     pictures = session.view.pictures if view else 0
-    return proc[SKIP_ROWS:], e2e[SKIP_ROWS:], outs[SKIP_ROWS:], pictures
+    return proc[SKIP_ROWS:], e2e[SKIP_ROWS:], outs[SKIP_ROWS:], session.push_ms, pictures
 
 
 def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) -> dict:
@@ -159,8 +171,8 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
     scenario = make_scenario("nominal", CLIP_FRAMES, BENCH_SEED)
     sensor = Sensor().replace(**scenario.sensor_changes) if scenario.sensor_changes else Sensor()
     names = ("off", "on") if robots else ("closed", "open")
-    arms = {arm: {"proc": [], "e2e": [], "out": [], "p99": [], "out_p99": [], "pictures": 0}
-            for arm in names}  # fmt: skip
+    arms = {arm: {"proc": [], "e2e": [], "out": [], "push": [], "p99": [], "out_p99": [],
+                  "pictures": 0} for arm in names}  # fmt: skip
     driver = None if robots else headless_chromium()
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -168,13 +180,14 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
             for block in range(blocks):
                 arm = names[block % 2]
                 second = arm == names[1]
-                proc, e2e, outs, pictures = _session(
+                proc, e2e, outs, push, pictures = _session(
                     video, sensor, Path(tmp) / f"b{block}.csv", rows, second and not robots,
                     driver, robots if second else ())  # fmt: skip
                 a = arms[arm]
                 a["proc"] += proc
                 a["e2e"] += e2e
                 a["out"] += outs
+                a["push"] += push
                 a["p99"].append(float(np.percentile(proc, 99)))
                 a["out_p99"].append(float(np.percentile(outs, 99)))
                 a["pictures"] += pictures
@@ -184,7 +197,8 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
     return {arm: {"processing": latency_summary(a["proc"]), "end_to_end": latency_summary(a["e2e"]),
                   "to_outputs": latency_summary(a["out"]), "session_p99_ms": a["p99"],
                   "session_out_p99_ms": a["out_p99"], "pictures": a["pictures"],
-                  "outputs": [f"--{o}" for o in robots] if arm == "on" else []}
+                  "outputs": [f"--{o}" for o in robots] if arm == "on" else [],
+                  "lsl_push": latency_summary(a["push"])}
             for arm, a in arms.items()}  # fmt: skip
 
 
@@ -206,6 +220,10 @@ def text(result: dict, blocks: int, rows: int) -> str:
             + "sessions' p99 " + ", ".join(f"{x:.2f}" for x in r["session_p99_ms"]) + " ms"
             + (f"; pictures drawn {r['pictures']}" if view else "")
         )
+        push = r.get("lsl_push", {})
+        if push.get("n"):
+            lines.append(f"  {arm:6s}: the LSL push per row p50 {1e3 * push['p50_ms']:.1f} us, "
+                         f"p99 {1e3 * push['p99_ms']:.1f} us, max {1e3 * push['max_ms']:.1f} us")
     rise = "with the view open" if view else f"with {outputs} on"
     for key in ("processing", "end_to_end", "to_outputs"):
         if key in result[first]:
