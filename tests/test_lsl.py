@@ -12,6 +12,7 @@ import csv
 import json
 import math
 import os
+import subprocess
 import sys
 import tempfile
 import threading
@@ -237,3 +238,13 @@ def test_lsl_options_are_checked(tmp_path, capsys, monkeypatch):
     assert main(["live", str(MJPG), "--out", out, "--lsl", "w"]) == 2
     assert "pylsl, which is not installed: pip install 'camwhisker[lsl]'" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_the_package_imports_without_loading_pylsl():
+    code = ("import sys, camwhisker, camwhisker.cli, camwhisker.live.loop, camwhisker.live.lsl; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'pylsl'))")
+    root = Path(__file__).resolve().parents[1]
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root,
+                         env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"},
+                         timeout=60)  # fmt: skip
+    assert run.stdout.strip() == "[]", run.stderr  # pylsl: imported only when a stream opens
