@@ -26,6 +26,7 @@ without it.
 
 from __future__ import annotations
 
+import ctypes
 import math
 import time
 from collections.abc import Sequence
@@ -94,6 +95,29 @@ def channel_unit(column: str) -> str:
     return ""
 
 
+def _gil_push(pylsl, n: int):
+    """``push(outlet, values, t)``: liblsl's push of one double sample, called holding the
+    GIL (PyDLL), or None where the library cannot be so loaded (pylsl's push is used).
+
+    The push only queues the sample (microseconds); pylsl's, through ctypes.CDLL, lets the
+    GIL go and waits up to the switch interval (5 ms) to get it back from the grabber
+    thread: up to 5 ms on a row's way out."""
+    try:
+        fn = ctypes.PyDLL(pylsl.lib.libpath).lsl_push_sample_dtp
+    except (AttributeError, OSError):
+        return None
+    fn.restype = ctypes.c_int32
+    fn.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_double), ctypes.c_double,
+                   ctypes.c_int32]  # fmt: skip
+    sample = ctypes.c_double * n
+    check = pylsl.util.handle_error
+
+    def push(outlet, values, t_s):
+        check(fn(outlet.obj, sample(*values), t_s, 1))  # 1: pushthrough, as pylsl's default
+
+    return push
+
+
 def _number(cell) -> float:
     """A table cell as a number (an empty cell: NaN)."""
     return math.nan if cell == "" else float(cell)
@@ -143,11 +167,16 @@ class LslOutlet:
         #: LSL's clock minus the frames' clock (s): a frame at t is stamped t + offset_s.
         self.offset_s = clock_offset_s(pylsl.local_clock, clock)
         self.rows = self.events = 0
+        self._push = _gil_push(pylsl, len(self.channels))
 
     def push_row(self, cells: Sequence, t_s: float) -> None:
         """One row of the signal table (its cells as the table holds them), its frame
         captured at ``t_s`` on the frames' clock."""
-        self._outlet.push_sample([_number(cells[i]) for i in self._index], t_s + self.offset_s)
+        values = [_number(cells[i]) for i in self._index]
+        if self._push is not None:
+            self._push(self._outlet, values, t_s + self.offset_s)
+        else:
+            self._outlet.push_sample(values, t_s + self.offset_s)
         self.rows += 1
 
     def push_event(self, event: str, t_s: float) -> None:
