@@ -13,7 +13,7 @@ in one run so that a drift of the machine's speed falls on both:
 
 With ``--robots`` the arms are ``off`` (neither) and ``on``: the rows written to an
 MCAP file with each frame's JPEG (``live --mcap``) and pushed to an LSL outlet
-(``live --lsl``) that an inlet in this process reads as it comes (no browser);
+(``live --lsl``) that an inlet in another process reads as it comes (no browser);
 ``--robots lsl`` or ``--robots mcap``: the one alone. With LSL on, the push's own time
 per row is printed too.
 
@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -113,24 +115,30 @@ class _TimedSession(LiveSession):
             out_ms.append(1e3 * (time.monotonic() - self._grabbed.t_s))
 
 
-def _lsl_reader(name: str):
-    """An inlet on the outlet ``name``, connected, and a thread that pulls from it until
-    the outlet closes (a consumer's work, on this machine's cores)."""
-    from camwhisker.live.lsl import lsl_module
+#: The LSL consumer, a process of its own as a recorder or a robot's controller is: it
+#: connects, says so, and pulls every 5 ms until the outlet closes.
+_READER = """
+import sys, time, pylsl
+inlet = pylsl.StreamInlet(pylsl.resolve_byprop("name", sys.argv[1], 1, 5.0)[0], recover=False)
+inlet.open_stream(5.0)
+print("ready", flush=True)
+while True:
+    try:
+        inlet.pull_chunk(timeout=0.0)
+    except pylsl.util.LostError:
+        break
+    time.sleep(0.005)
+"""
 
-    pylsl = lsl_module(RuntimeError)
-    inlet = pylsl.StreamInlet(pylsl.resolve_byprop("name", name, 1, 5.0)[0], recover=False)
-    inlet.open_stream(5.0)
 
-    def pull():
-        while True:
-            try:
-                inlet.pull_chunk(timeout=0.0)
-            except pylsl.util.LostError:
-                return
-            time.sleep(0.005)
-
-    return threading.Thread(target=pull, daemon=True)
+def _lsl_reader(name: str) -> subprocess.Popen:
+    """A process reading the outlet ``name``, connected when this returns."""
+    reader = subprocess.Popen([sys.executable, "-c", _READER, name], stdout=subprocess.PIPE,
+                              stderr=subprocess.DEVNULL, text=True)  # fmt: skip
+    if reader.stdout.readline().strip() != "ready":
+        reader.kill()
+        raise RuntimeError(f"the LSL reader did not connect to {name}")
+    return reader
 
 
 def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driver,
@@ -147,13 +155,11 @@ def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driv
     reader = _lsl_reader(name) if "lsl" in robots else None
     thread = threading.Thread(target=session.run)
     thread.start()
-    if reader is not None:
-        reader.start()
     if view:
         driver.get(session.view.url)
     thread.join()
     if reader is not None:
-        reader.join()
+        reader.wait()
     if view:
         driver.get("about:blank")
     proc, e2e, outs = session.latencies
