@@ -41,6 +41,10 @@ def _contact_args(p, live: bool) -> None:
                        help="with --base-udp: the datagrams are poses in space {t_s, x_mm, "
                             "y_mm, z_mm, qw, qx, qy, qz} (docs/sensor.md, section 9): the rows "
                             "add the contact point px_mm..nz; written as OUT.pose.csv")
+        p.add_argument("--base-lsl", metavar="NAME",
+                       help="instead of --base-udp: the base from the Lab Streaming Layer "
+                            "stream NAME, 1 channel (x_mm) or 7 (a pose, as --base-poses), "
+                            "stamped on the sender's LSL clock (docs/robots.md)")
     else:
         base = p.add_mutually_exclusive_group()
         base.add_argument("--base-log", metavar="L.csv",
@@ -81,15 +85,38 @@ def _mcap_of(args) -> Path | None:
     return Path(args.mcap)
 
 
+def _lsl_arg(p) -> None:
+    p.add_argument("--lsl", metavar="NAME",
+                   help="also the rows to a Lab Streaming Layer outlet NAME (one channel per "
+                        "numeric column, stamped with the frames' capture times on LSL's "
+                        "clock) and the events to NAME-events; docs/robots.md, "
+                        "pip install 'camwhisker[lsl]'")
+
+
+def _check_lsl(args) -> None:
+    """pylsl installed where --lsl or --base-lsl is given (before the capture opens)."""
+    if args.lsl is not None or args.base_lsl is not None:
+        from camwhisker.live.lsl import lsl_module
+
+        lsl_module(CommandError)
+    if args.lsl is not None and not args.lsl.strip():
+        raise CommandError("--lsl: the stream's name is empty")
+
+
 def _calib_of(args):
     """The --calib file's calibration (or None), with the checks of its options."""
     if args.eta_deg is not None and not args.eta_deg > 0:
         raise CommandError(f"--eta-deg must be > 0, got {args.eta_deg}")
+    lsl = getattr(args, "base_lsl", None)
     base = (getattr(args, "base_udp", None) is not None or getattr(args, "base_log", None)
-            or getattr(args, "pose_log", None))
-    poses = getattr(args, "base_poses", False) or getattr(args, "pose_log", None)
+            or getattr(args, "pose_log", None) or lsl)
+    # An LSL stream's channel count says whether it gives poses: checked when it is found.
+    poses = getattr(args, "base_poses", False) or getattr(args, "pose_log", None) or lsl
     if getattr(args, "base_poses", False) and args.base_udp is None:
         raise CommandError("--base-poses goes with --base-udp PORT")
+    if lsl and (args.base_udp is not None or args.base_offset_s is not None):
+        raise CommandError("--base-lsl takes the place of --base-udp, and LSL corrects the "
+                           "clocks: no --base-udp or --base-offset-s with it")
     if args.mount and not poses:
         raise CommandError("--mount goes with base poses (" + (
             "--base-poses" if hasattr(args, "base_poses") else "--pose-log") + ")")
@@ -189,6 +216,7 @@ def add_live(sub) -> None:
                    "(default 30); an error where the camera does not take it")  # fmt: skip
     p.add_argument("--bench", action="store_true", help="latency benchmark (one core), then exit")
     _mcap_arg(p, live=True)
+    _lsl_arg(p)
     mode_arg(p)
     sensor_arg(p)
     features_arg(p)
@@ -243,6 +271,7 @@ def _run_live(args) -> int:
     calib = _calib_of(args)
     mount = _mount_of(args)  # before the capture opens: a bad one leaves nothing open
     mcap = _mcap_of(args)
+    _check_lsl(args)
     try:
         capture = open_capture(args.source, profile, args.playback_fps, raw_mjpg=args.raw_mjpg,
                                require_mode=args.size is not None or args.fps is not None)
@@ -273,10 +302,14 @@ def _run_live(args) -> int:
         view_port=args.view,
         view_host=args.view_host,
         mcap=mcap,
+        lsl=args.lsl,
+        base_lsl=args.base_lsl,
     )
+    from camwhisker.live.lsl import LslError
+
     try:
         session = LiveSession(capture, sensor, args.out, config)
-    except OSError as exc:
+    except (OSError, LslError) as exc:
         raise CommandError(str(exc)) from None
     report = session.run()
     print(LiveSession.summary(report), file=sys.stderr)

@@ -50,7 +50,8 @@ from camwhisker.files.atomic import atomic_path
 from camwhisker.files.tables import read_log
 from camwhisker.io.poses import POSE_COLUMNS, QUAT_NORM_TOL, PoseLogError, pose_log_from_arrays
 
-__all__ = ["DEFAULT_BASE_HOST", "BaseReceiver", "parse_base_datagram", "parse_pose_datagram",
+__all__ = ["DEFAULT_BASE_HOST", "SampleReceiver", "BaseReceiver", "parse_base_datagram",
+           "parse_pose_datagram", "check_quaternion",
            "base_log_path", "write_base_log", "read_base_log", "pose_log_path", "write_pose_log",
            "read_pose_log_samples"]
 
@@ -109,15 +110,105 @@ def parse_pose_datagram(data: bytes) -> tuple[float, tuple[float, ...]]:
         raise ValueError("a position {t_s, x_mm} where poses are expected (the session "
                          "was started with --base-poses)")
     v = _numbers(msg, POSE_COLUMNS)
-    norm = math.sqrt(sum(c * c for c in v[4:]))
+    return v[0], check_quaternion(v[1:], "keys qw-qz")
+
+
+def check_quaternion(pose: list[float], where: str) -> tuple[float, ...]:
+    """The pose's seven numbers (x_mm, y_mm, z_mm, qw, qx, qy, qz) as a tuple; ValueError
+    naming ``where`` (the quaternion's keys or channels) if its norm is not 1."""
+    norm = math.sqrt(sum(c * c for c in pose[3:]))
     if abs(norm - 1.0) > QUAT_NORM_TOL:
-        raise ValueError(f"keys qw-qz: the quaternion's norm is not 1 within {QUAT_NORM_TOL:g} "
+        raise ValueError(f"{where}: the quaternion's norm is not 1 within {QUAT_NORM_TOL:g} "
                          f"({norm:.6g}; scalar first)")
-    return v[0], tuple(v[1:])
+    return tuple(pose)
 
 
-class BaseReceiver:
-    """Base positions from UDP datagrams (module docstring), on a daemon thread.
+class SampleReceiver:
+    """Base samples received on a daemon thread, checked, counted and kept for :meth:`take`.
+
+    A subclass gives :meth:`_receive` (the next raw item, None after a poll with nothing,
+    or :data:`CLOSED`) and :meth:`_parse` (its ``(t_s, x_mm or pose)``, ValueError saying
+    what is wrong); ``where`` names the source in messages.
+
+    Parameters
+    ----------
+    clock : callable
+        Monotonic seconds, for each sample's arrival time.
+    poses : bool
+        Samples are poses (seven numbers), not positions.
+    """
+
+    where = "?"
+
+    def __init__(self, clock=time.monotonic, poses: bool = False):
+        self._clock = clock
+        self.poses = poses
+        self._lock = threading.Lock()
+        self._samples: list[tuple] = []  # (t_base_s, x_mm or pose, arrived_s)
+        self._taken = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="camwhisker-base", daemon=True)
+        self.received = 0
+        self.rejected: dict[str, int] = {}
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        self._close()
+
+    def _close(self) -> None:
+        """Release the source (after the thread has ended)."""
+
+    def _receive(self):
+        raise NotImplementedError
+
+    def _parse(self, item) -> tuple[float, object]:
+        raise NotImplementedError
+
+    def _run(self) -> None:
+        last_t = -math.inf
+        while not self._stop.is_set():
+            item = self._receive()
+            if item is CLOSED:
+                return
+            if item is None:
+                continue
+            arrived = self._clock()
+            try:
+                t, x = self._parse(item)
+                if not t > last_t:
+                    raise ValueError("t_s not after the previous position's")
+            except ValueError as exc:
+                kind = str(exc).split(" (")[0]
+                if kind not in self.rejected:
+                    log.warning("base %s from %s dropped: %s",
+                                "pose" if self.poses else "position", self.where, exc)
+                self.rejected[kind] = self.rejected.get(kind, 0) + 1
+                continue
+            last_t = t
+            with self._lock:
+                self._samples.append((t, x, arrived))
+                self.received += 1
+
+    def take(self) -> list[tuple]:
+        """The samples (t_base_s, x_mm or the pose's seven numbers, arrived_s) received
+        since the last call."""
+        with self._lock:
+            new = self._samples[self._taken:]
+            self._taken = len(self._samples)
+        return new
+
+
+#: :meth:`SampleReceiver._receive`'s answer once its source is closed under it.
+CLOSED = object()
+
+
+class BaseReceiver(SampleReceiver):
+    """Base positions (or poses) from UDP datagrams (module docstring), on a daemon thread.
 
     Parameters
     ----------
@@ -141,58 +232,20 @@ class BaseReceiver:
             raise OSError(f"--base-udp: cannot listen on {host}:{port} ({exc.strerror})") from None
         self._sock.settimeout(POLL_S)
         self.address = self._sock.getsockname()
-        self._clock = clock
-        self.poses = poses
+        self.where = "{}:{}".format(*self.address)
         self._parse = parse_pose_datagram if poses else parse_base_datagram
-        self._lock = threading.Lock()
-        self._samples: list[tuple] = []  # (t_base_s, x_mm or pose, arrived_s)
-        self._taken = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="camwhisker-base", daemon=True)
-        self.received = 0
-        self.rejected: dict[str, int] = {}
+        super().__init__(clock, poses)
 
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join()
+    def _close(self) -> None:
         self._sock.close()
 
-    def _run(self) -> None:
-        last_t = -math.inf
-        while not self._stop.is_set():
-            try:
-                data = self._sock.recv(MAX_DATAGRAM)
-            except TimeoutError:
-                continue
-            except OSError:  # closed under us: the session is ending
-                return
-            arrived = self._clock()
-            try:
-                t, x = self._parse(data)
-                if not t > last_t:
-                    raise ValueError("t_s not after the previous position's")
-            except ValueError as exc:
-                kind = str(exc).split(" (")[0]
-                if kind not in self.rejected:
-                    log.warning("base position datagram dropped: %s", exc)
-                self.rejected[kind] = self.rejected.get(kind, 0) + 1
-                continue
-            last_t = t
-            with self._lock:
-                self._samples.append((t, x, arrived))
-                self.received += 1
-
-    def take(self) -> list[tuple]:
-        """The samples (t_base_s, x_mm or the pose's seven numbers, arrived_s) received
-        since the last call."""
-        with self._lock:
-            new = self._samples[self._taken:]
-            self._taken = len(self._samples)
-        return new
+    def _receive(self):
+        try:
+            return self._sock.recv(MAX_DATAGRAM)
+        except TimeoutError:
+            return None
+        except OSError:  # closed under us: the session is ending
+            return CLOSED
 
 
 def base_log_path(out_csv: str | Path) -> Path:

@@ -12,7 +12,9 @@ mismatch checks; a mismatch is logged as a warning).
 :func:`reprocess_session` drives the same generator over a recorded session
 (:class:`~camwhisker.io.sources.SessionSource`): the live table again, row for
 row. With an MCAP file (``--mcap``), both also write each row as ROS 2 messages
-(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md) with the frame's JPEG bytes.
+(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md) with the frame's JPEG bytes; a
+live session also to Lab Streaming Layer (``--lsl``, :mod:`camwhisker.live.lsl`), and takes
+its base from LSL (``--base-lsl``) as from UDP.
 :class:`LiveProcessor` hands the generator one frame at a time, for a
 caller that times each frame.
 """
@@ -59,6 +61,7 @@ from camwhisker.live.base import (
 from camwhisker.live.capture import describe
 from camwhisker.live.contact import RowContact
 from camwhisker.live.grabber import BACKOFF_S, MAX_RECONNECTS, Grabbed, Grabber
+from camwhisker.live.lsl import LslBaseReceiver, LslError, LslOutlet
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_fields, result_message
 from camwhisker.live.record import (
     JPEG_QUALITY,
@@ -199,6 +202,11 @@ class LiveConfig:
         carrier they are of (camwhisker.io.poses.Mount).
     mcap : an MCAP file to write the rows to as ROS 2 messages, with each frame's JPEG
         bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90).
+    lsl : the name of the Lab Streaming Layer outlet of the rows (and of its marker
+        outlet, with "-events", for the events); opened with the session, so an inlet
+        can connect before the first row.
+    base_lsl : take the base positions or poses from the LSL stream of this name (one
+        channel or seven; ``base_poses`` is set from it), instead of ``base_port``.
     on_row : called with each row as a dict after the row is written to every output
         (table, JSON, UDP, view, MCAP), in the session's thread; its return value is ignored.
         The dict holds the JSON line's fields (frame, seq, t_s, dz_mm, phi_deg, theta_deg,
@@ -237,6 +245,8 @@ class LiveConfig:
     base_poses: bool = False
     mount: object = None  # camwhisker.io.poses.Mount
     mcap: Path | None = None
+    lsl: str | None = None
+    base_lsl: str | None = None
     on_row: Callable[[dict], object] | None = None
 
 
@@ -305,26 +315,24 @@ class LiveSession:
         #: The contact's fields per row, and the base positions' receiver (camera clock
         #: from the first frame's monotonic time, ``_t0``).
         self.contact: RowContact | None = None
-        self.base: BaseReceiver | None = None
+        self.base: BaseReceiver | LslBaseReceiver | None = None
         self._t0 = math.nan
         self.base_samples: list[tuple] = []
         #: The on_row callback's time per row (ms), and its failure (said in the problems).
         self.on_row_ms: list[float] = []
         self._on_row_error = ""
+        try:
+            self._open_base()
+        except (OSError, ValueError):
+            if self.base is not None:
+                self.base.stop()
+            capture.release()
+            raise
         cfg = self.config
         if cfg.calib is not None:
             self.contact = RowContact(cfg.calib, 1.0 / cfg.record_rate_fps, cfg.eta_deg,
-                                      base=cfg.base_port is not None, poses=cfg.base_poses,
+                                      base=self.base is not None, poses=cfg.base_poses,
                                       mount=cfg.mount)  # fmt: skip
-        if cfg.base_port is not None:
-            if cfg.calib is None:
-                capture.release()
-                raise ValueError("base positions need a contact calibration (calib)")
-            try:
-                self.base = BaseReceiver(cfg.base_port, cfg.base_host, poses=cfg.base_poses)
-            except OSError:
-                capture.release()
-                raise
         source = getattr(capture, "source", None)  # a file or folder: its size is known now
         if source is not None:
             try:
@@ -343,6 +351,40 @@ class LiveSession:
             except OSError:
                 capture.release()
                 raise
+        #: The LSL outlets (None without ``config.lsl``): open now, for inlets to connect to.
+        self._lsl: LslOutlet | None = None
+        if cfg.lsl is not None:
+            try:
+                self._lsl = LslOutlet(cfg.lsl, table_columns(cfg.springs) + tuple(
+                    self.contact.fields if self.contact else ()))
+            except LslError:
+                if self.view is not None:
+                    self.view.close()
+                if self.base is not None:
+                    self.base.stop()
+                capture.release()
+                raise
+
+    def _open_base(self) -> None:
+        """The base's receiver (UDP or LSL), with the checks of its options; an LSL stream
+        says whether it gives poses."""
+        cfg = self.config
+        if cfg.base_port is None and cfg.base_lsl is None:
+            return
+        if cfg.base_port is not None and cfg.base_lsl is not None:
+            raise ValueError("the base from UDP (--base-udp) or from LSL (--base-lsl), not both")
+        if cfg.calib is None:
+            raise ValueError("base positions need a contact calibration (calib)")
+        if cfg.base_port is not None:
+            self.base = BaseReceiver(cfg.base_port, cfg.base_host, poses=cfg.base_poses)
+            return
+        if cfg.base_offset_s is not None:
+            raise LslError("--base-offset-s goes with --base-udp: LSL corrects the clocks")
+        self.base = LslBaseReceiver(cfg.base_lsl)
+        if cfg.mount is not None and not self.base.poses:
+            raise LslError(f"--mount goes with base poses: {self.base.where} gives positions "
+                           "(1 channel)")  # fmt: skip
+        self.config = dataclasses.replace(cfg, base_poses=self.base.poses)
 
     # -------------------------------------------------------------- control
     def command(self, name: str) -> None:
@@ -469,6 +511,8 @@ class LiveSession:
                 recorder.close()
             if udp is not None:
                 udp.close()
+            if self._lsl is not None:
+                self._lsl.close()
             try:
                 if self._bag is not None:  # stopped too: the summary makes it a bag
                     self._bag.close()
@@ -506,6 +550,7 @@ class LiveSession:
         rep = self.report
         item = self._grabbed
         done = time.monotonic()
+        n_events = len(rep.events)  # those this row adds go to LSL's markers
         if item.image is not None:
             proc_ms.append(1e3 * proc_s)
             e2e_ms.append(1e3 * (done - item.t_s))
@@ -548,8 +593,14 @@ class LiveSession:
                     log.warning("stdout closed: no more JSON lines")
             if udp is not None:
                 udp.send(msg)
+        if self._lsl is not None or self._bag is not None:
+            cells = signal_row(frame.t_s, r, self.config.springs) + list(cells)
+        if self._lsl is not None:
+            self._lsl.push_row(cells, item.t_s)
+            for event in rep.events[n_events:]:
+                self._lsl.push_event(event["event"], item.t_s)
         if self._bag is not None:  # after the control outputs: the bag is for later
-            self._bag.write_row(signal_row(frame.t_s, r, self.config.springs) + list(cells))
+            self._bag.write_row(cells)
             if item.jpeg is not None:
                 self._bag.write_image(frame.t_s, item.jpeg)
         if rep.rows == 0 and not r.ok:
@@ -603,9 +654,8 @@ class LiveSession:
             self.report.problems.append(f"no contact belief: eta {why}")
         what = "pose" if cfg.base_poses else "position"
         if self.base is not None and not self.base.received:
-            host, port = self.base.address
             dropped = "; ".join(f"{n} dropped: {k}" for k, n in self.base.rejected.items())
-            self.report.problems.append(f"no base {what} received on {host}:{port}: no GM, "
+            self.report.problems.append(f"no base {what} received from {self.base.where}: no GM, "
                                         f"Z, fusion or contact point"
                                         + (f" ({dropped})" if dropped else ""))  # fmt: skip
         if self.base is not None:
@@ -614,11 +664,15 @@ class LiveSession:
             else:
                 path = write_base_log(base_log_path(self.out_csv), self.base_samples)
             m = cfg.mount
+            lsl = cfg.base_lsl is not None
             out["base"] = {
-                "address": list(self.base.address), "received": self.base.received,
+                **(self.base.describe() if lsl else {"address": list(self.base.address)}),
+                "received": self.base.received,
                 "rejected": self.base.rejected, "log": str(path), "kind": what + "s",
                 "mount": None if m is None else [*map(float, m.position_mm), *map(float, m.quat)],
-                "clock": ("this machine's monotonic clock" if cfg.base_offset_s is None
+                "clock": ("the sender's LSL clock, corrected (time_correction_s) to this "
+                          "machine's, then to its monotonic clock (clock_offset_s)" if lsl
+                          else "this machine's monotonic clock" if cfg.base_offset_s is None
                           else f"t_camera = t_base + {cfg.base_offset_s!r} s"),
             }
         return out
@@ -687,6 +741,7 @@ class LiveSession:
             mcap=None if self._bag is None else {"file": str(self._bag.path),
                                                  "rows": self._bag.rows,
                                                  "images": self._bag.images},
+            lsl=None if self._lsl is None else self._lsl.describe(self._t0),
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)
 
