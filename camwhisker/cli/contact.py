@@ -179,7 +179,8 @@ def add_contact(sub) -> None:
                    help="contact table to write, one row per signal row")
     p.add_argument("--learned", metavar="MODEL",
                    help="also a learned estimator's r (docs/learn.md, 'On this sensor') as "
-                        "the column r_learned_mm; the fusion does not use it. Needs torch")
+                        "the column r_learned_mm; the fusion does not use it. A network "
+                        "model (learn --kind conv) needs torch")
     springs_arg(p)
     p.set_defaults(func=_run_contact)
 
