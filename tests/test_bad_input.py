@@ -42,25 +42,16 @@ SENSOR = SAMPLES / "nominal.sensor.toml"
 
 def _decodable_frames(path: Path) -> int:
     """Frames FFmpeg (through PyAV) decodes from ``path``, going on past packets it
-    cannot decode: what 'every readable frame' means here. An MJPG packet counts where
-    libjpeg-turbo decodes it whole (FFmpeg also gives a truncated JPEG's top half, a
-    picture whose row would be wrong)."""
+    cannot decode: what 'every readable frame' means here."""
     import av
-
-    from camwhisker.io.sources import decode_jpeg
 
     n = 0
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
-        mjpg = stream.codec_context.name == "mjpeg"
         for packet in container.demux(stream):
             try:
-                if mjpg and packet.size:
-                    decode_jpeg(bytes(packet))
-                    n += 1
-                elif not mjpg:
-                    n += len(packet.decode())
-            except (av.error.FFmpegError, ValueError):
+                n += len(packet.decode())
+            except av.error.FFmpegError:
                 continue
     return n
 

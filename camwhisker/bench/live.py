@@ -1,11 +1,10 @@
 """Live latency benchmark: the front end's time per 720p frame on one core.
 
 Renders a nominal scene (fixed seed) to MJPG, decodes every frame into memory
-as the live loop gets it (libjpeg-turbo, ``decode_jpeg``), then times
+as the live loop gets it (FFmpeg's MJPG decoder), then times
 :meth:`LiveProcessor.process` per frame with ``cv2.setNumThreads(1)`` (the
 first, rest frame, which detects the features, is timed apart). The JPEG
-decode, which the grabber thread does before processing, is timed too, and
-each frame's decode plus processing (the latency of one core doing both).
+decode, which the grabber thread does before processing, is timed too.
 Prints p50 / p99 / max, wall-clock and CPU time (on a loaded machine the
 wall-clock includes waits for a core; CPU time does not), and the accuracy
 against the renderer's truth, so the speed is that of the front end at its
@@ -85,8 +84,6 @@ class LatencyBench:
     #: Each frame's least CPU time over ``passes`` passes (the first pass is above).
     passes: int = 1
     cpu_least: dict | None = None
-    #: Each frame's decode plus processing (wall-clock), as one core does both.
-    with_decode: dict | None = None
 
     def text(self) -> str:
         p, d = self.processing, self.decode
@@ -104,9 +101,6 @@ class LatencyBench:
               if self.cpu_least else []),
             f"  rest frame (detection): {self.rest_ms:.1f} ms",
             f"  MJPG decode (grabber thread): p50 {d['p50_ms']:.2f} ms, p99 {d['p99_ms']:.2f} ms",
-            *([f"  decode + front end per frame: p50 {self.with_decode['p50_ms']:.2f} ms, "
-               f"p99 {self.with_decode['p99_ms']:.2f} ms, max {self.with_decode['max_ms']:.2f} ms"]
-              if self.with_decode else []),
             f"  accuracy: {100 * self.ok_share:.0f}% rows ok, "
             f"phi RMSE {self.phi_rmse_deg:.4f} deg, dz RMSE {self.dz_rmse_mm:.4f} mm",
         ])  # fmt: skip
@@ -156,8 +150,7 @@ def bench_frames(
     return LatencyBench(len(images) - 1, threads, times_ms[0], processing,
                         latency_summary(cpu_ms[1:]), decode, float(ok.mean()), phi_rmse,
                         dz_rmse, passes,
-                        latency_summary(list(least[1:])) if passes > 1 else None,
-                        latency_summary(list(np.add(decode_ms, times_ms)[1:])))  # fmt: skip
+                        latency_summary(list(least[1:])) if passes > 1 else None)  # fmt: skip
 
 
 def _values(results) -> np.ndarray:

@@ -16,7 +16,6 @@ BENCH_SCRIPTS = {
     "calibration-bench": ("calibration", "calibrate-sensor on held-out builds"),
     "throughput-bench": ("throughput", "batch frames/s with 1 worker against 2"),
     "live-bench": ("live", "the front end's time per 720p frame on one core"),
-    "decode-bench": ("decode", "MJPG decoders per frame; batch against OpenCV's read of a file"),
     "view-bench": ("view", "the live loop's latency with the browser view open and without"),
     "belief-bench": ("belief", "contact belief on rendered video: onset error, false contacts"),
     "filmed-frames-bench": ("filmed_frames", "per-frame contact on filmed sweeps"),

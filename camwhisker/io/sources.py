@@ -6,11 +6,6 @@ decode, an :class:`ImageFolderSource` for a folder of images, or a
 ``SESSION.timestamps.csv`` beside it). Iterating a source yields
 :class:`Frame` objects (index, t_s, BGR uint8 image, event) in order.
 
-Motion-JPEG frames (an MJPG AVI, a recorded session) are decoded by
-libjpeg-turbo (:func:`decode_jpeg`, simplejpeg) from the packets PyAV demuxes,
-the decoder the live loop uses on a camera's JPEG bytes, so that live and
-replay agree to the bit; other codecs are decoded by OpenCV (FFmpeg).
-
 Timestamps come from the container: PyAV reads every packet's presentation
 time without decoding (OpenCV's ``CAP_PROP_POS_MSEC`` is unreliable for
 MJPG AVI and variable-rate files). Where the container has none, t_s is
@@ -27,10 +22,8 @@ from __future__ import annotations
 
 import csv
 import math
-from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
-from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -38,8 +31,7 @@ import numpy as np
 from camwhisker.vision.stream import Frame
 
 __all__ = [
-    "SourceError", "VideoSource", "decode_jpeg", "JPEG_DECODER", "ImageFolderSource",
-    "SessionSource", "is_session",
+    "SourceError", "VideoSource", "ImageFolderSource", "SessionSource", "is_session",
     "open_source", "timestamps_path", "read_timestamps", "TIMESTAMP_COLUMNS", "check_frame_size",
 ]  # fmt: skip
 
@@ -50,59 +42,26 @@ DEFAULT_FPS = 30.0
 TIMESTAMP_COLUMNS = ("frame", "video_frame", "seq", "t_s", "event")
 
 
-#: The decoder of Motion-JPEG frames, named in sidecars.
-JPEG_DECODER = "libjpeg-turbo (simplejpeg)"
-
-
 class SourceError(ValueError):
     """The input cannot be read as frames (not a video, empty folder, ...)."""
 
 
-def decode_jpeg(data: bytes | np.ndarray) -> np.ndarray:
-    """A JPEG's pixels, BGR uint8, as libjpeg-turbo decodes them.
-
-    The one decoder of JPEG bytes in batch, replay and live (a camera's raw
-    MJPG, a recording's packets), so that the same bytes give the same pixels
-    everywhere. Strict: a frame with a recoverable error (truncated, corrupt
-    entropy data) is refused, not half-decoded.
-
-    Raises
-    ------
-    ValueError
-        The bytes are not a JPEG libjpeg-turbo can decode without error.
-    """
-    import simplejpeg
-
-    return simplejpeg.decode_jpeg(data, colorspace="BGR", strict=True)
-
-
-class _Probe(NamedTuple):
-    """What PyAV reads of a video without decoding it."""
-
-    times: np.ndarray | None  # presentation times (s) of the packets, sorted
-    fps: float | None
-    count: int | None  # frame count the container states
-    key_times: np.ndarray
-    codec: str  # FFmpeg's name of the first video stream's codec ("" if unknown)
-
-
-def _probe(path: Path) -> _Probe:
+def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int | None,
+                                          np.ndarray]:  # fmt: skip
     """Presentation times (s) of the first video stream's packets, sorted; its frame
-    rate, stated frame count and codec; the key frames' times. (None, None, None,
-    empty, "") where PyAV cannot read the file."""
+    rate and stated frame count; the key frames' times. (None, None, None, empty) where
+    PyAV cannot read the file."""
     try:
         import av
     except ImportError:  # pragma: no cover - av is a dependency
-        return _Probe(None, None, None, np.empty(0), "")
+        return None, None, None, np.empty(0)
     times, keys = [], []
     fps = count = None
-    codec = ""
     try:
         with av.open(str(path)) as container:
             if not container.streams.video:
-                return _Probe(None, None, None, np.empty(0), "")
+                return None, None, None, np.empty(0)
             stream = container.streams.video[0]
-            codec = stream.codec_context.name or ""
             rate = stream.average_rate or stream.base_rate
             fps = float(rate) if rate else None
             count = int(stream.frames) or None
@@ -115,65 +74,8 @@ def _probe(path: Path) -> _Probe:
                         keys.append(times[-1])
     except (av.error.FFmpegError, ValueError, OSError):
         if not times:
-            return _Probe(None, fps, count, np.empty(0), codec)
-    return _Probe(np.sort(np.array(times)) if times else None, fps, count,
-                  np.sort(np.array(keys)), codec)  # fmt: skip
-
-
-def _jpeg_packets(path: Path) -> Iterator[bytes]:
-    """The bytes of the first video stream's packets in order, undecoded; stops where
-    the file stops being readable (truncated)."""
-    import av
-
-    with av.open(str(path)) as container:
-        demux = container.demux(video=0)
-        while True:
-            try:
-                packet = next(demux)
-            except (StopIteration, av.error.FFmpegError, ValueError, OSError):
-                return
-            if packet.size > 0:  # the demuxer's last, empty packet flushes: not a frame
-                yield bytes(packet)
-
-
-def _decode_or_none(data: bytes) -> np.ndarray | None:
-    try:
-        return decode_jpeg(data)
-    except ValueError:
-        return None
-
-
-def _decoded_ahead(packets: Iterator[bytes], depth: int = 3) -> Iterator[np.ndarray | None]:
-    """Each packet decoded by :func:`decode_jpeg` (None where it does not decode), in
-    order, up to ``depth`` frames ahead on a second thread: libjpeg-turbo releases the
-    GIL, so decoding overlaps the caller's processing where a second core is free."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    pool = ThreadPoolExecutor(1, thread_name_prefix="camwhisker-jpeg")
-    ahead: deque = deque()
-    try:
-        for data in packets:
-            ahead.append(pool.submit(_decode_or_none, data))
-            if len(ahead) > depth:
-                yield ahead.popleft().result()
-        while ahead:
-            yield ahead.popleft().result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        packets.close()
-
-
-def _first_jpeg(path: Path) -> np.ndarray | None:
-    """The first frame of an MJPG video as :func:`decode_jpeg` gives it, or None where it
-    does not decode (the file is then decoded by OpenCV)."""
-    packets = _jpeg_packets(path)
-    try:
-        data = next(packets, None)
-        return None if data is None else decode_jpeg(data)
-    except ValueError:
-        return None
-    finally:
-        packets.close()
+            return None, fps, count, np.empty(0)
+    return (np.sort(np.array(times)) if times else None), fps, count, np.sort(np.array(keys))
 
 
 def _ranges(indices: list[int]) -> str:
@@ -189,8 +91,7 @@ def _ranges(indices: list[int]) -> str:
 
 
 class VideoSource:
-    """Frames of a video file, timed by the container; MJPG decoded by libjpeg-turbo
-    (:func:`decode_jpeg`), other codecs by OpenCV.
+    """Frames of a video file, decoded by OpenCV, timed by the container.
 
     Parameters
     ----------
@@ -198,9 +99,7 @@ class VideoSource:
     decode_threads : int, optional
         Threads FFmpeg may decode with (``cv2.CAP_PROP_N_THREADS``); default:
         OpenCV's choice, all cores. Workers of a parallel batch pass 1, or a
-        single worker would already use every core for decoding. MJPG frames
-        are decoded a few frames ahead on a second thread, or with 1 on the
-        reading thread.
+        single worker would already use every core for decoding.
 
     Raises
     ------
@@ -213,26 +112,20 @@ class VideoSource:
     def __init__(self, path: str | Path, decode_threads: int | None = None):
         self.path = Path(path)
         self._params = [] if decode_threads is None else [cv2.CAP_PROP_N_THREADS, decode_threads]
-        self._decode_ahead = decode_threads != 1
         if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: no such file")
         if self.path.is_dir():
             raise SourceError(f"{self.path}: is a folder, not a video")
-        probe = _probe(self.path)
-        first = _first_jpeg(self.path) if probe.codec == "mjpeg" else None
-        #: What decodes the frames: :data:`JPEG_DECODER` for MJPG, else OpenCV.
-        self.decoder = JPEG_DECODER if first is not None else "OpenCV (FFmpeg)"
-        if first is None:
-            cap = self._capture()
-            ok = cap.isOpened()
-            first = cap.read()[1] if ok else None
-            cap.release()
+        cap = self._capture()
+        ok = cap.isOpened()
+        first = cap.read()[1] if ok else None
+        cap.release()
         if first is None:
             raise SourceError(f"{self.path}: not a video OpenCV can read")
         self.shape = first.shape
         #: (width, height) in px, from the first frame.
         self.frame_size = (first.shape[1], first.shape[0])
-        times, fps, count, self._key_times = probe.times, probe.fps, probe.count, probe.key_times
+        times, fps, count, self._key_times = _container_times(self.path)
         self._times = times
         self.fps = fps or DEFAULT_FPS
         #: Frame count the container states (None if unknown).
@@ -279,9 +172,6 @@ class VideoSource:
         A failed read is retried while the container says frames remain: FFmpeg
         skips the undecodable packets and picks up after them.
         """
-        if self.decoder == JPEG_DECODER:
-            yield from self._jpeg_frames()
-            return
         cap = self._capture()
         known = self._known()
         i = fails = read = 0
@@ -314,38 +204,6 @@ class VideoSource:
             self.frames_read = read
             self.lost_frames = lost
             # A reader that stops early (max frames, a live stop) did not find the end.
-            self.problem = self._problems(i, lost, known, ended)
-
-    def _jpeg_frames(self) -> Iterator[Frame]:
-        """The frames of an MJPG video, each packet decoded by :func:`decode_jpeg`. A packet
-        that does not decode (or not to the first frame's size) is a frame without an
-        image (event ``"gap"``) where a later one decodes; every frame is a key frame, so
-        none is damaged."""
-        known = self._known()
-        i = read = 0
-        lost: list[int] = []
-        failed: list[int] = []  # undecodable packets not yet followed by a decoded one
-        ended = False
-        packets = _jpeg_packets(self.path)
-        images = (_decoded_ahead(packets) if self._decode_ahead
-                  else (_decode_or_none(data) for data in packets))  # fmt: skip
-        try:
-            for index, image in enumerate(images):
-                if image is None or image.shape != self.shape:
-                    failed.append(index)
-                    continue
-                for k in failed:
-                    lost.append(k)
-                    yield Frame(k, self.time_of(k), None, "gap")
-                failed = []
-                yield Frame(index, self.time_of(index), image)
-                i, read = index + 1, read + 1
-            ended = True
-        finally:
-            images.close()
-            packets.close()
-            self.frames_read = read
-            self.lost_frames = lost
             self.problem = self._problems(i, lost, known, ended)
 
     def _next_key(self, index: int) -> int | None:

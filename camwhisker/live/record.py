@@ -4,14 +4,13 @@ A recording is ``SESSION.avi`` (Motion-JPEG) and ``SESSION.timestamps.csv``
 (one row per row of the live table: ``frame, video_frame, seq, t_s, event``).
 
 Identical results need identical pixels. A JPEG decodes differently in
-OpenCV's libjpeg (``cv2.imdecode``), FFmpeg and libjpeg-turbo: up to ~30 DN
-at colour edges, from the chroma upsampling. So every JPEG is decoded by one
-decoder, :func:`~camwhisker.io.sources.decode_jpeg` (libjpeg-turbo): the
-live loop processes each frame as it decodes the JPEG bytes that go into the
-file (:class:`MjpgRoundTrip`, run in the grabber thread), the bytes are muxed
-into the AVI unchanged (no second encode), and batch decodes the AVI's
-packets with it. A camera's own JPEG bytes (raw MJPG) are kept as they are; a
-decoded frame is encoded once at ``jpeg_quality``.
+libjpeg (``cv2.imdecode``, OpenCV's camera path) and in FFmpeg (what
+``cv2.VideoCapture`` and so batch use on an AVI): up to ~30 DN at colour
+edges, from the chroma upsampling. So the live loop processes each frame as
+FFmpeg decodes the JPEG bytes that go into the file (:class:`MjpgRoundTrip`,
+run in the grabber thread), and the bytes are muxed into the AVI unchanged
+(no second encode). A camera's own JPEG bytes (raw MJPG) are kept as they
+are; a decoded frame is encoded once at ``jpeg_quality``.
 """
 
 from __future__ import annotations
@@ -27,7 +26,7 @@ import cv2
 import numpy as np
 
 from camwhisker.files.atomic import sync_file, sync_folder
-from camwhisker.io.sources import TIMESTAMP_COLUMNS, decode_jpeg, timestamps_path
+from camwhisker.io.sources import TIMESTAMP_COLUMNS, timestamps_path
 
 __all__ = ["MjpgRoundTrip", "SessionRecorder", "DecodeKeepingJpeg", "decode_only",
            "recorded_jpegs", "JPEG_QUALITY", "IMAGE_JPEG_QUALITY"]
@@ -45,15 +44,15 @@ def _is_jpeg_bytes(image: np.ndarray) -> bool:
 
 
 class MjpgRoundTrip:
-    """``prepare(image) -> (decoded BGR image, JPEG bytes)`` for the grabber.
+    """``prepare(image) -> (FFmpeg-decoded BGR image, JPEG bytes)`` for the grabber.
 
-    ``image`` is a BGR frame (encoded here) or a camera's JPEG bytes (kept);
-    the bytes are decoded by :func:`~camwhisker.io.sources.decode_jpeg`, as
-    batch decodes the recording.
+    ``image`` is a BGR frame (encoded here) or a camera's JPEG bytes (kept).
     """
 
     def __init__(self, jpeg_quality: int = JPEG_QUALITY):
         self.jpeg_quality = int(jpeg_quality)
+        self._ctx = av.CodecContext.create("mjpeg", "r")
+        self._ctx.thread_count = 1
 
     def __call__(self, image: np.ndarray) -> tuple[np.ndarray, bytes]:
         if _is_jpeg_bytes(image):
@@ -63,14 +62,16 @@ class MjpgRoundTrip:
             if not ok:
                 raise ValueError("JPEG encoding failed")
             data = buf.tobytes()
-        return decode_jpeg(data), data
+        frames = self._ctx.decode(av.Packet(data))
+        if not frames:
+            raise ValueError("the JPEG frame did not decode")
+        return frames[0].to_ndarray(format="bgr24"), data
 
 
 def decode_only(image: np.ndarray) -> tuple[np.ndarray, None]:
-    """``prepare`` without a recording: a camera's JPEG bytes are decoded (as a recording of
-    them would be), BGR passes."""
+    """``prepare`` without a recording: a camera's JPEG bytes are decoded, BGR passes."""
     if _is_jpeg_bytes(image):
-        return decode_jpeg(image.reshape(-1)), None
+        return cv2.imdecode(image.reshape(-1), cv2.IMREAD_COLOR), None
     return image, None
 
 
