@@ -39,11 +39,13 @@ FIT_PHI_DEG = 1.0
 MIN_ROWS = 20
 MIN_SPAN_DEG = 2.0
 #: The slide is taken where one r's RMS travel residual is at least this many times the
-#: slide's (tuning taps, seeds 0-15: spheres 2.3-10.8, all a < 0; plates 1.0-1.2) ...
+#: slide's (tuning taps, seeds 0-39: spheres 2.3-10.8, all a < 0; plates 1.0-1.2) ...
 MIN_RATIO = 1.5
 #: ... and the slide's residual (mm) is the front end's (0.04-0.08 on the taps of the
 #: tuning seeds; a stick-slip the model cannot follow leaves 1-5 mm).
 MAX_RMS_MM = 0.15
+#: A residual under this (mm) is exact for the ratio: noise-free travel fits both alike.
+_EXACT_MM = 0.01
 #: Bounds on r0 (mm) and a (mm of r per deg of phi) for the solver.
 _R0_MM = (5.0, 150.0)
 _A_MM_PER_DEG = (-20.0, 20.0)
@@ -111,5 +113,5 @@ def fit_slide(gm: GMFit, x_mm, phi_deg) -> SlideFit | None:
     rms = float(np.sqrt(np.mean(slide.fun ** 2)))
     one_rms = float(np.sqrt(np.mean(one.fun ** 2)))
     a = float(slide.x[2])
-    taken = bool(a < 0.0 and rms <= MAX_RMS_MM and one_rms >= MIN_RATIO * rms)
+    taken = bool(a < 0.0 and rms <= MAX_RMS_MM and one_rms >= MIN_RATIO * max(rms, _EXACT_MM))
     return SlideFit(float(slide.x[1]), a, rms, one_rms, taken)
