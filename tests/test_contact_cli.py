@@ -123,11 +123,32 @@ def test_command_line_parser_leaves_scipy_optimize_and_stats_unimported():
     import subprocess
     import sys
 
+    # Nor numba (the front end's kernels, ~0.3 s) nor scipy.spatial (~0.25 s).
     code = ("import sys, camwhisker.cli as c; c.build_parser(); "
-            "print(sum(m in sys.modules for m in ('scipy.optimize', 'scipy.stats')))")
+            "print([m for m in ('scipy.optimize', 'scipy.stats', 'numba', 'scipy.spatial') "
+            "if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
-    assert int(out.strip()) == 0
+    assert out.strip() == "[]"
+
+
+def test_the_tracker_options_help_names_the_front_ends_defaults(capsys):
+    # The help writes them out (reading them would import the kernels at start-up).
+    from camwhisker.vision import FrontEndOptions
+
+    with pytest.raises(SystemExit):
+        main(["batch", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    d = FrontEndOptions()
+    assert f"template (default: the front end's, {d.lk_half_px})" in text
+    assert f"LK window (default: the front end's, {d.roi_margin_px})" in text
+    from camwhisker.run.overlay import ARROW_SCALE
+
+    with pytest.raises(SystemExit):
+        main(["overlay", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"motion from rest at {ARROW_SCALE:g}x" in text
+    assert f"arrows' scale (default {ARROW_SCALE:g})" in text
 
 
 def _no_row_ok(src, dst):

@@ -67,14 +67,13 @@ def add_batch(sub) -> None:
 
 
 def tracker_args(p) -> None:
-    """The front end's tuning knobs (FrontEndOptions; `camwhisker dev bench` compares them)."""
-    from camwhisker.vision import FrontEndOptions
-
-    d = FrontEndOptions()
-    p.add_argument("--lk-half-px", type=int, default=d.lk_half_px, metavar="N",
-                   help=f"half size of a corner's template (default {d.lk_half_px})")
-    p.add_argument("--roi-margin-px", type=int, default=d.roi_margin_px, metavar="N",
-                   help=f"region of interest beyond the LK window (default {d.roi_margin_px})")
+    """The front end's tuning knobs (FrontEndOptions; `camwhisker dev bench` compares them).
+    Their defaults stay the front end's own: reading them here would import numba's kernels
+    into every command's start-up."""
+    p.add_argument("--lk-half-px", type=int, metavar="N",
+                   help="half size of a corner's template (default: the front end's, 12)")
+    p.add_argument("--roi-margin-px", type=int, metavar="N",
+                   help="region of interest beyond the LK window (default: the front end's, 20)")
 
 
 def _run_batch(args) -> int:
@@ -87,8 +86,8 @@ def _run_batch(args) -> int:
         mode=args.mode,
         fit_shift=not args.no_shift,
         lock_gains=args.lock_gains,
-        lk_half_px=args.lk_half_px,
-        roi_margin_px=args.roi_margin_px,
+        **{k: v for k, v in (("lk_half_px", args.lk_half_px),
+                             ("roi_margin_px", args.roi_margin_px)) if v is not None},
         features=feature_hints(args, sensor),
     )
     if args.out is None:

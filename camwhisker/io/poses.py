@@ -12,11 +12,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from camwhisker.files.tables import check_times, read_log
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 __all__ = ["POSE_COLUMNS", "MAX_GAP_S", "QUAT_NORM_TOL", "PoseLogError", "Mount", "PoseLog",
            "read_pose_log", "pose_log_from_arrays"]  # fmt: skip
@@ -26,6 +29,14 @@ POSE_COLUMNS = ("t_s", "x_mm", "y_mm", "z_mm", "qw", "qx", "qy", "qz")
 MAX_GAP_S = 1.0
 #: How far a quaternion's norm may be from 1: a log's rounding, not a wrong convention.
 QUAT_NORM_TOL = 1e-3
+
+
+def _rotations(quat: np.ndarray) -> Rotation:
+    # scipy.spatial takes ~0.25 s to import: every command line builds its parser from
+    # modules that import this one.
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(quat, scalar_first=True)
 
 
 class PoseLogError(ValueError):
@@ -56,7 +67,7 @@ class Mount:
 
     @property
     def rotation(self) -> Rotation:
-        return Rotation.from_quat(self.quat, scalar_first=True)
+        return _rotations(self.quat)
 
 
 @dataclass(frozen=True)
@@ -71,7 +82,7 @@ class PoseLog:
 
     @property
     def rotations(self) -> Rotation:
-        return Rotation.from_quat(self.quat, scalar_first=True)
+        return _rotations(self.quat)
 
     def mounted(self, mount: Mount | None) -> PoseLog:
         """The sensor's poses where this log gives its carrier's: carrier composed with mount."""
@@ -93,6 +104,8 @@ class PoseLog:
             ti = t[inside]
             p[inside] = np.column_stack([np.interp(ti, self.t_s, self.p_mm[:, k])
                                          for k in range(3)])  # fmt: skip
+            from scipy.spatial.transform import Slerp
+
             m[inside] = Slerp(self.t_s, self.rotations)(ti).as_matrix()
         return p, m
 
