@@ -149,7 +149,8 @@ def _springs_with(args, calib):
 
 
 def add_list_cameras(sub) -> None:
-    p = sub.add_parser("list-cameras", help="capture devices (V4L2) and their stable names")
+    p = sub.add_parser("list-cameras", help="capture devices (V4L2), their stable names and "
+                                            "the formats, sizes and frame rates each lists")
     p.add_argument("--all", action="store_true", help="also the nodes that cannot capture")
     p.add_argument(
         "--sysfs",
@@ -163,9 +164,11 @@ def add_list_cameras(sub) -> None:
 
 def _run_list_cameras(args) -> int:
     from camwhisker.live.cameras import format_camera_list, list_cameras
+    from camwhisker.live.modes import camera_modes
 
     cameras = list_cameras(Path(args.sysfs), Path(args.dev), include_metadata=args.all)
-    print(format_camera_list(cameras))
+    modes = {c.node: camera_modes(c.node) for c in cameras if c.captures}
+    print(format_camera_list(cameras, modes))
     return 0 if cameras else 1
 
 

@@ -175,8 +175,12 @@ def list_cameras(
     return sorted(found, key=lambda c: int(Path(c.node).name[5:]))
 
 
-def format_camera_list(cameras: list[CameraInfo]) -> str:
-    """Text for ``camwhisker list-cameras``: one block per camera, or why there is none."""
+def format_camera_list(cameras: list[CameraInfo], modes: dict | None = None) -> str:
+    """Text for ``camwhisker list-cameras``: one block per camera, or why there is none;
+    with ``modes`` (node -> :func:`~camwhisker.live.modes.camera_modes`), each capturing
+    camera's formats, sizes and frame rates."""
+    from camwhisker.live.modes import format_modes
+
     if not cameras:
         return NO_CAMERA_MESSAGE
     lines = []
@@ -187,6 +191,8 @@ def format_camera_list(cameras: list[CameraInfo]) -> str:
             lines.append(f"    stable name: {name}")
         if not c.by_id:
             lines.append("    stable name: none (no /dev/v4l/by-id link)")
+        if modes is not None and c.captures:
+            lines += format_modes(modes.get(c.node))
     return "\n".join(lines)
 
 
