@@ -164,10 +164,10 @@ def add_list_cameras(sub) -> None:
 
 def _run_list_cameras(args) -> int:
     from camwhisker.live.cameras import format_camera_list, list_cameras
-    from camwhisker.live.modes import camera_modes
+    from camwhisker.live.modes import camera_modes, format_modes
 
     cameras = list_cameras(Path(args.sysfs), Path(args.dev), include_metadata=args.all)
-    modes = {c.node: camera_modes(c.node) for c in cameras if c.captures}
+    modes = {c.node: format_modes(camera_modes(c.node)) for c in cameras if c.captures}
     print(format_camera_list(cameras, modes))
     return 0 if cameras else 1
 

@@ -43,6 +43,7 @@ __all__ = [
     "format_camera_list",
     "resolve_camera",
     "parse_querycap",
+    "open_node",
     "apply_profile",
     "NO_CAMERA_MESSAGE",
 ]
@@ -93,14 +94,22 @@ def parse_querycap(buf: bytes) -> tuple[str, str, bool]:
             card.split(b"\0")[0].decode(errors="replace"), captures)  # fmt: skip
 
 
-def _querycap(node: Path) -> bool | None:
-    """Whether the node captures, from the driver; None where it cannot be asked
-    (not a character device, or no permission)."""
+def open_node(node: str | Path) -> int | None:
+    """A file descriptor on the device node, to ask its driver; None where it cannot be
+    opened (not a character device, or no permission). The caller closes it."""
     try:
         if not stat.S_ISCHR(os.stat(node).st_mode):
             return None
-        fd = os.open(node, os.O_RDWR | os.O_NONBLOCK)
+        return os.open(node, os.O_RDWR | os.O_NONBLOCK)
     except OSError:
+        return None
+
+
+def _querycap(node: Path) -> bool | None:
+    """Whether the node captures, from the driver; None where it cannot be asked
+    (not a character device, or no permission)."""
+    fd = open_node(node)
+    if fd is None:
         return None
     try:
         buf = fcntl.ioctl(fd, VIDIOC_QUERYCAP, bytes(_CAP_STRUCT.size))
@@ -177,10 +186,8 @@ def list_cameras(
 
 def format_camera_list(cameras: list[CameraInfo], modes: dict | None = None) -> str:
     """Text for ``camwhisker list-cameras``: one block per camera, or why there is none;
-    with ``modes`` (node -> :func:`~camwhisker.live.modes.camera_modes`), each capturing
-    camera's formats, sizes and frame rates."""
-    from camwhisker.live.modes import format_modes
-
+    with ``modes`` (node -> lines of :func:`~camwhisker.live.modes.format_modes`), each
+    capturing camera's formats, sizes and frame rates."""
     if not cameras:
         return NO_CAMERA_MESSAGE
     lines = []
@@ -192,7 +199,7 @@ def format_camera_list(cameras: list[CameraInfo], modes: dict | None = None) -> 
         if not c.by_id:
             lines.append("    stable name: none (no /dev/v4l/by-id link)")
         if modes is not None and c.captures:
-            lines += format_modes(modes.get(c.node))
+            lines += modes.get(c.node, [])
     return "\n".join(lines)
 
 

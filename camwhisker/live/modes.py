@@ -12,10 +12,11 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
-import stat
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+
+from camwhisker.live.cameras import open_node
 
 __all__ = ["CameraMode", "camera_modes", "modes_of_fd", "format_modes", "fourcc_text"]
 
@@ -116,11 +117,8 @@ def modes_of_fd(fd: int, ioctl=fcntl.ioctl) -> list[CameraMode]:
 def camera_modes(node: str | Path) -> list[CameraMode] | None:
     """The modes of the camera at ``node`` (``/dev/videoN``); None where the node cannot be
     opened and asked (not a character device, no permission, not a V4L2 node)."""
-    try:
-        if not stat.S_ISCHR(os.stat(node).st_mode):
-            return None
-        fd = os.open(node, os.O_RDWR | os.O_NONBLOCK)
-    except OSError:
+    fd = open_node(node)
+    if fd is None:
         return None
     try:
         return modes_of_fd(fd)
