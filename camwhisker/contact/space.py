@@ -6,9 +6,11 @@ applies along that direction: the base's travel across the shaft toward theta, r
 from the pose log, is the stage position (:func:`travel_log`); GM, MF, Z, the fusion and
 eq. 12 run as for a stage (:func:`~camwhisker.contact.pipeline.contact_rows`), and eq.
 12's point, in the plane of the shaft and theta, is placed in W by the base's pose at
-the frame (:func:`contact_rows_in_space`). Where the contact's travel follows a contact
-sliding toward the base along a smooth object (:mod:`camwhisker.contact.slide`), r_hat
-and eq. 12's point come from that slide (:func:`with_slide`); a stage's own tables never do.
+the frame (:func:`contact_rows_in_space`). Where the whole contact's travel follows a
+contact sliding toward the base along a smooth object (:mod:`camwhisker.contact.slide`),
+or one stuck at an edge and then dragged along a flat face (:mod:`camwhisker.contact.face`),
+r_hat and eq. 12's point come from that (:func:`with_whole_contact`); a stage's own tables
+never do.
 
 In S (section 9): the whisker at rest lies along z_S; a tilt toward psi = theta + 180 deg
 is the object's push, so (cos psi, sin psi, 0) is the estimate of the surface normal.
@@ -31,15 +33,17 @@ from dataclasses import replace
 
 import numpy as np
 
+from camwhisker.contact.face import face_r, fit_face, fit_stuck, mf_cost, stuck_r, stuck_y0
 from camwhisker.contact.pipeline import (
     CONTACT_COLUMNS,
+    ONSET_DX_MM,
     Calibration,
     RunAnalysis,
     contact_rows,
     smooth_half_frames,
 )
 from camwhisker.contact.shape import reconstruct
-from camwhisker.contact.slide import fit_slide
+from camwhisker.contact.slide import MAX_RMS_MM, fit_slide
 from camwhisker.contact.smooth import local_line
 from camwhisker.contact.stage import (
     CONTACT_PHI_DEG,
@@ -50,8 +54,8 @@ from camwhisker.contact.stage import (
 from camwhisker.io.poses import MAX_GAP_S, PoseLog
 
 __all__ = ["WORLD_COLUMNS", "BASE_COLUMNS", "STILL_TURN_DEG", "MIN_TRAVEL_MM", "MIN_CLOCK_SCORE",
-           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space", "with_slide",
-           "placed_in_world"]  # fmt: skip
+           "SpaceError", "pressing_theta_deg", "travel_log", "contact_rows_in_space",
+           "with_whole_contact", "placed_in_world"]  # fmt: skip
 
 #: The contact point and the surface normal's estimate in W, after the section 7 columns.
 WORLD_COLUMNS = ("px_mm", "py_mm", "pz_mm", "nx", "ny", "nz")
@@ -257,35 +261,80 @@ def contact_rows_in_space(signals: dict, poses: PoseLog, calib: Calibration,
         cols, run = contact_rows(signals, travel_log(poses, theta, reach_mm=calib.l_w_mm),
                                  calib, offset_s, mode)  # fmt: skip
         _check_clock(run, poses)
-        cols = with_slide(cols, run, calib, mode)
+        cols = with_whole_contact(cols, run, calib, mode)
     return placed_in_world(cols, run, poses, theta), run, theta
 
 
-def with_slide(cols: dict, run: RunAnalysis, calib: Calibration, mode: str) -> dict:
-    """The contact table with r_hat_mm (and r_hat_pause_mm, eq. 12's point) from the contact's
-    slide along a smooth object where :func:`~camwhisker.contact.slide.fit_slide` takes it;
-    the table as it was elsewhere. GM, MF and the fusion's columns stay theirs."""
+def with_whole_contact(cols: dict, run: RunAnalysis, calib: Calibration, mode: str) -> dict:
+    """The contact table with r_hat_mm (and r_hat_pause_mm, eq. 12's point) from the whole
+    contact's travel: its slide along a smooth object where
+    :func:`~camwhisker.contact.slide.fit_slide` takes it, else its stuck start
+    (:func:`~camwhisker.contact.face.fit_stuck`) and the face it is then dragged along
+    where :func:`~camwhisker.contact.face.fit_face` takes it; the table as it was
+    elsewhere. GM, MF and the fusion's columns stay theirs."""
     contact = np.isfinite(np.asarray(cols["dx_mm"], float))
     x = run.travel_sign * np.asarray(cols["x_mm"], float)
     phi = np.asarray(cols["phi_deg"], float)
-    fit = fit_slide(calib.gm, x[contact], phi[contact])
-    if fit is None or not fit.taken:
-        return cols
-    out = dict(cols)
     if mode == "pause":
         phi_at, dz_at = cols["phi_pause_deg"], cols["dz_pause_mm"]
     else:
         t = np.asarray(cols["t_s"], float)
         h = smooth_half_frames(float(np.median(np.diff(t))) if t.size > 1 else 0.0)
         phi_at, dz_at = local_line(phi, h), local_line(np.asarray(cols["dz_mm"], float), h)
-    r = np.where(np.isfinite(cols["r_hat_mm"]) & contact, fit.r_mm(phi_at), cols["r_hat_mm"])
-    out["r_hat_mm"] = r
-    out["x_hat_mm"], out["y_hat_mm"] = reconstruct(cols["x_mm"], r, phi_at, dz_at,
+    phi_at = np.asarray(phi_at, float)
+    slide = fit_slide(calib.gm, x[contact], phi[contact])
+    got = None
+    if slide is None or not slide.taken:
+        got = _stuck_then_face(cols, run, calib, x, phi_at, contact)
+        if got is None:
+            return cols
+        if _slide_nearer_mf(cols, slide, phi_at, got):  # a shallow slide: MF says which
+            got = None
+    rows, r, r_pause = got or (contact, slide.r_mm(phi_at), slide.r_mm(cols["phi_pause_deg"]))
+    out = dict(cols)
+    out["r_hat_mm"] = np.where(np.isfinite(cols["r_hat_mm"]) & rows, r, cols["r_hat_mm"])
+    out["x_hat_mm"], out["y_hat_mm"] = reconstruct(cols["x_mm"], out["r_hat_mm"], phi_at, dz_at,
                                                    run.travel_sign, calib.gm, calib.bend)
     pause = np.asarray(cols["r_hat_pause_mm"], float)
-    out["r_hat_pause_mm"] = np.where(np.isfinite(pause) & contact,
-                                     fit.r_mm(cols["phi_pause_deg"]), pause)
+    out["r_hat_pause_mm"] = np.where(np.isfinite(pause) & rows, r_pause, pause)
     return out
+
+
+def _slide_nearer_mf(cols: dict, slide, phi_at, got) -> bool:
+    """Whether a slide toward the base that fits the travel to the noise, though not 1.5x
+    better than one r, lies nearer MF's r than the stuck start and face do, over their rows."""
+    if slide is None or slide.a_mm_per_deg >= 0.0 or slide.rms_mm > MAX_RMS_MM:
+        return False
+    rows, r, _ = got
+    r_mf = np.asarray(cols["r_mf_mm"], float)[rows]
+    s_mf = np.asarray(cols["sigma_mf_mm"], float)[rows]
+    return mf_cost(slide.r_mm(phi_at[rows]), r_mf, s_mf) < mf_cost(r[rows], r_mf, s_mf)
+
+
+def _stuck_then_face(cols: dict, run: RunAnalysis, calib: Calibration, x, phi_at, contact):
+    """The rows a stuck start and the face after it place, and their r (frame, pause); None
+    where the contact has no stuck start."""
+    phi = np.asarray(cols["phi_deg"], float)
+    stuck = fit_stuck(calib.gm, x[contact], phi[contact])
+    if stuck is None:
+        return None
+    dx = np.asarray(cols["dx_mm"], float)
+    after = np.arange(contact.size) > np.flatnonzero(contact)[stuck.last]
+    rows = contact & ~after
+    y0 = stuck_y0(np.asarray(cols["r_gm_mm"], float)[rows & (dx >= ONSET_DX_MM)],
+                  dx[rows & (dx >= ONSET_DX_MM)])
+    r = r_pause = stuck_r(y0, dx)
+    dragged = contact & after
+    x_e = run.travel_sign * run.x_contact_mm
+    face = fit_face(calib.gm, x_e, y0, x[dragged], phi_at[dragged],
+                    np.asarray(cols["r_mf_mm"], float)[dragged],
+                    np.asarray(cols["sigma_mf_mm"], float)[dragged])
+    if face is not None and face.taken:
+        rows = contact
+        on_face = face_r(calib.gm, x_e, y0, face.beta_deg, x, phi_at)
+        on_face_pause = face_r(calib.gm, x_e, y0, face.beta_deg, x, cols["phi_pause_deg"])
+        r, r_pause = np.where(after, on_face, r), np.where(after, on_face_pause, r_pause)
+    return rows, r, r_pause
 
 
 def placed_in_world(cols: dict, run: RunAnalysis, poses: PoseLog, theta: float) -> dict:
