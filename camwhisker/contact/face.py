@@ -46,7 +46,8 @@ _BETA_GRID_DEG = np.arange(5.0, 176.0, 1.0)
 #: Bisection steps for a frame's r: the bracket's 150 mm to 1e-10 mm.
 _BISECT = 40
 #: A face is taken where MF's r lies within this of its r in MF's own spread (the median
-#: |z| over the dragged frames; tuning plates 0.3-0.7, MF's noise alone 0.67).
+#: |z| over the dragged frames: 0.04-0.54 on the plates of tuning taps 0-39; 0.67 for
+#: noise that MF's spread describes exactly).
 MAX_FACE_Z = 1.0
 
 
