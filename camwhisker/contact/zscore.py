@@ -43,8 +43,9 @@ class SpreadTable:
         """The spread for each phi; NaN for NaN phi."""
         phi = np.asarray(phi_deg, float)
         at = np.where(np.isnan(phi), 0.0, phi)  # np.nan_to_num is slow in the live loop
-        k = np.clip(np.searchsorted(self.edges_deg, at, side="right") - 1, 0,
-                    self.std_mm.size - 1)
+        # np.minimum(np.maximum()) is np.clip without its slow Python wrapper (the live loop).
+        k = np.minimum(np.maximum(np.searchsorted(self.edges_deg, at, side="right") - 1, 0),
+                       self.std_mm.size - 1)
         return np.where(np.isfinite(phi), self.std_mm[k], np.nan)
 
     def rows(self):
