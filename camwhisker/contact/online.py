@@ -54,7 +54,7 @@ from camwhisker.contact.belief import contact_belief, eta_from_rest, eta_source,
 from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
-from camwhisker.contact.smooth import local_line
+from camwhisker.contact.smooth import local_line_newest
 from camwhisker.contact.space import STILL_TURN_DEG, WORLD_COLUMNS
 from camwhisker.contact.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
@@ -374,7 +374,6 @@ class OnlineContact:
         n = self.half_frames + 1
         self._phi = deque([math.nan] * n, maxlen=n)
         self._dz = deque([math.nan] * n, maxlen=n)
-        self._future = [math.nan] * self.half_frames  # later frames: missing
         self._rest: deque[tuple[int, float]] = deque(maxlen=_REST_KEEP)
         self._state = False
         self.space = isinstance(base, PoseTrack)
@@ -482,9 +481,8 @@ class OnlineContact:
             return out
         self._phi.append(phi)
         self._dz.append(dz)
-        h = self.half_frames
-        phi_s = local_line(list(self._phi) + self._future, h)[h]
-        dz_s = local_line(list(self._dz) + self._future, h)[h]
+        phi_s = local_line_newest(self._phi, self.half_frames)
+        dz_s = local_line_newest(self._dz, self.half_frames)
         x = speed = dx = theta_p = math.nan
         sign, pose = 1.0, None
         if self.space:

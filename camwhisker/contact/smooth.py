@@ -9,9 +9,11 @@ window keeps the trend and averages the noise like a pause of that length.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["local_line"]
+__all__ = ["local_line", "local_line_newest"]
 
 
 def local_line(values, half_frames: int) -> np.ndarray:
@@ -43,5 +45,31 @@ def local_line(values, half_frames: int) -> np.ndarray:
     sty = np.correlate(yz, tau, "same")
     det = s0 * s2 - s1 * s1
     with np.errstate(invalid="ignore", divide="ignore"):
-        fit = (s2 * sy - s1 * sty) / det  # the line's value at tau = 0
+        fit = _line_value(s2, s1, sy, sty, det)
     return np.where(good & (s0 >= 3) & (det > 0), fit, np.nan)
+
+
+def _line_value(s2, s1, sy, sty, det):
+    """The least-squares line's value at tau = 0 from its window's sums."""
+    return (s2 * sy - s1 * sty) / det
+
+
+def local_line_newest(values, half_frames: int) -> float:
+    """:func:`local_line` at the newest sample with the later ones missing (a live frame),
+    from the last h + 1 ``values``: the same sums (the window's dot products with the
+    kernels, the missing samples as zeros), so the same bits, without the other samples'."""
+    h = half_frames
+    y = np.asarray(values, float)[-(h + 1):] if h > 0 else np.asarray(values, float)[-1:]
+    if h <= 0 or not math.isfinite(y[-1]):
+        return float(y[-1]) if y.size else math.nan
+    good = np.isfinite(y)
+    tau = np.arange(-h, h + 1, dtype=float)
+    pad = np.zeros(tau.size)  # the window, tau = -h .. h: the newest at 0, the later zeros
+    pad[h + 1 - y.size:h + 1] = np.where(good, y, 0.0)
+    taus = [t for t, ok in zip(range(1 - y.size, 1), good.tolist(), strict=True) if ok]
+    # Sums of small whole numbers: exact in any order.
+    s0, s1, s2 = float(len(taus)), float(sum(taus)), float(sum(t * t for t in taus))
+    det = s0 * s2 - s1 * s1
+    if not (s0 >= 3 and det > 0):
+        return math.nan
+    return float(_line_value(s2, s1, np.dot(pad, np.ones_like(tau)), np.dot(pad, tau), det))

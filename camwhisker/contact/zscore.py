@@ -8,6 +8,8 @@ spread of the difference itself, sqrt(sigma_GM^2 + sigma_MF^2).
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +44,10 @@ class SpreadTable:
     def sigma_at(self, phi_deg) -> np.ndarray:
         """The spread for each phi; NaN for NaN phi."""
         phi = np.asarray(phi_deg, float)
+        if phi.size == 1:  # the live loop's one row: a look-up in Python
+            v = phi.item()
+            k = min(max(bisect.bisect_right(self.edges_deg, v) - 1, 0), self.std_mm.size - 1)
+            return np.full(phi.shape, self.std_mm[k] if math.isfinite(v) else np.nan)
         at = np.where(np.isnan(phi), 0.0, phi)  # np.nan_to_num is slow in the live loop
         # np.minimum(np.maximum()) is np.clip without its slow Python wrapper (the live loop).
         k = np.minimum(np.maximum(np.searchsorted(self.edges_deg, at, side="right") - 1, 0),
