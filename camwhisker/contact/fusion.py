@@ -238,13 +238,17 @@ class OnlineFusion:
 
     def __call__(self, r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, trend=False):
         """(r_mm, p_good, bias_mm), arrays shape (1,), for one sample (as :func:`fuse`)."""
-        r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
+        r_gm, r_mf, s_gm, s_mf = (np.asarray(v, float).item()
+                                  for v in (r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm))
+        w0 = d0 = 0.0  # as _weights: both estimates and spreads defined, else no weight
+        if (math.isfinite(r_gm) and math.isfinite(r_mf) and math.isfinite(s_gm)
+                and math.isfinite(s_mf) and s_gm > 0 and s_mf > 0):  # fmt: skip
+            w0, d0 = 1.0 / (s_gm * s_gm + s_mf * s_mf), r_gm - r_mf
         if bool(trend) != self._trend:
             self._trend = bool(trend)
             self._sums = (0.0,) * 5
         s0, s_d, s1, s2, t1 = self._sums
         lam = self._lam
-        w0, d0 = float(w[0]), float(d[0])
         # Every earlier sample's offset from the newest grows by one: k -> k - 1.
         self._sums = s0, s_d, s1, s2, t1 = (lam * s0 + w0, lam * s_d + w0 * d0, lam * (s1 - s0),
                                              lam * (s2 - 2.0 * s1 + s0), lam * (t1 - s_d))
@@ -252,6 +256,24 @@ class OnlineFusion:
         det = s0 * s2 - s1 * s1
         if self._trend and det > 1e-9 * max(s0 * s2, 1e-300):
             m, var = (s_d * s2 - t1 * s1) / det, max(s2 / det, var)
-        trend_arr = np.array([self._trend])
-        return _posterior(np.array([m]), np.array([var]), np.array([s0 > 0]), r_gm, r_mf,
-                          l_w_mm, *self._args, trend_arr)
+        return tuple(np.array([v]) for v in _posterior_one(
+            m, var, s0 > 0, r_gm, r_mf, l_w_mm, *self._args, self._trend))
+
+
+def _posterior_one(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, trend):
+    """:func:`_posterior` of one sample in Python floats: the same operations in the same
+    order (exp by numpy, x**2 of an array as x * x), so the same bits."""
+    se2 = var + floor_mm**2
+    m0 = 0.0 if math.isnan(m) else m
+    like_good = prior_good * float(np.exp(-0.5 * (m0 * m0) / se2)) / math.sqrt(
+        2.0 * math.pi * se2)
+    like_bad = (1.0 - prior_good) / l_w_mm
+    gm_ok = math.isfinite(r_gm)
+    p_good = like_good / (like_good + like_bad) if seen and gm_ok else math.nan
+    p0 = 0.0 if math.isnan(p_good) else p_good
+    shift = m0 if trend else (0.0 if p0 >= keep_gm else (1.0 - p0) * m0)
+    if gm_ok:
+        fused = r_gm - shift if seen else r_gm
+    else:
+        fused = r_mf if math.isfinite(r_mf) else math.nan
+    return fused, p_good, m

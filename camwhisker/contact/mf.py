@@ -259,6 +259,8 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
         if not (kk >= 1 and math.isfinite(p) and math.isfinite(q) and p >= table.phi_min_deg):
             nan = np.full(phi.shape, np.nan)
             return MFResult(nan, np.zeros(phi.shape, bool), nan, np.zeros(phi.shape, bool), nan)
+        if kk < _SUMMED_IN_ORDER:
+            return MFResult(*(np.array([v]) for v in _knn_one(table, p, q, kk, domain_radius)))
         return MFResult(*_knn(table, phi, dz, kk, domain_radius))
     phi, dz = np.broadcast_arrays(phi, dz)
     n = phi.size
@@ -273,6 +275,41 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     r_out[valid], outside[valid], nearest[valid], past_top[valid], dr_ddz[valid] = _knn(
         table, phi[valid], dz[valid], kk, domain_radius)
     return MFResult(r_out, outside, nearest, past_top, dr_ddz)
+
+
+# numpy sums fewer terms than this one after another (its pairwise sum starts at 8), as a
+# Python loop does: below it, one query's eq. (10) in Python floats gives the same bits.
+_SUMMED_IN_ORDER = 8
+
+
+def _sum_in_order(values) -> float:
+    total = 0.0
+    for v in values:
+        total += v
+    return total
+
+
+def _knn_one(table: MFTable, phi: float, dz: float, kk: int, domain_radius: float):
+    """:func:`_knn` of one query in Python floats (kk < _SUMMED_IN_ORDER): the same
+    operations in the same order, so the same bits, without numpy's per-call overhead."""
+    d, j = table.tree.query((phi / PHI_SCALE_DEG, dz / DZ_SCALE_MM), k=kk)  # Eq. (9)
+    d, j = np.atleast_1d(d).tolist(), np.atleast_1d(j)
+    labels, g = table.r_mm[j].tolist(), table.dr_ddz[j].tolist()
+    if 0.0 in d:
+        w = [float(x == 0.0) for x in d]
+    else:
+        w = [1.0 / x for x in d]
+    est = _sum_in_order(a * b for a, b in zip(w, labels, strict=True)) / _sum_in_order(w)  # (10)
+    wg = [a if math.isfinite(b) else 0.0 for a, b in zip(w, g, strict=True)]
+    wg_sum = _sum_in_order(wg)
+    slope = (_sum_in_order(a * (b if math.isfinite(b) else 0.0) for a, b in zip(wg, g, strict=True))
+             / wg_sum if wg_sum > 0 else math.nan)
+    near = d[0]
+    phi_bin = min(max(round(phi / MF_CURVE_STEP_DEG) - table.phi_bin0, 0),
+                  table.dz_past_top.size - 1)
+    out = near > domain_radius
+    return (math.nan if out else est, out, near,
+            not out and bool(dz > table.dz_past_top[phi_bin]), math.nan if out else slope)
 
 
 def _knn(table: MFTable, phi, dz, kk: int, domain_radius: float):
