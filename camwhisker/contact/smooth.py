@@ -9,6 +9,7 @@ window keeps the trend and averages the noise like a pause of that length.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -59,17 +60,27 @@ def local_line_newest(values, half_frames: int) -> float:
     from the last h + 1 ``values``: the same sums (the window's dot products with the
     kernels, the missing samples as zeros), so the same bits, without the other samples'."""
     h = half_frames
-    y = np.asarray(values, float)[-(h + 1):] if h > 0 else np.asarray(values, float)[-1:]
-    if h <= 0 or not math.isfinite(y[-1]):
-        return float(y[-1]) if y.size else math.nan
-    good = np.isfinite(y)
-    tau = np.arange(-h, h + 1, dtype=float)
-    pad = np.zeros(tau.size)  # the window, tau = -h .. h: the newest at 0, the later zeros
-    pad[h + 1 - y.size:h + 1] = np.where(good, y, 0.0)
-    taus = [t for t, ok in zip(range(1 - y.size, 1), good.tolist(), strict=True) if ok]
+    y = [float(v) for v in values][-(max(h, 0) + 1):]
+    if h <= 0 or not y:  # h 0: the value itself, as local_line
+        return y[-1] if y else math.nan
+    if not math.isfinite(y[-1]):
+        return math.nan
+    good = [math.isfinite(v) for v in y]
+    seen = [v if ok else 0.0 for v, ok in zip(y, good, strict=True)]
+    # The window, tau = -h .. h: the newest at 0, the earlier missing and the later as zeros.
+    pad = np.array([0.0] * (h + 1 - len(y)) + seen + [0.0] * h)
+    taus = [t for t, ok in zip(range(1 - len(y), 1), good, strict=True) if ok]
     # Sums of small whole numbers: exact in any order.
     s0, s1, s2 = float(len(taus)), float(sum(taus)), float(sum(t * t for t in taus))
     det = s0 * s2 - s1 * s1
     if not (s0 >= 3 and det > 0):
         return math.nan
-    return float(_line_value(s2, s1, np.dot(pad, np.ones_like(tau)), np.dot(pad, tau), det))
+    ones, tau = _kernels(h)
+    return float(_line_value(s2, s1, np.dot(pad, ones), np.dot(pad, tau), det))
+
+
+@functools.lru_cache(maxsize=8)
+def _kernels(h: int) -> tuple[np.ndarray, np.ndarray]:
+    """local_line's kernels for h: ones and tau = -h .. h."""
+    tau = np.arange(-h, h + 1, dtype=float)
+    return np.ones_like(tau), tau
