@@ -456,12 +456,14 @@ def contact_onset_x(x_mm, phi_deg, travel_sign: float = 1.0):
         use = use[:rise]
     elif use.size < 2:
         use = hit[:ONSET_FIT_PAUSES]
-    if use.size < 2 or np.ptp(x[use]) == 0:  # frames at one position carry no slope
+    xu = x[use]
+    if use.size < 2 or xu.max() == xu.min():  # frames at one position carry no slope
         return float(x[first] - 0.5 * travel_sign * abs(x[first] - x[max(first - 1, 0)]))
-    slope, intercept = np.polyfit(x[use], phi[use], 1)
+    slope, intercept = np.polyfit(xu, phi[use], 1)
     if slope * travel_sign <= 0:
         return float(x[first])
     x0 = -intercept / slope
-    # The onset lies between the log's first pause and the first contact pause.
-    a, b = sorted((x[0], x[first]))
-    return float(np.clip(x0, a, b))
+    # The onset lies between the log's first pause and the first contact pause (clipped in
+    # Python: np.clip's wrapper costs more than the rest of a live frame's onset).
+    a, b = sorted((float(x[0]), float(x[first])))
+    return min(max(float(x0), a), b)
