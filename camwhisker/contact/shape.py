@@ -54,8 +54,10 @@ class BendCorrection:
 
 
 def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
-    p = np.asarray(phi_deg, float)[..., None] / phi_max_deg
-    r = np.asarray(r_mm, float)[..., None] / r_max_mm
+    p, r = np.asarray(phi_deg, float), np.asarray(r_mm, float)
+    if p.shape != r.shape:
+        p, r = np.broadcast_arrays(p, r)
+    p, r = p[..., None] / phi_max_deg, r[..., None] / r_max_mm
     # Each power once, then every product p^i r^j (i outer) in one broadcast multiply.
     pp = np.concatenate([p**i for i in SURFACE_PHI_POWERS], axis=-1)
     rr = np.concatenate([r**j for j in SURFACE_R_POWERS[:n_r]], axis=-1)
