@@ -257,8 +257,8 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     if phi.size == 1 and dz.size == 1:  # the live loop's one row: no output arrays to fill
         p, q = phi.item(), dz.item()
         if not (kk >= 1 and math.isfinite(p) and math.isfinite(q) and p >= table.phi_min_deg):
-            nan = np.full(phi.shape, np.nan)
-            return MFResult(nan, np.zeros(phi.shape, bool), nan, np.zeros(phi.shape, bool), nan)
+            return MFResult(np.full(1, np.nan), np.zeros(1, bool), np.full(1, np.nan),
+                            np.zeros(1, bool), np.full(1, np.nan))
         if kk < _SUMMED_IN_ORDER:
             return MFResult(*(np.array([v]) for v in _knn_one(table, p, q, kk, domain_radius)))
         return MFResult(*_knn(table, phi, dz, kk, domain_radius))
