@@ -61,7 +61,8 @@ def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
     # Each power once, then every product p^i r^j (i outer) in one broadcast multiply.
     pp = np.concatenate([p**i for i in SURFACE_PHI_POWERS], axis=-1)
     rr = np.concatenate([r**j for j in SURFACE_R_POWERS[:n_r]], axis=-1)
-    return (pp[..., :, None] * rr[..., None, :]).reshape(*pp.shape[:-1], -1)
+    return (pp[..., :, None] * rr[..., None, :]).reshape(*pp.shape[:-1],
+                                                         pp.shape[-1] * rr.shape[-1])
 
 
 def fit_bend_correction(gm: GMFit, dx_mm, phi_deg, r_mm, dz_mm, run) -> BendCorrection | None:
