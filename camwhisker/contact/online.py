@@ -471,7 +471,7 @@ class OnlineContact:
         self._eta(frame, phi, rest)
         b = math.nan
         if self.eta_deg is not None:
-            b = float(contact_belief(np.array([phi]), self.eta_deg)[0])  # Eq. (1)
+            b = contact_belief(phi, self.eta_deg)  # Eq. (1)
             was = self._state
             self._state = next_contact(self._state, b)
             if was and not self._state:
