@@ -12,7 +12,8 @@ from its frame and the earlier ones, with the same functions:
   built (the rest frames themselves) have no belief;
 - phi and dz smoothed by :func:`~camwhisker.contact.smooth.local_line` over the
   same window with the later frames missing (what batch does at a run's last
-  frame): a line through the last h + 1 frames, read at the newest;
+  frame): a line through the last h + 1 frames, read at the newest
+  (:func:`~camwhisker.contact.smooth.local_line_newest`);
 - the contact onset by :func:`~camwhisker.contact.stage.contact_onset_x` over the frames
   so far, fixed once phi passes ``ONSET_PHI_MAX_DEG`` (batch uses no frame past
   that either), and found again for each new contact (where the belief's contact
