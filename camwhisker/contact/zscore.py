@@ -86,6 +86,10 @@ def z_dissimilarity(r_gm_mm, r_mf_mm, sigma_gm_mm):
     r_gm = np.asarray(r_gm_mm, float)
     r_mf = np.asarray(r_mf_mm, float)
     sigma = np.asarray(sigma_gm_mm, float)
+    if r_gm.size == 1 and r_gm.shape == r_mf.shape == sigma.shape:  # one live row, in floats
+        d, s = r_gm.item() - r_mf.item(), sigma.item()
+        return np.full(r_gm.shape, d / s if math.isfinite(d) and math.isfinite(s) and s > 0
+                       else np.nan)  # Eq. (11)
     diff = r_gm - r_mf
     ok = np.isfinite(diff) & np.isfinite(sigma) & (sigma > 0)
     return np.divide(diff, sigma, out=np.full(np.broadcast(diff, sigma).shape, np.nan),
