@@ -33,6 +33,12 @@ def test_eq1_on_hand_made_norms_and_vectors():
     assert b == pytest.approx([0.0, 1.0, 0.6], abs=1e-12)  # exact up to rounding
     with pytest.raises(ValueError, match="eta must be positive"):
         contact_belief(np.ones(3), eta=0.0)
+    # A live frame's float: the array's value to the bit (the same operations), NaN kept.
+    d = np.r_[np.random.default_rng(0).uniform(-3.0, 3.0, 500), np.nan]
+    b = [contact_belief(float(v), eta=0.37) for v in d]
+    assert np.array_equal(b, contact_belief(d, eta=0.37), equal_nan=True)
+    with pytest.raises(ValueError, match="eta must be positive"):
+        contact_belief(1.0, eta=np.nan)
 
 
 def test_eta_is_the_factor_times_the_rest_quantile():

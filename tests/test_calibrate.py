@@ -145,6 +145,8 @@ def test_bend_correction_fits_the_pegs_and_reads_back_absent_or_named(tmp_path):
         assert after < 0.35 * before and before > 0.04
     radii = np.array(PAPER_RIGID_RADII_MM)
     assert np.abs(bend(radii, 1.0)).max() < 0.05
+    # No samples (a run without pauses) give no terms, not an error.
+    assert [v.shape for v in bend(np.empty(0), np.empty(0))] == [(0,), (0,)]
     path = tmp_path / "calib.toml"
     write_calibration(path, calibration())
     text = path.read_text()

@@ -10,7 +10,7 @@ from camwhisker.contact.pipeline import (
     contact_rows,
     doubt,
 )
-from camwhisker.contact.smooth import local_line
+from camwhisker.contact.smooth import local_line, local_line_newest
 from camwhisker.contact.stage import stage_log_from_arrays
 from camwhisker.files.tables import write_csv
 from camwhisker.percept.surfels import read_surfels
@@ -39,11 +39,27 @@ def test_local_line_averages_noise_like_its_window():
     assert np.std(local_line(noise, 6)[10:-10]) == pytest.approx(13 ** -0.5, rel=0.03)
 
 
+@pytest.mark.parametrize("h", [0, 1, 6, 12])
+def test_local_line_newest_is_local_line_at_a_series_end(h):
+    rng = np.random.default_rng(h)
+    for _ in range(300):
+        n = int(rng.integers(1, h + 2))  # fewer than h + 1 values too: earlier ones missing
+        y = rng.normal(5.0, 3.0, n) * 10 ** rng.uniform(-3, 2)
+        y[rng.integers(0, n, int(rng.integers(0, 4)))] = np.nan
+        want = local_line(np.r_[np.full(h + 1 - n, np.nan), y, np.full(h, np.nan)], h)[h]
+        got = local_line_newest(list(y), h)
+        # The same sums of the same numbers in the same order: equal to the last bit.
+        assert got == want or (np.isnan(got) and np.isnan(want))
+
+
 def test_doubt_by_hand():
     frame_s = 1 / 30
     fast = (FAST_MM_PER_FRAME + 0.01) / frame_s
     got = doubt([1.0, fast, 1.0, fast, 1.0], [5.0, 5.0, 0.5, 0.5, np.nan], frame_s)
     assert got.tolist() == ["", "fast", "onset", "fast;onset", ""]
+    got = doubt([1.0, fast, 1.0, fast], [5.0, 5.0, 0.5, 0.5], frame_s, [1.0, 1.0, 1.0, 1.0])
+    assert got.tolist() == ["slip", "fast;slip", "onset;slip", "fast;onset;slip"]
+    assert doubt([1.0], [5.0], frame_s, [np.nan]).tolist() == [""]  # undecided: no slip
 
 
 def test_base_speed_of_a_ramp():

@@ -230,3 +230,21 @@ def test_pause_dz_noise_is_the_scatter_about_the_surface():
     assert abs(got / 0.004 - 1.0) < 0.15, got
     short = _runs([40.0, 60.0], np.array([5.0, 10.0, 15.0]))
     assert pause_dz_noise_mm(short["phi"], short["dz"], short["r"], short["run"]) is None
+
+
+@pytest.mark.parametrize("rows", [3, 40])
+def test_one_query_is_its_row_of_a_batch(rows):
+    """The live loop's one query (Python floats) gives its batch row's values to the bit."""
+    rng = np.random.default_rng(rows)
+    table = MFTable.build(rng.uniform(1, 30, rows), rng.uniform(0, 0.5, rows),
+                          rng.uniform(20, 100, rows))
+    phi = np.r_[rng.uniform(0, 32, 200), table.phi_deg[0], np.nan]
+    dz = np.r_[rng.uniform(-0.05, 0.55, 200), table.dz_mm[0], 0.1]  # an exact match, a NaN
+    batch = r_mf(table, phi, dz, domain_radius=0.05)
+    for i in range(phi.size):
+        one = r_mf(table, phi[i:i + 1], dz[i:i + 1], domain_radius=0.05)
+        for name in ("r_mm", "outside", "nearest", "past_top", "dr_ddz"):
+            got, want = getattr(one, name), getattr(batch, name)[i:i + 1]
+            # The same operations in the same order: equal to the last bit, dtype too.
+            assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
+    assert np.isfinite(batch.r_mm).sum() > 5 and batch.outside.sum() > 5  # both kinds met

@@ -284,3 +284,19 @@ def test_bottle_shape_within_3mm(level):
         assert sel.sum() >= min_points
         assert np.max(dist[sel]) < 3.0
     assert defined.sum() >= 40 and np.max(dist[defined]) < 3.0
+
+
+def test_z_of_one_row_is_its_batch_value():
+    rng = np.random.default_rng(0)
+    r_gm = np.r_[rng.normal(50.0, 10.0, 300), np.nan, 1.0, 2.0, np.inf]
+    r_mf = np.r_[rng.normal(50.0, 10.0, 300), 1.0, np.nan, 2.0, 3.0]
+    sigma = np.r_[rng.uniform(-0.2, 3.0, 300), 1.0, 1.0, 0.0, 1.0]  # some <= 0: no Z
+    z, zc = z_dissimilarity(r_gm, r_mf, sigma), z_combined(r_gm, r_mf, sigma, sigma[::-1])
+    for i in range(r_gm.size):
+        one = slice(i, i + 1)
+        # The live row's floats do the batch's operations: equal to the last bit.
+        assert np.array_equal(z_dissimilarity(r_gm[one], r_mf[one], sigma[one]), z[one],
+                              equal_nan=True)
+        assert np.array_equal(z_combined(r_gm[one], r_mf[one], sigma[one], sigma[::-1][one]),
+                              zc[one], equal_nan=True)
+    assert np.isfinite(z).sum() > 200 and np.isnan(z).sum() > 10  # both kinds met

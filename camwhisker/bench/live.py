@@ -296,8 +296,7 @@ def bench_contact(fps: float = 30.0, poses: bool = False) -> ContactBench:
             for k in kinds:
                 tic, tc = time.perf_counter(), time.thread_time()
                 row = contacts[k].update(frame, r, rest)
-                contacts[k].message(row)
-                contacts[k].cells(row)
+                contacts[k].message(row, contacts[k].cells(row))
                 wall[k].append(1e3 * (time.perf_counter() - tic))
                 cpu[k].append(1e3 * (time.thread_time() - tc))
     added = np.subtract(cpu[True], cpu[False]).tolist() if poses else None

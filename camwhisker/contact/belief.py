@@ -83,18 +83,21 @@ class Onset:
         return out
 
 
-def contact_belief(d: np.ndarray, eta: float) -> np.ndarray:
+def contact_belief(d: np.ndarray | float, eta: float) -> np.ndarray | float:
     """Eq. 1: b = clip(|d| / eta - 1, 0, 1), NaN where d is.
 
     Parameters
     ----------
-    d : ndarray, shape (N,) or (N, 2)
-        The deflection's norm, or the deflection vectors (their norm is taken).
+    d : ndarray, shape (N,) or (N, 2), or float
+        The deflection's norm, or the deflection vectors (their norm is taken); a float
+        gives a float.
     eta : float
         The no-contact noise level (same unit as d), > 0.
     """
     if not eta > 0 or not math.isfinite(eta):
         raise ValueError(f"eta must be positive and finite, got {eta}")
+    if isinstance(d, float):  # one live frame: the same operations in Python floats
+        return min(max(abs(d) / eta - 1.0, 0.0), 1.0)
     d = np.asarray(d, float)
     norm = np.hypot(d[:, 0], d[:, 1]) if d.ndim == 2 else np.abs(d)
     v = norm / eta - 1.0  # Eq. (1)

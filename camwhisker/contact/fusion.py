@@ -165,12 +165,19 @@ def _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm):
     difference d = r_GM - r_MF (both 0 where either estimate or spread is undefined)."""
     r_gm = np.atleast_1d(np.asarray(r_gm_mm, float))
     r_mf = np.atleast_1d(np.asarray(r_mf_mm, float))
-    s_gm = np.broadcast_to(np.asarray(sigma_gm_mm, float), r_gm.shape)
-    s_mf = np.broadcast_to(np.asarray(sigma_mf_mm, float), r_gm.shape)
+    s_gm = _shaped(sigma_gm_mm, r_gm.shape)
+    s_mf = _shaped(sigma_mf_mm, r_gm.shape)
     both = (np.isfinite(r_gm) & np.isfinite(r_mf) & np.isfinite(s_gm) & np.isfinite(s_mf)
             & (s_gm > 0) & (s_mf > 0))
     var = np.where(both, s_gm**2 + s_mf**2, 1.0)
     return r_gm, r_mf, np.where(both, 1.0 / var, 0.0), np.where(both, r_gm - r_mf, 0.0)
+
+
+def _shaped(v, shape):
+    """v as a float array of ``shape``; np.broadcast_to only where it is not already (the
+    live loop's one sample: its Python wrapper costs more than the sample's arithmetic)."""
+    v = np.asarray(v, float)
+    return v if v.shape == shape else np.broadcast_to(v, shape)
 
 
 def _zero_nan(v):
@@ -184,17 +191,18 @@ def _posterior(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, 
     ``var``: m's variance (a weighted mean's, weights w_i = 1 / variance_i: 1 / sum(w)).
     Where ``trend`` (a slip), GM is known to be broken: m is taken off whole."""
     se2 = var + floor_mm**2
-    like_good = prior_good * np.exp(-0.5 * _zero_nan(m) ** 2 / se2) / np.sqrt(
-        2.0 * np.pi * se2)
+    m0 = _zero_nan(m)
+    like_good = prior_good * np.exp(-0.5 * m0**2 / se2) / np.sqrt(2.0 * np.pi * se2)
     like_bad = (1.0 - prior_good) / l_w_mm
-    p_good = np.where(seen & np.isfinite(r_gm), like_good / (like_good + like_bad), np.nan)
-    shift = np.where(_zero_nan(p_good) >= keep_gm, 0.0,
-                     (1.0 - _zero_nan(p_good)) * _zero_nan(m))
+    gm_ok = np.isfinite(r_gm)
+    p_good = np.where(seen & gm_ok, like_good / (like_good + like_bad), np.nan)
+    p0 = _zero_nan(p_good)
+    shift = np.where(p0 >= keep_gm, 0.0, (1.0 - p0) * m0)
     if trend is not None:
-        shift = np.where(trend, _zero_nan(m), shift)
-    fused = np.where(seen & np.isfinite(r_gm), r_gm - shift, np.nan)
-    fused = np.where(~seen & np.isfinite(r_gm), r_gm, fused)
-    fused = np.where(~np.isfinite(r_gm) & np.isfinite(r_mf), r_mf, fused)
+        shift = np.where(trend, m0, shift)
+    fused = np.where(seen & gm_ok, r_gm - shift, np.nan)
+    fused = np.where(~seen & gm_ok, r_gm, fused)
+    fused = np.where(~gm_ok & np.isfinite(r_mf), r_mf, fused)
     return fused, p_good, m
 
 
@@ -225,26 +233,47 @@ class OnlineFusion:
         self._lam = 1.0 - 1.0 / memory
         self._args = (prior_good, floor_mm, keep_gm)
         self._trend = False
-        self._sums = np.zeros(5)  # sum of w, w d, w k, w k^2, w d k (k: offset, <= 0)
+        # Python floats: the same IEEE arithmetic as numpy's scalars, without their overhead.
+        self._sums = (0.0,) * 5  # sum of w, w d, w k, w k^2, w d k (k: offset, <= 0)
 
     def __call__(self, r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm, l_w_mm, trend=False):
         """(r_mm, p_good, bias_mm), arrays shape (1,), for one sample (as :func:`fuse`)."""
-        r_gm, r_mf, w, d = _weights(r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm)
+        r_gm, r_mf, s_gm, s_mf = (np.asarray(v, float).item()
+                                  for v in (r_gm_mm, r_mf_mm, sigma_gm_mm, sigma_mf_mm))
+        w0 = d0 = 0.0  # as _weights: both estimates and spreads defined, else no weight
+        if (math.isfinite(r_gm) and math.isfinite(r_mf) and math.isfinite(s_gm)
+                and math.isfinite(s_mf) and s_gm > 0 and s_mf > 0):  # fmt: skip
+            w0, d0 = 1.0 / (s_gm * s_gm + s_mf * s_mf), r_gm - r_mf
         if bool(trend) != self._trend:
             self._trend = bool(trend)
-            self._sums = np.zeros(5)
+            self._sums = (0.0,) * 5
         s0, s_d, s1, s2, t1 = self._sums
         lam = self._lam
         # Every earlier sample's offset from the newest grows by one: k -> k - 1.
-        self._sums = np.array([lam * s0 + w[0], lam * s_d + w[0] * d[0], lam * (s1 - s0),
-                               lam * (s2 - 2.0 * s1 + s0), lam * (t1 - s_d)])
-        s0, s_d, s1, s2, t1 = self._sums
-        seen = np.array([s0 > 0])
-        m = np.array([s_d / s0 if s0 > 0 else np.nan])
-        var = np.array([1.0 / s0 if s0 > 0 else 1.0])
+        self._sums = s0, s_d, s1, s2, t1 = (lam * s0 + w0, lam * s_d + w0 * d0, lam * (s1 - s0),
+                                             lam * (s2 - 2.0 * s1 + s0), lam * (t1 - s_d))
+        m, var = (s_d / s0, 1.0 / s0) if s0 > 0 else (math.nan, 1.0)
         det = s0 * s2 - s1 * s1
         if self._trend and det > 1e-9 * max(s0 * s2, 1e-300):
-            m = np.array([(s_d * s2 - t1 * s1) / det])
-            var = np.maximum(np.array([s2 / det]), var)
-        trend_arr = np.array([self._trend])
-        return _posterior(m, var, seen, r_gm, r_mf, l_w_mm, *self._args, trend_arr)
+            m, var = (s_d * s2 - t1 * s1) / det, max(s2 / det, var)
+        return tuple(np.array([v]) for v in _posterior_one(
+            m, var, s0 > 0, r_gm, r_mf, l_w_mm, *self._args, self._trend))
+
+
+def _posterior_one(m, var, seen, r_gm, r_mf, l_w_mm, prior_good, floor_mm, keep_gm, trend):
+    """:func:`_posterior` of one sample in Python floats: the same operations in the same
+    order (exp by numpy, x**2 of an array as x * x), so the same bits."""
+    se2 = var + floor_mm**2
+    m0 = 0.0 if math.isnan(m) else m
+    like_good = prior_good * float(np.exp(-0.5 * (m0 * m0) / se2)) / math.sqrt(
+        2.0 * math.pi * se2)
+    like_bad = (1.0 - prior_good) / l_w_mm
+    gm_ok = math.isfinite(r_gm)
+    p_good = like_good / (like_good + like_bad) if seen and gm_ok else math.nan
+    p0 = 0.0 if math.isnan(p_good) else p_good
+    shift = m0 if trend else (0.0 if p0 >= keep_gm else (1.0 - p0) * m0)
+    if gm_ok:
+        fused = r_gm - shift if seen else r_gm
+    else:
+        fused = r_mf if math.isfinite(r_mf) else math.nan
+    return fused, p_good, m

@@ -119,7 +119,8 @@ def _r_gm_beam_one(dx, phi_deg, beta_per_mm, kappa_per_mm, l_w_mm, phi_min_deg):
     lo, hi = 0.0, r_max
     for _ in range(_BISECT_ITERATIONS):
         mid = 0.5 * (lo + hi)
-        if _beam_travel(mid, sin_phi, bend, kappa_per_mm) < dx:
+        # _beam_travel(mid, ...) written out: a call per iteration is half the loop's time.
+        if mid * sin_phi + bend * mid * mid / (1.0 - kappa_per_mm * mid) < dx:
             lo = mid
         else:
             hi = mid

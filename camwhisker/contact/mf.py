@@ -51,6 +51,7 @@ about fivefold from r = 22 to 74 mm.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -252,6 +253,15 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     """
     phi = np.atleast_1d(np.asarray(phi_deg, float))
     dz = np.atleast_1d(np.asarray(dz_mm, float))
+    kk = min(k, len(table))
+    if phi.size == 1 and dz.size == 1:  # the live loop's one row: no output arrays to fill
+        p, q = phi.item(), dz.item()
+        if not (kk >= 1 and math.isfinite(p) and math.isfinite(q) and p >= table.phi_min_deg):
+            return MFResult(np.full(1, np.nan), np.zeros(1, bool), np.full(1, np.nan),
+                            np.zeros(1, bool), np.full(1, np.nan))
+        if kk < _SUMMED_IN_ORDER:
+            return MFResult(*(np.array([v]) for v in _knn_one(table, p, q, kk, domain_radius)))
+        return MFResult(*_knn(table, phi, dz, kk, domain_radius))
     phi, dz = np.broadcast_arrays(phi, dz)
     n = phi.size
     r_out = np.full(n, np.nan)
@@ -260,30 +270,72 @@ def r_mf(table: MFTable, phi_deg, dz_mm, k: int = MF_K,
     past_top = np.zeros(n, bool)
     dr_ddz = np.full(n, np.nan)
     valid = np.isfinite(phi) & np.isfinite(dz) & (phi >= table.phi_min_deg)
-    kk = min(k, len(table))
     if not valid.any() or kk < 1:
         return MFResult(r_out, outside, nearest, past_top, dr_ddz)
-    d, j = table.tree.query(_coords(phi[valid], dz[valid]), k=kk)  # Eq. (9), Euclidean
+    r_out[valid], outside[valid], nearest[valid], past_top[valid], dr_ddz[valid] = _knn(
+        table, phi[valid], dz[valid], kk, domain_radius)
+    return MFResult(r_out, outside, nearest, past_top, dr_ddz)
+
+
+# numpy sums fewer terms than this one after another (its pairwise sum starts at 8), as a
+# Python loop does: below it, one query's eq. (10) in Python floats gives the same bits.
+_SUMMED_IN_ORDER = 8
+
+
+def _sum_in_order(values) -> float:
+    total = 0.0
+    for v in values:
+        total += v
+    return total
+
+
+def _knn_one(table: MFTable, phi: float, dz: float, kk: int, domain_radius: float):
+    """:func:`_knn` of one query in Python floats (kk < _SUMMED_IN_ORDER): the same
+    operations in the same order, so the same bits, without numpy's per-call overhead."""
+    d, j = table.tree.query((phi / PHI_SCALE_DEG, dz / DZ_SCALE_MM), k=kk)  # Eq. (9)
+    d, j = np.atleast_1d(d).tolist(), np.atleast_1d(j)
+    labels, g = table.r_mm[j].tolist(), table.dr_ddz[j].tolist()
+    if 0.0 in d:
+        w = [float(x == 0.0) for x in d]
+    else:
+        w = [1.0 / x for x in d]
+    est = _sum_in_order(a * b for a, b in zip(w, labels, strict=True)) / _sum_in_order(w)  # (10)
+    wg = [a if math.isfinite(b) else 0.0 for a, b in zip(w, g, strict=True)]
+    wg_sum = _sum_in_order(wg)
+    slope = (_sum_in_order(a * (b if math.isfinite(b) else 0.0) for a, b in zip(wg, g, strict=True))
+             / wg_sum if wg_sum > 0 else math.nan)
+    near = d[0]
+    phi_bin = min(max(round(phi / MF_CURVE_STEP_DEG) - table.phi_bin0, 0),
+                  table.dz_past_top.size - 1)
+    out = near > domain_radius
+    return (math.nan if out else est, out, near,
+            not out and bool(dz > table.dz_past_top[phi_bin]), math.nan if out else slope)
+
+
+def _knn(table: MFTable, phi, dz, kk: int, domain_radius: float):
+    """Eqs. (9)-(10) for queries with finite phi >= the table's floor and dz, arrays shape
+    (M,): (r_mm, outside, nearest, past_top, dr_ddz) as :class:`MFResult` holds them."""
+    d, j = table.tree.query(_coords(phi, dz), k=kk)  # Eq. (9), Euclidean
     d = d.reshape(-1, kk)
     j = j.reshape(-1, kk)
     labels = table.r_mm[j]
     exact = d == 0.0
     any_exact = exact.any(axis=1)
     w = np.divide(1.0, d, out=np.zeros_like(d), where=~exact)
-    w = np.where(any_exact[:, None], exact.astype(float), w)
-    est = np.sum(w * labels, axis=1) / np.sum(w, axis=1)  # Eq. (10)
+    if any_exact.any():
+        w = np.where(any_exact[:, None], exact.astype(float), w)
+    est = np.add.reduce(w * labels, axis=1) / np.add.reduce(w, axis=1)  # Eq. (10)
     # The neighbours' dr/d(dz), weighted as eq. (10) weighs their r.
     g = table.dr_ddz[j]
-    wg = np.where(np.isfinite(g), w, 0.0)
-    slope = np.divide(np.sum(wg * np.nan_to_num(g), axis=1), np.sum(wg, axis=1),
-                      out=np.full(est.shape, np.nan), where=np.sum(wg, axis=1) > 0)
+    finite = np.isfinite(g)
+    wg = np.where(finite, w, 0.0)
+    wg_sum = np.add.reduce(wg, axis=1)
+    slope = np.divide(np.add.reduce(wg * np.where(finite, g, 0.0), axis=1), wg_sum,
+                      out=np.full(est.shape, np.nan), where=wg_sum > 0)
     near = d[:, 0]
-    phi_bin = np.clip(np.round(phi[valid] / MF_CURVE_STEP_DEG).astype(int) - table.phi_bin0, 0,
-                      table.dz_past_top.size - 1)
+    # np.clip's Python wrapper costs more than the rest of a live row's look-up.
+    phi_bin = np.minimum(np.maximum(np.round(phi / MF_CURVE_STEP_DEG).astype(int)
+                                    - table.phi_bin0, 0), table.dz_past_top.size - 1)
     out = near > domain_radius
-    r_out[valid] = np.where(out, np.nan, est)
-    outside[valid] = out
-    nearest[valid] = near
-    past_top[valid] = ~out & (dz[valid] > table.dz_past_top[phi_bin])
-    dr_ddz[valid] = np.where(out, np.nan, slope)
-    return MFResult(r_out, outside, nearest, past_top, dr_ddz)
+    return (np.where(out, np.nan, est), out, near, ~out & (dz > table.dz_past_top[phi_bin]),
+            np.where(out, np.nan, slope))

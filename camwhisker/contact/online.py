@@ -12,7 +12,8 @@ from its frame and the earlier ones, with the same functions:
   built (the rest frames themselves) have no belief;
 - phi and dz smoothed by :func:`~camwhisker.contact.smooth.local_line` over the
   same window with the later frames missing (what batch does at a run's last
-  frame): a line through the last h + 1 frames, read at the newest;
+  frame): a line through the last h + 1 frames, read at the newest
+  (:func:`~camwhisker.contact.smooth.local_line_newest`);
 - the contact onset by :func:`~camwhisker.contact.stage.contact_onset_x` over the frames
   so far, fixed once phi passes ``ONSET_PHI_MAX_DEG`` (batch uses no frame past
   that either), and found again for each new contact (where the belief's contact
@@ -54,7 +55,7 @@ from camwhisker.contact.belief import contact_belief, eta_from_rest, eta_source,
 from camwhisker.contact.fusion import OnlineFusion
 from camwhisker.contact.pipeline import Calibration, doubt, estimate, smooth_half_frames
 from camwhisker.contact.slip import OnlineSlip
-from camwhisker.contact.smooth import local_line
+from camwhisker.contact.smooth import local_line_newest
 from camwhisker.contact.space import STILL_TURN_DEG, WORLD_COLUMNS
 from camwhisker.contact.stage import CONTACT_PHI_DEG, ONSET_PHI_MAX_DEG, contact_onset_x
 
@@ -374,7 +375,6 @@ class OnlineContact:
         n = self.half_frames + 1
         self._phi = deque([math.nan] * n, maxlen=n)
         self._dz = deque([math.nan] * n, maxlen=n)
-        self._future = [math.nan] * self.half_frames  # later frames: missing
         self._rest: deque[tuple[int, float]] = deque(maxlen=_REST_KEEP)
         self._state = False
         self.space = isinstance(base, PoseTrack)
@@ -472,7 +472,7 @@ class OnlineContact:
         self._eta(frame, phi, rest)
         b = math.nan
         if self.eta_deg is not None:
-            b = float(contact_belief(np.array([phi]), self.eta_deg)[0])  # Eq. (1)
+            b = contact_belief(phi, self.eta_deg)  # Eq. (1)
             was = self._state
             self._state = next_contact(self._state, b)
             if was and not self._state:
@@ -482,9 +482,8 @@ class OnlineContact:
             return out
         self._phi.append(phi)
         self._dz.append(dz)
-        h = self.half_frames
-        phi_s = local_line(list(self._phi) + self._future, h)[h]
-        dz_s = local_line(list(self._dz) + self._future, h)[h]
+        phi_s = local_line_newest(self._phi, self.half_frames)
+        dz_s = local_line_newest(self._dz, self.half_frames)
         x = speed = dx = theta_p = math.nan
         sign, pose = 1.0, None
         if self.space:

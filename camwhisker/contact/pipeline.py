@@ -248,20 +248,24 @@ def base_speed(log: StageLog, t_stage_s) -> np.ndarray:
     return np.where((t >= log.t_s[0]) & (t <= log.t_s[-1]), v[k], np.nan)
 
 
+# "" ... "fast;onset;slip": the flags of doubt() joined by ";", at the code fast + 2 onset + 4 slip.
+_DOUBT_TEXT = np.array([";".join(n for b, n in enumerate(("fast", "onset", "slip")) if c >> b & 1)
+                        for c in range(8)], dtype=object)
+
+
 def doubt(speed_mm_s, dx_mm, frame_s: float, slip=None) -> np.ndarray:
     """Why a row's estimate is doubtful: "", or some of "fast", "onset", "slip" joined by ";".
 
     ``slip`` (1 where :mod:`~camwhisker.contact.slip` finds the contact slipping): GM's
     fixed contact no longer holds there; the fusion takes GM's growing bias off whole.
     """
-    flags = {"fast": np.asarray(speed_mm_s, float) * frame_s > FAST_MM_PER_FRAME}
+    fast = np.asarray(speed_mm_s, float) * frame_s > FAST_MM_PER_FRAME
     dx = np.asarray(dx_mm, float)
-    flags["onset"] = np.isfinite(dx) & (dx < ONSET_DX_MM)
-    flags["slip"] = np.zeros(dx.shape, bool) if slip is None else np.asarray(slip) == 1
-    out = np.full(dx.shape, "", dtype=object)
-    for name, on in flags.items():
-        out = np.where(on, np.where(out == "", name, out + ";" + name), out)
-    return out
+    onset = np.isfinite(dx) & (dx < ONSET_DX_MM)
+    slid = np.zeros(dx.shape, bool) if slip is None else np.asarray(slip) == 1
+    # Each row's flags as a 3-bit code into the joined names: one look-up for any row count.
+    code = fast.astype(int) + 2 * onset + 4 * slid
+    return _DOUBT_TEXT[code] if code.ndim else np.array(_DOUBT_TEXT[code], dtype=object)
 
 
 def contact_rows(signals: dict, log: StageLog, calib: Calibration,

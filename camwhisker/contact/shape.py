@@ -46,17 +46,23 @@ class BendCorrection:
 
     def __call__(self, r_mm, phi_deg) -> tuple[np.ndarray, np.ndarray]:
         """(offset, shortening) at r and phi, from one set of terms."""
-        terms = _design(np.clip(np.abs(phi_deg), 0.0, self.phi_max_deg),
-                        np.clip(r_mm, self.r_min_mm, self.r_max_mm), self.phi_max_deg,
-                        self.r_max_mm, self.offset_coef.shape[1])
+        # np.minimum(np.maximum()) is np.clip (NaN too) without its slow Python wrapper.
+        terms = _design(np.minimum(np.abs(phi_deg), self.phi_max_deg),
+                        np.minimum(np.maximum(r_mm, self.r_min_mm), self.r_max_mm),
+                        self.phi_max_deg, self.r_max_mm, self.offset_coef.shape[1])
         return terms @ self.offset_coef.ravel(), terms @ self.shortening_coef.ravel()
 
 
 def _design(phi_deg, r_mm, phi_max_deg, r_max_mm, n_r):
-    p = np.asarray(phi_deg, float)[..., None] / phi_max_deg
-    r = np.asarray(r_mm, float)[..., None] / r_max_mm
-    cols = [p**i * r**j for i in SURFACE_PHI_POWERS for j in SURFACE_R_POWERS[:n_r]]
-    return np.concatenate(cols, axis=-1)
+    p, r = np.asarray(phi_deg, float), np.asarray(r_mm, float)
+    if p.shape != r.shape:
+        p, r = np.broadcast_arrays(p, r)
+    p, r = p[..., None] / phi_max_deg, r[..., None] / r_max_mm
+    # Each power once, then every product p^i r^j (i outer) in one broadcast multiply.
+    pp = np.concatenate([p**i for i in SURFACE_PHI_POWERS], axis=-1)
+    rr = np.concatenate([r**j for j in SURFACE_R_POWERS[:n_r]], axis=-1)
+    return (pp[..., :, None] * rr[..., None, :]).reshape(*pp.shape[:-1],
+                                                         pp.shape[-1] * rr.shape[-1])
 
 
 def fit_bend_correction(gm: GMFit, dx_mm, phi_deg, r_mm, dz_mm, run) -> BendCorrection | None:

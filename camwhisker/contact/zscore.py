@@ -8,6 +8,8 @@ spread of the difference itself, sqrt(sigma_GM^2 + sigma_MF^2).
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,9 +44,14 @@ class SpreadTable:
     def sigma_at(self, phi_deg) -> np.ndarray:
         """The spread for each phi; NaN for NaN phi."""
         phi = np.asarray(phi_deg, float)
+        if phi.size == 1:  # the live loop's one row: a look-up in Python
+            v = phi.item()
+            k = min(max(bisect.bisect_right(self.edges_deg, v) - 1, 0), self.std_mm.size - 1)
+            return np.full(phi.shape, self.std_mm[k] if math.isfinite(v) else np.nan)
         at = np.where(np.isnan(phi), 0.0, phi)  # np.nan_to_num is slow in the live loop
-        k = np.clip(np.searchsorted(self.edges_deg, at, side="right") - 1, 0,
-                    self.std_mm.size - 1)
+        # np.minimum(np.maximum()) is np.clip without its slow Python wrapper (the live loop).
+        k = np.minimum(np.maximum(np.searchsorted(self.edges_deg, at, side="right") - 1, 0),
+                       self.std_mm.size - 1)
         return np.where(np.isfinite(phi), self.std_mm[k], np.nan)
 
     def rows(self):
@@ -79,6 +86,10 @@ def z_dissimilarity(r_gm_mm, r_mf_mm, sigma_gm_mm):
     r_gm = np.asarray(r_gm_mm, float)
     r_mf = np.asarray(r_mf_mm, float)
     sigma = np.asarray(sigma_gm_mm, float)
+    if r_gm.size == 1 and r_gm.shape == r_mf.shape == sigma.shape:  # one live row, in floats
+        d, s = r_gm.item() - r_mf.item(), sigma.item()
+        return np.full(r_gm.shape, d / s if math.isfinite(d) and math.isfinite(s) and s > 0
+                       else np.nan)  # Eq. (11)
     diff = r_gm - r_mf
     ok = np.isfinite(diff) & np.isfinite(sigma) & (sigma > 0)
     return np.divide(diff, sigma, out=np.full(np.broadcast(diff, sigma).shape, np.nan),

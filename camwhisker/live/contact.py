@@ -67,11 +67,12 @@ class RowContact:
         """The fields as table cells (NaN: empty)."""
         return [_cell(name, values[name]) for name in self.fields]
 
-    def message(self, values: dict) -> dict:
-        """The fields as message values (NaN: null), rounded as the cells."""
+    def message(self, values: dict, cells: list[str] | None = None) -> dict:
+        """The fields as message values (NaN: null), rounded as the cells; ``cells``: the
+        row's :meth:`cells` where they are made already (each is formatted once)."""
         out = {}
-        for name in self.fields:
-            cell = _cell(name, values[name])
+        for name, cell in zip(self.fields, self.cells(values) if cells is None else cells,
+                              strict=True):
             out[name] = cell if name == "doubt" else (None if cell == "" else
                                                       (int(cell) if name == "contact"
                                                        else float(cell)))

@@ -567,8 +567,8 @@ class LiveSession:
             if self.base is not None:
                 self._take_base()
             values = self.contact.update(frame, r, self.rest_log)
-            extra = self.contact.message(values)
             cells = self.contact.cells(values)
+            extra = self.contact.message(values, cells)
             self.contact_ms.append(1e3 * (time.perf_counter() - tic))
         writer.write(frame.t_s, r, cells)
         if recorder is not None and not self._record_toggles.empty():
