@@ -321,8 +321,10 @@ def _stuck_then_face(cols: dict, run: RunAnalysis, calib: Calibration, x, phi_at
     dx = np.asarray(cols["dx_mm"], float)
     after = np.arange(contact.size) > np.flatnonzero(contact)[stuck.last]
     rows = contact & ~after
-    y0 = stuck_y0(np.asarray(cols["r_gm_mm"], float)[rows & (dx >= ONSET_DX_MM)],
-                  dx[rows & (dx >= ONSET_DX_MM)])
+    settled = rows & (dx >= ONSET_DX_MM) & np.isfinite(cols["r_gm_mm"])
+    if not settled.any():  # the stretch never left the onset: GM places none of it
+        return None
+    y0 = stuck_y0(np.asarray(cols["r_gm_mm"], float)[settled], dx[settled])
     r = r_pause = stuck_r(y0, dx)
     dragged = contact & after
     x_e = run.travel_sign * run.x_contact_mm
