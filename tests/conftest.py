@@ -8,8 +8,13 @@ the tests that use it.
 
 from __future__ import annotations
 
+import os
 import pickle
 import shutil
+import subprocess
+import sys
+import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -66,3 +71,55 @@ def experiment_run(tmp_path_factory, worker_id):
     """(chain's summary, the folder): ``recordings/`` (the user's folder), ``out/``
     (experiment's outputs) and ``chain/`` (chain's outputs)."""
     return _built_once(tmp_path_factory, worker_id, "experiment_run", _experiment_and_chain)
+
+
+# numba's kernels compiled once, before any test needs them: on a fresh clone each xdist
+# worker, and each command a test starts before the cache is written, would compile them
+# again (~25 s of a core each). The controller starts the compile beside the workers'
+# collection; each worker waits for it before its first test.
+WARM_DONE_ENV = "CAMWHISKER_TEST_KERNELS_CACHED"
+WARM_TIMEOUT_S = 600.0  # a bound on waiting only: the compile takes ~25 s, ~60 s when loaded
+WARM_UP = """
+import itertools, sys
+from pathlib import Path
+done, root = sys.argv[1:]
+try:
+    from camwhisker.io.sources import open_source
+    from camwhisker.sensor.file import load_sensor
+    from camwhisker.vision.stream import track
+    video = open_source(f"{root}/sample_frames/nominal_mjpg.avi")
+    # Three frames: the start (detection, the tip, the pose) and LK's updates after it.
+    frames = (f.image for f in itertools.islice(video, 3))
+    list(track(frames, load_sensor(f"{root}/sample_frames/nominal_mjpg.sensor.toml")))
+finally:
+    Path(done).touch()
+"""
+
+
+def pytest_configure(config):
+    if hasattr(config, "workerinput") or not config.getoption("numprocesses", None):
+        return  # a worker, or a run without workers: its tests compile where they need to
+    done = Path(tempfile.mkdtemp(prefix="camwhisker-kernels-")) / "done"
+    os.environ[WARM_DONE_ENV] = str(done)  # the workers inherit the controller's environment
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(
+        "PYTHONPATH", "")])}
+    config._camwhisker_warm_up = subprocess.Popen(  # waited for in pytest_unconfigure
+        [sys.executable, "-c", WARM_UP, str(done), str(ROOT)], env=env,
+        stdout=subprocess.DEVNULL)
+
+
+def pytest_unconfigure(config):
+    proc = getattr(config, "_camwhisker_warm_up", None)
+    if proc is not None:
+        proc.wait()
+        shutil.rmtree(Path(os.environ.pop(WARM_DONE_ENV)).parent, ignore_errors=True)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtestloop(session):
+    done = os.environ.get(WARM_DONE_ENV)
+    if done and hasattr(session.config, "workerinput"):
+        deadline = time.monotonic() + WARM_TIMEOUT_S
+        while not Path(done).exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+    yield
