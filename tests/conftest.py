@@ -73,6 +73,23 @@ def experiment_run(tmp_path_factory, worker_id):
     return _built_once(tmp_path_factory, worker_id, "experiment_run", _experiment_and_chain)
 
 
+
+def _clip_with_the_true_file(folder: Path) -> int:
+    """batch on the bundled build's clip with its true sensor file: ``folder/clip_true.csv``."""
+    from camwhisker.cli import main
+
+    return main(["batch", str(BUILD / "clip.mp4"), "--sensor", str(BUILD / "true.sensor.toml"),
+                 "--out", str(folder / "clip_true.csv")])  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def build_clip_true(tmp_path_factory, worker_id):
+    """(batch's exit status, its table): the bundled build's clip tracked with the true file."""
+    rc, folder = _built_once(tmp_path_factory, worker_id, "build_clip_true",
+                             _clip_with_the_true_file)  # fmt: skip
+    return rc, folder / "clip_true.csv"
+
+
 # numba's kernels compiled once, before any test needs them: on a fresh clone each xdist
 # worker, and each command a test starts before the cache is written, would compile them
 # again (~25 s of a core each). The controller starts the compile beside the workers'
