@@ -1,7 +1,6 @@
 """Contact belief (eq. 1), eta from rest, onsets, and the `belief` command (issue #22 item 3)."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +19,6 @@ from camwhisker.contact.belief_table import table_belief, write_belief_table
 from camwhisker.files.tables import TableError
 from camwhisker.sim.mechanics import FRONT_END_NOISE, simulate_runs
 
-ROOT = Path(__file__).resolve().parents[1]
 # The issue's done-when: the onset within 2 frames of the true one.
 ONSET_TOL_FRAMES = 2
 
@@ -153,13 +151,12 @@ def test_bad_input_names_the_file_and_the_column(tmp_path, capsys):
     assert "camwhisker belief: error: " in capsys.readouterr().err and not out.exists()
 
 
-def test_belief_on_the_rendered_build_clip(tmp_path):
+def test_belief_on_the_rendered_build_clip(tmp_path, build_clip_true):
     # The bundled clip (build 150, held out: measured, not tuned): 1 s at rest, then
     # phi ~24 deg from frame 30 (its truth) to 110, then settling 0.01 deg off rest.
-    clip = ROOT / "sample_frames" / "build"
-    signals = tmp_path / "clip.csv"
-    assert main(["batch", str(clip / "clip.mp4"), "--sensor", str(clip / "true.sensor.toml"),
-                 "--out", str(signals)]) == 0  # fmt: skip
+    # conftest: batch on it with its true file, shared with test_build_sample.
+    rc, signals = build_clip_true
+    assert rc == 0
     out = tmp_path / "clip.belief.csv"
     assert main(["belief", "--signals", str(signals), "--out", str(out)]) == 0
     onsets = json.loads(out.with_suffix(".json").read_text())["onsets"]

@@ -14,16 +14,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camwhisker.bench.chain import LOW_Z, SHAPE_TOL_MM, format_summary, run_chain
+from camwhisker.bench.chain import LOW_Z, SHAPE_TOL_MM, format_summary
 from camwhisker.files.tables import read_columns
 
 EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
 
 
 @pytest.fixture(scope="module")
-def chain(tmp_path_factory):
-    out = tmp_path_factory.mktemp("chain")
-    return run_chain(EXPERIMENT, out, jobs=2, progress=False), out
+def chain(experiment_run):
+    # conftest: run_chain on the bundled experiment, its videos tracked once for the session.
+    s, root = experiment_run
+    return s, root / "chain"
 
 
 def test_calibration_fits_the_filmed_campaign(chain):

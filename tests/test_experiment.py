@@ -13,28 +13,16 @@ from pathlib import Path
 
 import pytest
 
-from camwhisker.bench.chain import run_chain
 from camwhisker.cli import main
 from camwhisker.run.experiment import ExperimentError, find_recordings
 
 EXPERIMENT = Path(__file__).resolve().parents[1] / "sample_frames" / "experiment"
 
 
-def _user_folder(dest: Path) -> Path:
-    """Videos and stage logs of the bundled experiment, and one sensor file."""
-    dest.mkdir()
-    for f in [*EXPERIMENT.glob("*.mp4"), *EXPERIMENT.glob("*.stage.csv")]:
-        (dest / f.name).symlink_to(f)
-    shutil.copy(EXPERIMENT / "bottle_left.sensor.toml", dest / "sensor.toml")
-    return dest
-
-
 @pytest.fixture(scope="module")
-def ran(tmp_path_factory):
-    root = tmp_path_factory.mktemp("experiment")
-    folder = _user_folder(root / "recordings")
-    assert main(["experiment", str(folder), "--out", str(root / "out"), "--quiet"]) == 0
-    return root
+def ran(experiment_run):
+    # conftest: recordings/ (the folder), out/ (experiment's outputs), chain/ (chain's).
+    return experiment_run[1]
 
 
 def _strict(path: Path):
@@ -44,10 +32,8 @@ def _strict(path: Path):
 
 
 def test_contact_tables_are_chains_byte_for_byte(ran):
-    # chain reuses the experiment's signal tables (complete outputs are skipped), so
+    # chain reused the experiment's signal tables (complete outputs are skipped), so
     # the comparison is of calibrate and contact alone, without a second batch.
-    shutil.copytree(ran / "out" / "signals", ran / "chain" / "signals")
-    run_chain(EXPERIMENT, ran / "chain", jobs=2, progress=False)
     ours = sorted((ran / "out" / "contact").glob("*.csv"))
     assert len(ours) == 14
     for table in ours:
