@@ -128,50 +128,21 @@ def test_runs_with_pose_logs_are_placed_in_space(ran, tmp_path):
         got = np.column_stack([placed["px_mm"], placed["py_mm"], placed["pz_mm"]])
         both = np.isfinite(got).all(axis=1)
         assert np.array_equal(both, np.isfinite(want).all(axis=1)) and both.sum() > 50
-        miss = np.linalg.norm(got[both] - want[both], axis=1)
-        if name == "box_box":
-            # The pressing direction is the tracked theta's mean (within ~0.1 deg of the
-            # axis on these videos): it turns a point 100 mm up the shaft by under 0.2 mm;
-            # the tables' 6 printed digits add 0.001 mm.
-            assert np.max(miss) < 0.3, name
-            continue
-        # A bottle's contact slides down it: a 3-D table fits the slide over the whole
-        # contact (contact.slide), a stage's table does not; the slide's points are the
-        # nearer the truth (median: bottle_left 0.32 mm against 1.32, bottle_right 0.33
-        # against 0.75).
+        # A 3-D table takes r over the whole contact (contact.space.with_whole_contact), a
+        # stage's table does not: a bottle's contact slides down it (contact.slide), the
+        # box's sticks at its face and is then dragged along it (contact.face).
         truth = read_columns(EXPERIMENT / f"{name}.contact_truth.csv",
                              ("contact_x_mm", "contact_y_mm"))
         true = in_w(truth["contact_x_mm"], truth["contact_y_mm"])[both]
         seen = np.isfinite(true).all(axis=1)
-        err_got = np.median(np.linalg.norm(got[both][seen] - true[seen], axis=1))
-        err_want = np.median(np.linalg.norm(want[both][seen] - true[seen], axis=1))
-        assert err_got < err_want, name
-
-
-def test_a_run_whose_contact_fails_is_named_and_the_others_are_done(ran, tmp_path, capsys):
-    # bottle_left's base given as moving along its shaft only: no travel for GM.
-    import numpy as np
-
-    from camwhisker.contact.stage import read_stage_log
-
-    folder = tmp_path / "runs"
-    folder.mkdir()
-    for f in (ran / "recordings").iterdir():
-        if f.name == "bottle_left.stage.csv":
-            log = read_stage_log(f)
-            rows = np.column_stack([log.t_s, 0 * log.x_mm, 0 * log.x_mm, log.x_mm,
-                                    np.ones_like(log.t_s), 0 * log.t_s, 0 * log.t_s,
-                                    0 * log.t_s])  # fmt: skip
-            np.savetxt(folder / "bottle_left.pose.csv", rows, delimiter=",", fmt="%.10g",
-                       header="t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz", comments="")
-        else:
-            (folder / f.name).symlink_to(f.resolve())
-    out = tmp_path / "out"
-    shutil.copytree(ran / "out" / "signals", out / "signals")
-    assert main(["experiment", str(folder), "--out", str(out), "--quiet"]) == 1
-    err = capsys.readouterr().err
-    assert "problem: bottle_left:" in err and "never moves across the shaft" in err
-    s = _strict(out / "summary.json")
-    assert list(s["failed"]) == ["bottle_left"] and len(s["runs"]) == 13
-    assert (out / "contact" / "bottle_right.csv").read_bytes() == \
-        (ran / "out" / "contact" / "bottle_right.csv").read_bytes()
+        err_got = np.linalg.norm(got[both][seen] - true[seen], axis=1)
+        err_want = np.linalg.norm(want[both][seen] - true[seen], axis=1)
+        if name == "box_box":
+            # The points' targets (median 1 mm, p95 3 mm); measured 0.70 / 2.09 against the
+            # stage table's 0.41 / 2.00: the face's angle comes from MF, which reads no
+            # further than ~93 mm on this calibration, and is 1 deg shallow (77 for 78).
+            assert np.median(err_got) < 1.0 and np.percentile(err_got, 95) < 3.0, name
+            continue
+        # The slide's points are the nearer the truth (median: bottle_left 0.32 mm against
+        # 1.32, bottle_right 0.33 against 0.75).
+        assert np.median(err_got) < np.median(err_want), name
