@@ -146,3 +146,32 @@ def test_runs_with_pose_logs_are_placed_in_space(ran, tmp_path):
         # The slide's points are the nearer the truth (median: bottle_left 0.32 mm against
         # 1.32, bottle_right 0.33 against 0.75).
         assert np.median(err_got) < np.median(err_want), name
+
+
+def test_a_run_whose_contact_fails_is_named_and_the_others_are_done(ran, tmp_path, capsys):
+    # bottle_left's base given as moving along its shaft only: no travel for GM.
+    import numpy as np
+
+    from camwhisker.contact.stage import read_stage_log
+
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    for f in (ran / "recordings").iterdir():
+        if f.name == "bottle_left.stage.csv":
+            log = read_stage_log(f)
+            rows = np.column_stack([log.t_s, 0 * log.x_mm, 0 * log.x_mm, log.x_mm,
+                                    np.ones_like(log.t_s), 0 * log.t_s, 0 * log.t_s,
+                                    0 * log.t_s])  # fmt: skip
+            np.savetxt(folder / "bottle_left.pose.csv", rows, delimiter=",", fmt="%.10g",
+                       header="t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz", comments="")
+        else:
+            (folder / f.name).symlink_to(f.resolve())
+    out = tmp_path / "out"
+    shutil.copytree(ran / "out" / "signals", out / "signals")
+    assert main(["experiment", str(folder), "--out", str(out), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "problem: bottle_left:" in err and "never moves across the shaft" in err
+    s = _strict(out / "summary.json")
+    assert list(s["failed"]) == ["bottle_left"] and len(s["runs"]) == 13
+    assert (out / "contact" / "bottle_right.csv").read_bytes() == \
+        (ran / "out" / "contact" / "bottle_right.csv").read_bytes()
