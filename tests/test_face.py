@@ -8,8 +8,9 @@ Tolerances:
   MF's r exact
   beta within 0.05 deg and each frame's r within 0.01 mm (the bisection's 1e-10 mm and the
   bounded search's tolerance); with MF noisy at 5 mm (about MF's spread in a drag), beta
-  within 1 deg and r within 1.5 mm at the 95th percentile (300 rows of 5 mm pin the drag's
-  scale to about 1.5 %, 0.5 mm over its 35 mm; 0.86 mm with this noise's seed);
+  within 1 deg and r within 1.5 mm at the 95th percentile (300 rows of 5 mm against r's
+  spread of 10 mm pin the drag's scale to about 3 % at one SE, 1 mm at its 35 mm end; 1.5
+  SE on this fixed seed, which leaves 0.86 mm);
 - a simulated plate tap (the elastica, not the model; taps-bench tuning seed 3, the
   front end's noise): every frame's point with phi >= 2 deg within 2 mm of the truth
   (tuning plates 0-39 leave at most 1.74 mm), where the fusion alone leaves over 3 mm on
