@@ -36,6 +36,7 @@ from camwhisker.contact.slide import (
     MAX_RMS_MM,
     MIN_ROWS,
     MIN_SPAN_DEG,
+    first_contact_guess,
 )
 
 __all__ = ["StuckFit", "fit_stuck", "stuck_y0", "stuck_r", "FaceFit", "fit_face", "face_r",
@@ -66,9 +67,7 @@ def _stuck_residual(gm: GMFit, x, phi):
     The stretch is found from this; r itself comes from GM's rows (:func:`stuck_r`)."""
     from scipy.optimize import least_squares  # ~0.5 s to import; only 3-D tables need it
 
-    start = float(x[0] - deflection_mm(gm, 60.0, phi[0]))
-    if not math.isfinite(start):
-        start = float(x[0])
+    start = first_contact_guess(gm, x, phi)
 
     def residual(p):  # r out of the model's reach: far from any travel, not NaN
         return np.nan_to_num(p[0] + deflection_mm(gm, p[1], phi) - x, nan=_OUT_MM)

@@ -84,6 +84,13 @@ def _travel(gm: GMFit, x0, r0, a, phi):
     return x0 + g - np.concatenate(([0.0], np.cumsum(0.5 * (t[1:] + t[:-1]) * dy)))
 
 
+def first_contact_guess(gm: GMFit, x, phi) -> float:
+    """A starting x0 (mm) for a fit to the travel: the first row's less a contact at 60 mm's
+    deflection, or the first row's travel where that is out of the model's reach."""
+    start = float(x[0] - deflection_mm(gm, 60.0, phi[0]))
+    return start if math.isfinite(start) else float(x[0])
+
+
 def fit_slide(gm: GMFit, x_mm, phi_deg) -> SlideFit | None:
     """The slide and a contact at one r fitted to one contact's rows (time order, NaN rows
     skipped); None where too few rows with phi >= :data:`FIT_PHI_DEG` or too little phi span.
@@ -97,9 +104,7 @@ def fit_slide(gm: GMFit, x_mm, phi_deg) -> SlideFit | None:
     if use.sum() < MIN_ROWS or np.ptp(phi[use]) < MIN_SPAN_DEG:
         return None
     x, phi = x[use], phi[use]
-    start = float(x[0] - deflection_mm(gm, 60.0, phi[0]))
-    if not math.isfinite(start):
-        start = float(x[0])
+    start = first_contact_guess(gm, x, phi)
 
     def residual(p):  # r out of the model's reach: far from any travel, not NaN
         return np.nan_to_num(_travel(gm, p[0], p[1], p[2] if p.size > 2 else 0.0, phi) - x,
