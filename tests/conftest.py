@@ -113,9 +113,18 @@ finally:
 """
 
 
+#: Each worker computes on one thread: two workers' pools of two threads each (BLAS,
+#: OpenMP under torch, OpenCV) spin against each other on two cores (learn's fixture 5 s
+#: on one thread, 32 s on two under load).
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                  "OPENCV_FOR_THREADS_NUM": "1"}  # fmt: skip
+
+
 def pytest_configure(config):
     if hasattr(config, "workerinput") or not config.getoption("numprocesses", None):
         return  # a worker, or a run without workers: its tests compile where they need to
+    for key, value in ONE_THREAD_ENV.items():
+        os.environ.setdefault(key, value)  # read by the workers, started after this hook
     done = Path(tempfile.mkdtemp(prefix="camwhisker-kernels-")) / "done"
     os.environ[WARM_DONE_ENV] = str(done)  # the workers inherit the controller's environment
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(
