@@ -4,10 +4,11 @@ import math
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.special import ndtr
 
 from camwhisker.sensor.polygon import polygon_centroid
-from camwhisker.vision.blur import REBLUR_PAD_PX, reblur_templates, square_blur_px
+from camwhisker.vision.blur import REBLUR_PAD_PX, erf_sigmas, reblur_templates, square_blur_px
 from camwhisker.vision.tip import blurred_rim, rim_centre, tip_edge_points
 
 SUPER = 8  # supersampling of the drawn shapes: their edges' own sampling blur is 1/8 px
@@ -42,6 +43,35 @@ def test_square_blur_is_nan_without_a_square():
     corners = np.array([[20.0, 20.0], [80.0, 20.0], [80.0, 80.0], [20.0, 80.0]])
     assert math.isnan(square_blur_px(flat, corners))
     assert math.isnan(square_blur_px(flat, np.full((4, 2), np.nan)))
+
+
+def _one_row_fit(x, p, f_scale):
+    """scipy's least_squares on one row, converged far past erf_sigmas' own stop."""
+    lo, hi = [-np.inf, 0.0, x[0], 0.05], [np.inf, np.inf, x[-1], 2.0 * x[-1]]
+    q0 = [p[0], max(p[-1] - p[0], 0.5 * f_scale), 0.0, 1.0]
+    fit = least_squares(lambda q: q[0] + q[1] * ndtr((x - q[2]) / q[3]) - p, q0, bounds=(lo, hi),
+                        loss="soft_l1", f_scale=f_scale, x_scale="jac", xtol=1e-14,
+                        ftol=1e-14, gtol=1e-14)  # fmt: skip
+    return fit.x
+
+
+def test_erf_sigmas_are_the_soft_l1_optimum_of_each_row():
+    # Noisy blurred steps with outliers, a flat row, a falling one and a row with a NaN.
+    rng = np.random.default_rng(3)
+    x = np.arange(-6.0, 6.0 + 1e-9, 0.25)
+    sigma = rng.uniform(0.6, 2.8, 40)
+    prof = 20 + 150 * ndtr((x - rng.uniform(-1.5, 1.5, (40, 1))) / sigma[:, None])
+    prof += rng.normal(0.0, 2.0, prof.shape)
+    prof[rng.random(prof.shape) < 0.04] += 60.0
+    prof[1], prof[2], prof[3, 7] = 90.0, prof[2, ::-1], np.nan
+    got = erf_sigmas(x, prof, 2.0)
+    assert np.isnan(got[1:4]).all()
+    for k in range(4, 40):
+        ref = _one_row_fit(x, prof[k], 2.0)
+        # The same minimum: erf_sigmas stops where a step gains < 1e-10 of the cost,
+        # within ~2e-5 px of it on real profiles; 1e-4 px is 1/300 of the 0.03 px the
+        # blur's use needs.
+        assert abs(got[k] - ref[3]) < 1e-4, k
 
 
 def _corner(sigma_u: float, sigma_v: float, n: int) -> np.ndarray:
