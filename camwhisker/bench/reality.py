@@ -19,6 +19,7 @@ real-build issue's limits:
   moves phi at 20 deg by more than 0.05 deg, and never on a nominal render.
 
     camwhisker dev reality-bench [--seeds 100-119] [--frames 150] [--cache DIR]
+                                 [--pipeline webcam|mosaic] [--look drawn|hard]
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from camwhisker.bench.vision import scene_errors
 from camwhisker.io.sources import VideoSource
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.model import PlateModel, geometry_vector
-from camwhisker.sim.render.builds import REALITY_SUITE, Build, draw_build
+from camwhisker.sim.render.builds import LOOKS, PIPELINES, REALITY_SUITE, Build, draw_build
 from camwhisker.sim.render.scenarios import Scenario, make_scenario
 from camwhisker.sim.render.video import render_scenario, sidecar_paths
 from camwhisker.vision.detect import FeaturesNotFound
@@ -93,6 +94,8 @@ def render_build_clip(build: Build | None, scene: str, n_frames: int, render_see
     if build is not None:
         scenario = build.scenario(scenario)
     name = "nominal" if build is None else f"build{build.seed}"
+    if build is not None and (build.pipeline, build.look) != ("webcam", "drawn"):
+        name += f"-{build.pipeline}-{build.look}"
     video = Path(folder) / f"{scene}-{name}-n{n_frames}-r{render_seed}.avi"
     if not (video.exists() and sidecar_paths(video)["meta"].exists()):
         sensor = Sensor() if build is None else build.sensor
@@ -144,12 +147,13 @@ def deviation_phi_deg(build: Build, nominal: Sensor) -> float:
     return phi_error_deg(PlateModel(nominal), deviation)
 
 
-def run_build(seed: int, n_frames: int, folder: Path,
-              nominal: Sensor | None = None) -> tuple[list[RealityRow], float]:  # fmt: skip
+def run_build(seed: int, n_frames: int, folder: Path, nominal: Sensor | None = None,
+              pipeline: str = "webcam", look: str = "drawn") -> tuple[list[RealityRow], float]:
     """Build ``seed``'s rows (true, true from one rest frame, nominal) and what its
-    deviation does to phi at 20 deg (deg)."""
+    deviation does to phi at 20 deg (deg); its camera's ``pipeline`` and ``look``
+    (:func:`~camwhisker.sim.render.builds.draw_build`)."""
     nominal = nominal or Sensor()
-    build = draw_build(seed, nominal)
+    build = draw_build(seed, nominal, pipeline, look)
     scenario, video = render_build_clip(build, SCENE, n_frames, seed, folder)
     frames = [f.image for f in VideoSource(video)]
     averaged = FrontEndOptions(rest_frames=REST_FRAMES)
@@ -231,13 +235,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--nominal-renders", type=int, default=5,
                    help="clips of the nominal sensor and look (default: 5)")  # fmt: skip
     p.add_argument("--cache", type=Path, help="keep the renders here (reused when present)")
+    p.add_argument("--pipeline", choices=PIPELINES, default="webcam",
+                   help="the builds' imaging pipeline (default: webcam)")  # fmt: skip
+    p.add_argument("--look", choices=tuple(LOOKS), default="drawn",
+                   help="the builds' drawn camera, or the hard look (default: drawn)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="camwhisker-reality-") as tmp:
         folder = args.cache or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         rows, effects = [], {}
         for seed in args.seeds:
-            build_rows, effects[seed] = run_build(seed, args.frames, folder)
+            build_rows, effects[seed] = run_build(seed, args.frames, folder,
+                                                  pipeline=args.pipeline, look=args.look)
             rows += build_rows
         for k in range(args.nominal_renders):
             rows.append(run_nominal_render(NOMINAL_RENDER_SEED + k, args.frames, folder))
@@ -245,7 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(summary(rows, effects))
     builds = ",".join(map(str, args.seeds))
-    print(f"\nscene {SCENE}, {args.frames} frames per clip (MJPG), builds {builds}, "
+    print(f"\nscene {SCENE}, {args.frames} frames per clip (MJPG), builds {builds} "
+          f"({args.pipeline} pipeline, {args.look} look), "
           f"nominal renders {args.nominal_renders}; tune only on builds "
           f"{REALITY_SUITE.tuning_seeds}")  # fmt: skip
     return 0

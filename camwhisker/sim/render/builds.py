@@ -10,6 +10,13 @@ every value of the table is as likely as any other and none exceeds it: a
 size or depth by +-its bound, the rod's tilt and a feature's misplacement
 uniformly over a disc of their bound's radius, in a uniform direction.
 
+Each build's camera is one of two imaging pipelines (``PIPELINES``): "webcam",
+a Gaussian lens blur with noise per pixel and colour, or "mosaic", another model of
+the camera: a defocus disc with a halo, a Bayer sensor with its noise per photosite
+demosaiced, chroma at half the horizontal resolution (4:2:2) and a drifting
+exposure. A look (``LOOKS``) may harden either: "hard" is the hard scene's blur,
+noise and flicker with a strong blue cast.
+
 The reality suite (:data:`REALITY_SUITE`) names the builds and scenes that the
 front end's tests and benchmarks use beside the nominal scene: tune only on
 its tuning seeds; its held-out seeds are for measurement.
@@ -28,7 +35,8 @@ from camwhisker.sensor.model import BUILD_TOLERANCE, ROD_TILT_TOLERANCE_DEG
 from camwhisker.sim.render.render import Appearance
 from camwhisker.sim.render.scenarios import Scenario
 
-__all__ = ["Build", "RealitySuite", "REALITY_SUITE", "TOLERANCES", "draw_build"]
+__all__ = ["Build", "RealitySuite", "REALITY_SUITE", "TOLERANCES", "PIPELINES", "LOOKS",
+           "draw_build"]  # fmt: skip
 
 #: Section 8's tolerances of a hand build, from the one table of them
 #: (:data:`camwhisker.sensor.model.BUILD_TOLERANCE`), grouped as they are drawn
@@ -48,6 +56,13 @@ TOLERANCES = {
     "feature_shift_mm": BUILD_TOLERANCE["plate.square_shift_x_mm"],  # square and cross
     "feature_rotation_deg": BUILD_TOLERANCE["plate.square_rotation_deg"],
 }
+#: The imaging pipelines a build's camera may follow (see the module's notes).
+PIPELINES = ("webcam", "mosaic")
+#: Looks that replace a build's drawn camera: "hard" has the hard scene's blur (2.6 px),
+#: noise (5 DN) and flicker (4 %), and its cast's strength turned blue.
+LOOKS = {"drawn": {},
+         "hard": {"blur_sigma_px": 2.6, "noise_dn": 5.0, "cast_bgr": (1.32, 1.0, 0.72),
+                  "flicker": 0.04}}  # fmt: skip
 _SIZES = ("square_side_mm", "cross_span_mm", "cross_arm_mm", "rod_diameter_mm")
 _DEPTHS = ("square_offset_mm", "cross_offset_mm")
 
@@ -93,6 +108,8 @@ class Build:
         :class:`~camwhisker.sim.render.artefacts.Artefacts`) that replace a scene's.
     deviations : dict
         Each drawn deviation from the nominal file, by name (units in the name).
+    pipeline, look : str
+        Its camera's imaging pipeline (``PIPELINES``) and look (``LOOKS``).
     """
 
     seed: int
@@ -100,6 +117,8 @@ class Build:
     appearance: Appearance
     webcam: dict
     deviations: dict
+    pipeline: str = "webcam"
+    look: str = "drawn"
 
     def scenario(self, scenario: Scenario) -> Scenario:
         """The scenario's poses seen by this build: its webcam replaces the scene's
@@ -112,6 +131,8 @@ class Build:
         """JSON-able description: seed, deviations, appearance, webcam, true sensor."""
         return {
             "seed": self.seed,
+            "pipeline": self.pipeline,
+            "look": self.look,
             "deviations": self.deviations,
             "appearance": dataclasses.asdict(self.appearance),
             "webcam": self.webcam,
@@ -119,7 +140,8 @@ class Build:
         }
 
 
-def draw_build(seed: int, nominal: Sensor | None = None) -> Build:
+def draw_build(seed: int, nominal: Sensor | None = None, pipeline: str = "webcam",
+               look: str = "drawn") -> Build:  # fmt: skip
     """Draw build ``seed``: the nominal sensor's geometry within ``TOLERANCES``, and a look.
 
     Parameters
@@ -128,7 +150,16 @@ def draw_build(seed: int, nominal: Sensor | None = None) -> Build:
         Seeds a :class:`numpy.random.Generator`; the same seed gives the same build.
     nominal : Sensor, optional
         The nominal sensor file; the defaults if omitted.
+    pipeline : str
+        The camera's imaging pipeline (``PIPELINES``); the geometry, appearance and
+        drawn webcam are the same for every pipeline.
+    look : str
+        ``LOOKS``: "drawn" keeps the drawn camera; "hard" replaces its blur, noise, cast
+        and flicker.
     """
+    if pipeline not in PIPELINES or look not in LOOKS:
+        raise ValueError(f"pipeline {pipeline!r} or look {look!r}: not one of {PIPELINES}, "
+                         f"{tuple(LOOKS)}")  # fmt: skip
     nominal = nominal or Sensor()
     rng = np.random.default_rng(seed)
     camera, plate, deviations = _draw_geometry(rng, nominal)
@@ -136,7 +167,10 @@ def draw_build(seed: int, nominal: Sensor | None = None) -> Build:
     sensor = dataclasses.replace(sensor, source=f"build {seed}")
     appearance = _draw_appearance(rng, sensor)
     webcam = _draw_webcam(rng)
-    return Build(seed, sensor, appearance, webcam, deviations)
+    if pipeline == "mosaic":  # its own stream: the build's other draws stay as they were
+        webcam.update(_draw_mosaic(np.random.default_rng([seed, 1])))
+    webcam.update(LOOKS[look])
+    return Build(seed, sensor, appearance, webcam, deviations, pipeline, look)
 
 
 def _disc(rng: np.random.Generator, radius: float) -> tuple[float, float]:
@@ -239,4 +273,15 @@ def _draw_webcam(rng: np.random.Generator) -> dict:
         "noise_dn": rng.uniform(1.0, 3.0),
         "jpeg_quality": int(rng.integers(70, 96)),
         "h264_crf": int(rng.integers(18, 25)),
+    }
+
+
+def _draw_mosaic(rng: np.random.Generator) -> dict:
+    """The "mosaic" pipeline's camera: defocus lens, Bayer sensor, 4:2:2, exposure drift."""
+    return {
+        "psf": "defocus",
+        "bayer": True,
+        "chroma_422": True,
+        "exposure_drift": rng.uniform(0.0, 0.04),
+        "exposure_drift_period_s": rng.uniform(4.0, 12.0),
     }
