@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import gc
 import logging
 import math
@@ -40,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.files.atomic import atomic_path, sync_file
-from camwhisker.io.bag import BagStream
+from camwhisker.io.bag import BagStream, BagThread
 from camwhisker.io.signals import (
     SignalWriter,
     sidecar,
@@ -65,10 +66,11 @@ from camwhisker.live.lsl import LslBaseReceiver, LslError, LslOutlet
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_fields, result_message
 from camwhisker.live.record import (
     JPEG_QUALITY,
-    DecodeKeepingJpeg,
     MjpgRoundTrip,
     SessionRecorder,
+    decode_keeping_jpeg,
     decode_only,
+    encode_jpeg,
     recorded_jpegs,
 )
 from camwhisker.live.view import DEFAULT_VIEW_HOST, LiveView
@@ -341,7 +343,7 @@ class LiveSession:
                 capture.release()
                 raise
         #: The MCAP stream while the session runs (None without ``config.mcap``).
-        self._bag: BagStream | None = None
+        self._bag: BagThread | None = None
         #: The browser view (None without one); bound now, so a taken port writes nothing.
         self.view: LiveView | None = None
         if self.config.view_port is not None:
@@ -440,13 +442,13 @@ class LiveSession:
     # ------------------------------------------------------------------ run
     def run(self) -> LiveReport:
         cfg = self.config
-        # The MCAP's images need JPEG bytes: the recording's, else kept or made for it.
+        # The MCAP's images need JPEG bytes: the recording's, else kept, else made later.
         prepare = (MjpgRoundTrip(cfg.jpeg_quality) if cfg.record
-                   else DecodeKeepingJpeg() if cfg.mcap else decode_only)  # fmt: skip
+                   else decode_keeping_jpeg if cfg.mcap else decode_only)  # fmt: skip
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
         if cfg.mcap is not None:  # first: a bag that cannot be opened leaves nothing open
-            self._bag = BagStream(cfg.mcap, table_columns(cfg.springs) + tuple(
+            self._bag = BagThread(cfg.mcap, table_columns(cfg.springs) + tuple(
                 self.contact.fields if self.contact else ()))
         try:
             writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs,
@@ -599,10 +601,11 @@ class LiveSession:
             self._lsl.push_row(cells, item.t_s)
             for event in rep.events[n_events:]:
                 self._lsl.push_event(event["event"], item.t_s)
-        if self._bag is not None:  # after the control outputs: the bag is for later
-            self._bag.write_row(cells)
-            if item.jpeg is not None:
-                self._bag.write_image(frame.t_s, item.jpeg)
+        if self._bag is not None:  # queued for the bag's thread: the loop never waits on it
+            jpeg = item.jpeg
+            if jpeg is None and item.image is not None:  # encoded in the bag's thread
+                jpeg = functools.partial(encode_jpeg, item.image)
+            self._bag.put(cells, frame.t_s, jpeg)
         if rep.rows == 0 and not r.ok:
             self._first_reason = r.reason
         rep.rows += 1
@@ -713,6 +716,9 @@ class LiveSession:
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
+        if self._bag is not None and self._bag.dropped:
+            rep.problems.append(f"{self._bag.dropped} row(s) not in the MCAP bag (with their "
+                                "images): the disk was slower than the frames")  # fmt: skip
         contact = self._contact_record()
         source = describe(self.capture) if hasattr(self.capture, "describe") else self._input
         meta = sidecar(
@@ -740,7 +746,8 @@ class LiveSession:
             contact=contact,
             mcap=None if self._bag is None else {"file": str(self._bag.path),
                                                  "rows": self._bag.rows,
-                                                 "images": self._bag.images},
+                                                 "images": self._bag.images,
+                                                 "dropped": self._bag.dropped},
             lsl=None if self._lsl is None else self._lsl.describe(self._t0),
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)
