@@ -15,7 +15,8 @@ Written by :func:`write_signal_bag` (``camwhisker batch --mcap``), in the sensor
   empty (phi too small to give it) the torque is zero; rows without both forces
   (untrusted) have no message.
 
-Written row by row by :class:`BagStream` (``camwhisker live --mcap``, ``replay --mcap``):
+Written row by row by :class:`BagStream` (``camwhisker replay --mcap``; ``live --mcap``
+through :class:`BagThread`, off the loop's thread):
 the same two topics from the live table's rows, and
 
 - :data:`IMAGE_TOPIC`, ``sensor_msgs/msg/CompressedImage``: each frame's JPEG bytes
@@ -228,7 +229,7 @@ class BagStream:
     (or none) until the end, never part of a bag. Leaving a ``with`` block on an
     exception discards it (:meth:`discard`); a session that is stopped calls
     :meth:`close`. Chunks are not compressed: JPEG does not shrink, and a compressed
-    1 MB chunk would cost the loop ~4 ms where it is written.
+    1 MB chunk would cost ~4 ms where it is written, for nothing.
 
     Parameters
     ----------
@@ -367,7 +368,7 @@ class BagThread:
 
     The thread builds the messages and writes them, in the order put; :meth:`close`
     writes what is queued, then closes the stream (its summary, fsync, rename). A row
-    put while :data:`QUEUE_ROWS` wait is dropped with its image and counted
+    put while ``maxsize`` rows wait is dropped with its image and counted
     (:attr:`dropped`): the bag lacks those frames, the session goes on. A write that
     fails stops the writer; the next :meth:`put` and :meth:`close` raise its error, and
     the file is discarded (``path`` stays as it was).
@@ -377,7 +378,7 @@ class BagThread:
     path, columns
         As :class:`BagStream`, which is opened here: its errors are raised at once.
     maxsize : int
-        The queue's length in rows.
+        The most rows waiting for the writer (:data:`QUEUE_ROWS`).
     """
 
     def __init__(self, path: str | Path, columns: Sequence[str], maxsize: int = QUEUE_ROWS):
@@ -387,7 +388,9 @@ class BagThread:
         self.dropped = 0
         self.error: BaseException | None = None
         self._discarding = False
-        self._queue: queue.Queue = queue.Queue(maxsize)
+        self._maxsize = maxsize
+        # SimpleQueue: a put takes no lock the writer may hold, so the loop never waits on it.
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._write, name="camwhisker-mcap",
                                         daemon=True)  # fmt: skip
         self._thread.start()
@@ -412,9 +415,9 @@ class BagThread:
         """
         if self.error is not None:
             raise self.error
-        try:
-            self._queue.put_nowait((cells, t_s, jpeg))
-        except queue.Full:  # dropping, not waiting: a stalled disk must not stall the loop
+        if self._queue.qsize() < self._maxsize:
+            self._queue.put((cells, t_s, jpeg))
+        else:  # dropped, never waited for: a stalled disk must not stall the control outputs
             self.dropped += 1
 
     def _write(self) -> None:

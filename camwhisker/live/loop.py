@@ -12,7 +12,8 @@ mismatch checks; a mismatch is logged as a warning).
 :func:`reprocess_session` drives the same generator over a recorded session
 (:class:`~camwhisker.io.sources.SessionSource`): the live table again, row for
 row. With an MCAP file (``--mcap``), both also write each row as ROS 2 messages
-(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md) with the frame's JPEG bytes; a
+(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md; live through a thread of its own,
+:class:`~camwhisker.io.bag.BagThread`) with the frame's JPEG bytes; a
 live session also to Lab Streaming Layer (``--lsl``, :mod:`camwhisker.live.lsl`), and takes
 its base from LSL (``--base-lsl``) as from UDP.
 :class:`LiveProcessor` hands the generator one frame at a time, for a
@@ -203,14 +204,16 @@ class LiveConfig:
         add the contact point in W; ``mount`` the sensor's pose in the frame of the
         carrier they are of (camwhisker.io.poses.Mount).
     mcap : an MCAP file to write the rows to as ROS 2 messages, with each frame's JPEG
-        bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90).
+        bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90), by
+        a thread of its own that drops the rows it cannot keep up with (counted).
     lsl : the name of the Lab Streaming Layer outlet of the rows (and of its marker
         outlet, with "-events", for the events); opened with the session, so an inlet
         can connect before the first row.
     base_lsl : take the base positions or poses from the LSL stream of this name (one
         channel or seven; ``base_poses`` is set from it), instead of ``base_port``.
     on_row : called with each row as a dict after the row is written to every output
-        (table, JSON, UDP, view, MCAP), in the session's thread; its return value is ignored.
+        (table, JSON, UDP, view, LSL; queued for the MCAP's thread), in the session's
+        thread; its return value is ignored.
         The dict holds the JSON line's fields (frame, seq, t_s, dz_mm, phi_deg, theta_deg,
         ok, latency_ms, note, the forces and contact fields where set) as plain floats, ints
         and None, rounded as the table's cells. ``latency_ms`` (capture to result) ends
