@@ -8,10 +8,12 @@ timing, so the file runs with the others.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import cv2
@@ -21,9 +23,10 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from scipy.spatial.transform import Rotation
 
+import camwhisker.live.loop
 from camwhisker.cli import main
 from camwhisker.files.tables import read_columns
-from camwhisker.io.bag import BagError, BagStream
+from camwhisker.io.bag import BagError, BagStream, BagThread
 from camwhisker.io.sources import VideoSource
 from camwhisker.live.base import write_pose_log
 from camwhisker.live.loop import LiveConfig, LiveSession
@@ -120,7 +123,7 @@ def test_live_stopped_early_leaves_a_whole_bag_with_the_recordings_bytes(tmp_pat
     assert rc == 0, capsys.readouterr().err
     meta = json.loads(out.with_suffix(".json").read_text())
     assert meta["stopped_by"] == "max_frames"  # 8 of the clip's 12 frames
-    assert meta["mcap"] == {"file": str(bag), "rows": 8, "images": 8}
+    assert meta["mcap"] == {"file": str(bag), "rows": 8, "images": 8, "dropped": 0}
     counts, topics = _bag(bag)
     assert counts == {"/whisker/signals": 8, "/whisker/wrench": 8, "/whisker/image": 8}
     table = _table(out)
@@ -266,3 +269,74 @@ for cmd in (["live", {str(CLIP)!r}, "--playback-fps", "1000"], ["replay", "S.avi
     assert run.stdout.splitlines() == ["rc 2", "rc 2"], run.stderr
     assert run.stderr.count("pip install 'camwhisker[ros]'") == 2
     assert not out.exists() and sorted(tmp_path.iterdir()) == []  # stopped before the session
+
+
+def _hold_images(monkeypatch, maxsize: int) -> threading.Event:
+    """The bag's writer stalled on its first image until the event is set, as on a disk
+    that stalls, with a queue of ``maxsize`` rows; returns the event."""
+    released = threading.Event()
+    write_image = BagStream.write_image
+
+    def held(self, t_s, jpeg):
+        released.wait(10.0)  # set at the last row; 10 s: a broken test still ends
+        write_image(self, t_s, jpeg)
+
+    monkeypatch.setattr(BagStream, "write_image", held)
+    monkeypatch.setattr(camwhisker.live.loop, "BagThread",
+                        functools.partial(BagThread, maxsize=maxsize))  # fmt: skip
+    return released
+
+
+@pytest.mark.parametrize("maxsize", [90, 3])
+def test_a_stalled_writer_never_stalls_the_loop_and_the_bag_is_whole(tmp_path, monkeypatch,
+                                                                     maxsize):  # fmt: skip
+    released = _hold_images(monkeypatch, maxsize)
+    out, bag = tmp_path / "L.csv", tmp_path / "L.mcap"
+    frames: list[int] = []
+
+    def on_row(row):  # after the row's put: the 12th releases the writer
+        frames.append(row["frame"])
+        if len(frames) == 12:
+            released.set()
+
+    config = LiveConfig(mode="every", controls=False, handle_signals=False, mcap=bag,
+                        on_row=on_row)  # fmt: skip
+    rep = LiveSession(PlaybackSource(CLIP, 1000.0), load_sensor(CLIP_SENSOR), out, config).run()
+    # Every row went out while the writer was stuck on the first: the loop did not wait.
+    assert rep.rows == len(frames) == 12 and rep.stopped_by == "end of input"
+    meta = json.loads(out.with_suffix(".json").read_text())
+    counts, topics = _bag(bag)  # finished: it has its summary
+    written, dropped = meta["mcap"]["rows"], meta["mcap"]["dropped"]
+    assert counts == {"/whisker/signals": written, "/whisker/image": written}
+    assert written + dropped == 12
+    if maxsize == 90:  # room for all: each row in the bag once the writer goes on
+        assert dropped == 0 and not rep.problems
+    else:  # the one being written and maxsize queued are kept, no more
+        assert dropped >= 12 - 1 - maxsize
+        assert f"{dropped} row(s) not in the MCAP bag" in " ".join(rep.problems)
+    # The rows kept are the table's, in order, each message equal to its row.
+    signals = topics["/whisker/signals"]
+    kept = [int(msg.frame) for _, msg in signals]
+    assert kept == sorted(kept) and set(kept) <= set(frames)
+    _check_signals(signals, {c: v[kept] for c, v in _table(out).items()})
+    assert not [p.name for p in tmp_path.iterdir() if ".tmp" in p.name]
+
+
+def test_a_failed_write_stops_the_session_and_keeps_the_old_bag(tmp_path, monkeypatch):
+    out, bag = tmp_path / "L.csv", tmp_path / "L.mcap"
+    bag.write_bytes(b"an older file")
+    write_row = BagStream.write_row
+
+    def full(self, cells):
+        if self.rows == 2:
+            raise OSError(28, "No space left on device")
+        write_row(self, cells)
+
+    monkeypatch.setattr(BagStream, "write_row", full)
+    config = LiveConfig(mode="every", controls=False, handle_signals=False, mcap=bag)
+    session = LiveSession(PlaybackSource(CLIP, 1000.0), load_sensor(CLIP_SENSOR), out, config)
+    with pytest.raises(OSError, match="No space left"):
+        session.run()
+    # Raised at the next row or at the end; the bag is not half written: the old file stays.
+    assert bag.read_bytes() == b"an older file"
+    assert not [p.name for p in tmp_path.iterdir() if ".tmp" in p.name]

@@ -15,7 +15,7 @@ With ``--robots`` the arms are ``off`` (neither) and ``on``: the rows written to
 MCAP file with each frame's JPEG (``live --mcap``) and pushed to an LSL outlet
 (``live --lsl``) that an inlet in another process reads as it comes (no browser);
 ``--robots lsl`` or ``--robots mcap``: the one alone. With LSL on, the push's own time
-per row is printed too.
+per row is printed too; with the MCAP on, the rows its writer's thread dropped.
 
 One headless Chromium runs through the whole run; in the closed arm it shows
 a blank page. Each session gives ``--rows`` rows; its first :data:`SKIP_ROWS`
@@ -145,7 +145,7 @@ def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driv
              robots: tuple[str, ...] = ()):  # fmt: skip
     """One session of ``rows`` rows; with ``view`` its page open in ``driver``; with
     ``robots`` those outputs on ("mcap", "lsl"), the LSL outlet read. Returns (processing
-    ms, end-to-end ms, to-outputs ms, LSL push ms, pictures drawn)."""
+    ms, end-to-end ms, to-outputs ms, LSL push ms, pictures drawn, MCAP rows dropped)."""
     name = f"camwhisker-bench-{os.getpid()}"
     config = LiveConfig(controls=False, handle_signals=False, max_frames=rows,
                         view_port=0 if view else None,
@@ -164,7 +164,8 @@ def _session(video: Path, sensor: Sensor, out: Path, rows: int, view: bool, driv
         driver.get("about:blank")
     proc, e2e, outs = session.latencies
     pictures = session.view.pictures if view else 0
-    return proc[SKIP_ROWS:], e2e[SKIP_ROWS:], outs[SKIP_ROWS:], session.push_ms, pictures
+    dropped = session._bag.dropped if session._bag is not None else 0
+    return proc[SKIP_ROWS:], e2e[SKIP_ROWS:], outs[SKIP_ROWS:], session.push_ms, pictures, dropped
 
 
 def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) -> dict:
@@ -178,7 +179,7 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
     sensor = Sensor().replace(**scenario.sensor_changes) if scenario.sensor_changes else Sensor()
     names = ("off", "on") if robots else ("closed", "open")
     arms = {arm: {"proc": [], "e2e": [], "out": [], "push": [], "p99": [], "out_p99": [],
-                  "pictures": 0} for arm in names}  # fmt: skip
+                  "pictures": 0, "dropped": 0} for arm in names}  # fmt: skip
     driver = None if robots else headless_chromium()
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -186,7 +187,7 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
             for block in range(blocks):
                 arm = names[block % 2]
                 second = arm == names[1]
-                proc, e2e, outs, push, pictures = _session(
+                proc, e2e, outs, push, pictures, dropped = _session(
                     video, sensor, Path(tmp) / f"b{block}.csv", rows, second and not robots,
                     driver, robots if second else ())  # fmt: skip
                 a = arms[arm]
@@ -197,6 +198,7 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
                 a["p99"].append(float(np.percentile(proc, 99)))
                 a["out_p99"].append(float(np.percentile(outs, 99)))
                 a["pictures"] += pictures
+                a["dropped"] += dropped
     finally:
         if driver is not None:
             quit_chromium(driver)
@@ -204,7 +206,7 @@ def run_bench(blocks: int = 8, rows: int = 450, robots: tuple[str, ...] = ()) ->
                   "to_outputs": latency_summary(a["out"]), "session_p99_ms": a["p99"],
                   "session_out_p99_ms": a["out_p99"], "pictures": a["pictures"],
                   "outputs": [f"--{o}" for o in robots] if arm == "on" else [],
-                  "lsl_push": latency_summary(a["push"])}
+                  "lsl_push": latency_summary(a["push"]), "mcap_dropped": a["dropped"]}
             for arm, a in arms.items()}  # fmt: skip
 
 
@@ -225,6 +227,8 @@ def text(result: dict, blocks: int, rows: int) -> str:
             + (f"to outputs p50 {o['p50_ms']:.2f} ms, p99 {o['p99_ms']:.2f} ms; " if o else "")
             + "sessions' p99 " + ", ".join(f"{x:.2f}" for x in r["session_p99_ms"]) + " ms"
             + (f"; pictures drawn {r['pictures']}" if view else "")
+            + ("; MCAP rows dropped " + str(r["mcap_dropped"]) if "--mcap" in r.get("outputs", ())
+               else "")
         )
         push = r.get("lsl_push", {})
         if push.get("n"):

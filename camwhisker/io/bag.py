@@ -15,7 +15,8 @@ Written by :func:`write_signal_bag` (``camwhisker batch --mcap``), in the sensor
   empty (phi too small to give it) the torque is zero; rows without both forces
   (untrusted) have no message.
 
-Written row by row by :class:`BagStream` (``camwhisker live --mcap``, ``replay --mcap``):
+Written row by row by :class:`BagStream` (``camwhisker replay --mcap``; ``live --mcap``
+through :class:`BagThread`, off the loop's thread):
 the same two topics from the live table's rows, and
 
 - :data:`IMAGE_TOPIC`, ``sensor_msgs/msg/CompressedImage``: each frame's JPEG bytes
@@ -37,8 +38,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import queue
 import re
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +52,8 @@ from camwhisker.io.poses import PoseLog, PoseLogError, pose_log_from_arrays
 
 __all__ = ["INSTALL_HINT", "FRAME_ID", "WORLD_FRAME_ID", "SIGNALS_TOPIC", "WRENCH_TOPIC",
            "IMAGE_TOPIC", "CONTACT_TOPIC", "SIGNALS_TYPE", "WRENCH_TYPE", "IMAGE_TYPE",
-           "POINT_TYPE", "POSE_TYPES", "STAGE_TYPES", "BagError", "BagStream", "ros_modules",
+           "POINT_TYPE", "POSE_TYPES", "STAGE_TYPES", "QUEUE_ROWS", "BagError", "BagStream",
+           "BagThread", "ros_modules",
            "bag_source", "write_signal_bag", "write_table_bag", "read_bag_poses",
            "read_pose_bag"]  # fmt: skip
 
@@ -77,6 +81,9 @@ _POINT_COLUMNS = ("px_mm", "py_mm", "pz_mm")
 # ROS 2's rule for a field name (rosidl): the table's names that break it are refused.
 _FIELD_NAME = re.compile(r"(?!.*__)(?!.*_$)[a-z][a-z0-9_]*")
 _NS = 10**9
+#: Rows (with their images) a :class:`BagThread` holds for its writer: 3 s at 30 frames/s,
+#: at most ~250 MB of 720p frames yet to encode; more come only while the disk stalls.
+QUEUE_ROWS = 90
 
 _SEP = "=" * 80
 _HEADER = f"""{_SEP}
@@ -222,7 +229,7 @@ class BagStream:
     (or none) until the end, never part of a bag. Leaving a ``with`` block on an
     exception discards it (:meth:`discard`); a session that is stopped calls
     :meth:`close`. Chunks are not compressed: JPEG does not shrink, and a compressed
-    1 MB chunk would cost the loop ~4 ms where it is written.
+    1 MB chunk would cost ~4 ms where it is written, for nothing.
 
     Parameters
     ----------
@@ -353,6 +360,102 @@ class BagStream:
             self.close()
         elif not self.closed:
             self.discard()
+
+
+class BagThread:
+    """A :class:`BagStream` written by a thread of its own, for a loop that must not wait
+    for the disk (``live --mcap``): :meth:`put` queues a row and its image and returns.
+
+    The thread builds the messages and writes them, in the order put; :meth:`close`
+    writes what is queued, then closes the stream (its summary, fsync, rename). A row
+    put while ``maxsize`` rows wait is dropped with its image and counted
+    (:attr:`dropped`): the bag lacks those frames, the session goes on. A write that
+    fails stops the writer; the next :meth:`put` and :meth:`close` raise its error, and
+    the file is discarded (``path`` stays as it was).
+
+    Parameters
+    ----------
+    path, columns
+        As :class:`BagStream`, which is opened here: its errors are raised at once.
+    maxsize : int
+        The most rows waiting for the writer (:data:`QUEUE_ROWS`).
+    """
+
+    def __init__(self, path: str | Path, columns: Sequence[str], maxsize: int = QUEUE_ROWS):
+        self._bag = BagStream(path, columns)
+        self.path = self._bag.path
+        #: Rows not written because the queue was full (their images with them).
+        self.dropped = 0
+        self.error: BaseException | None = None
+        self._discarding = False
+        self._maxsize = maxsize
+        # SimpleQueue: a put takes no lock the writer may hold, so the loop never waits on it.
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._write, name="camwhisker-mcap",
+                                        daemon=True)  # fmt: skip
+        self._thread.start()
+
+    @property
+    def rows(self) -> int:
+        return self._bag.rows
+
+    @property
+    def images(self) -> int:
+        return self._bag.images
+
+    def put(self, cells: Sequence, t_s: float, jpeg: bytes | Callable[[], bytes] | None) -> None:
+        """Queue a row (:meth:`BagStream.write_row`) and its frame's JPEG captured at
+        ``t_s``: the bytes, or a function that makes them, called in the writer's thread
+        (None: no image); never waits.
+
+        Raises
+        ------
+        BagError, OSError
+            An earlier row could not be written (the writer's error).
+        """
+        if self.error is not None:
+            raise self.error
+        if self._queue.qsize() < self._maxsize:
+            self._queue.put((cells, t_s, jpeg))
+        else:  # dropped, never waited for: a stalled disk must not stall the control outputs
+            self.dropped += 1
+
+    def _write(self) -> None:
+        while (item := self._queue.get()) is not None:
+            if self.error is not None or self._discarding:
+                continue  # the file is discarded: the rows left are not written
+            cells, t_s, jpeg = item
+            try:
+                self._bag.write_row(cells)
+                if jpeg is not None:
+                    self._bag.write_image(t_s, jpeg() if callable(jpeg) else jpeg)
+            except Exception as exc:  # raised in the loop's thread by put and close
+                self.error = exc
+
+    def _join(self) -> None:
+        if self._thread.is_alive():
+            self._queue.put(None)  # after the rows queued: they are written first
+            self._thread.join()
+
+    def close(self) -> Path:
+        """Write the rows queued, then close the stream; returns its path.
+
+        Raises
+        ------
+        BagError, OSError
+            A row could not be written, or the close failed: ``path`` is left as it was.
+        """
+        self._join()
+        if self.error is not None:
+            self._bag.discard()
+            raise self.error
+        return self._bag.close()
+
+    def discard(self) -> None:
+        """Stop the writer and drop the temporary file: ``path`` stays as it was."""
+        self._discarding = True
+        self._join()
+        self._bag.discard()
 
 
 class _Discarded(Exception):

@@ -12,7 +12,8 @@ mismatch checks; a mismatch is logged as a warning).
 :func:`reprocess_session` drives the same generator over a recorded session
 (:class:`~camwhisker.io.sources.SessionSource`): the live table again, row for
 row. With an MCAP file (``--mcap``), both also write each row as ROS 2 messages
-(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md) with the frame's JPEG bytes; a
+(:class:`~camwhisker.io.bag.BagStream`, docs/robots.md; live through a thread of its own,
+:class:`~camwhisker.io.bag.BagThread`) with the frame's JPEG bytes; a
 live session also to Lab Streaming Layer (``--lsl``, :mod:`camwhisker.live.lsl`), and takes
 its base from LSL (``--base-lsl``) as from UDP.
 :class:`LiveProcessor` hands the generator one frame at a time, for a
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import gc
 import logging
 import math
@@ -40,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from camwhisker.files.atomic import atomic_path, sync_file
-from camwhisker.io.bag import BagStream
+from camwhisker.io.bag import BagStream, BagThread
 from camwhisker.io.signals import (
     SignalWriter,
     sidecar,
@@ -65,10 +67,11 @@ from camwhisker.live.lsl import LslBaseReceiver, LslError, LslOutlet
 from camwhisker.live.outputs import DEFAULT_UDP_HOST, UdpSender, result_fields, result_message
 from camwhisker.live.record import (
     JPEG_QUALITY,
-    DecodeKeepingJpeg,
     MjpgRoundTrip,
     SessionRecorder,
+    decode_keeping_jpeg,
     decode_only,
+    encode_jpeg,
     recorded_jpegs,
 )
 from camwhisker.live.view import DEFAULT_VIEW_HOST, LiveView
@@ -201,14 +204,16 @@ class LiveConfig:
         add the contact point in W; ``mount`` the sensor's pose in the frame of the
         carrier they are of (camwhisker.io.poses.Mount).
     mcap : an MCAP file to write the rows to as ROS 2 messages, with each frame's JPEG
-        bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90).
+        bytes (the recording's; else a raw MJPG camera's; else encoded at quality 90), by
+        a thread of its own that drops the rows it cannot keep up with (counted).
     lsl : the name of the Lab Streaming Layer outlet of the rows (and of its marker
         outlet, with "-events", for the events); opened with the session, so an inlet
         can connect before the first row.
     base_lsl : take the base positions or poses from the LSL stream of this name (one
         channel or seven; ``base_poses`` is set from it), instead of ``base_port``.
     on_row : called with each row as a dict after the row is written to every output
-        (table, JSON, UDP, view, MCAP), in the session's thread; its return value is ignored.
+        (table, JSON, UDP, view, LSL; queued for the MCAP's thread), in the session's
+        thread; its return value is ignored.
         The dict holds the JSON line's fields (frame, seq, t_s, dz_mm, phi_deg, theta_deg,
         ok, latency_ms, note, the forces and contact fields where set) as plain floats, ints
         and None, rounded as the table's cells. ``latency_ms`` (capture to result) ends
@@ -341,7 +346,7 @@ class LiveSession:
                 capture.release()
                 raise
         #: The MCAP stream while the session runs (None without ``config.mcap``).
-        self._bag: BagStream | None = None
+        self._bag: BagThread | None = None
         #: The browser view (None without one); bound now, so a taken port writes nothing.
         self.view: LiveView | None = None
         if self.config.view_port is not None:
@@ -440,13 +445,13 @@ class LiveSession:
     # ------------------------------------------------------------------ run
     def run(self) -> LiveReport:
         cfg = self.config
-        # The MCAP's images need JPEG bytes: the recording's, else kept or made for it.
+        # The MCAP's images need JPEG bytes: the recording's, else kept, else made later.
         prepare = (MjpgRoundTrip(cfg.jpeg_quality) if cfg.record
-                   else DecodeKeepingJpeg() if cfg.mcap else decode_only)  # fmt: skip
+                   else decode_keeping_jpeg if cfg.mcap else decode_only)  # fmt: skip
         grabber = Grabber(self.capture, cfg.mode, prepare, cfg.max_reconnects, cfg.backoff_s)
         self.out_csv.parent.mkdir(parents=True, exist_ok=True)
         if cfg.mcap is not None:  # first: a bag that cannot be opened leaves nothing open
-            self._bag = BagStream(cfg.mcap, table_columns(cfg.springs) + tuple(
+            self._bag = BagThread(cfg.mcap, table_columns(cfg.springs) + tuple(
                 self.contact.fields if self.contact else ()))
         try:
             writer = SignalWriter(self.out_csv, flush=True, springs=self.config.springs,
@@ -599,10 +604,11 @@ class LiveSession:
             self._lsl.push_row(cells, item.t_s)
             for event in rep.events[n_events:]:
                 self._lsl.push_event(event["event"], item.t_s)
-        if self._bag is not None:  # after the control outputs: the bag is for later
-            self._bag.write_row(cells)
-            if item.jpeg is not None:
-                self._bag.write_image(frame.t_s, item.jpeg)
+        if self._bag is not None:  # queued for the bag's thread: the loop never waits on it
+            jpeg = item.jpeg
+            if jpeg is None and item.image is not None:  # encoded in the bag's thread
+                jpeg = functools.partial(encode_jpeg, item.image)
+            self._bag.put(cells, frame.t_s, jpeg)
         if rep.rows == 0 and not r.ok:
             self._first_reason = r.reason
         rep.rows += 1
@@ -713,6 +719,9 @@ class LiveSession:
         if stats.failed_reads:
             rep.problems.append(f"{stats.failed_reads} failed read(s), {stats.reconnects} "
                                 f"reconnect(s); {rep.gaps} row(s) without a frame")  # fmt: skip
+        if self._bag is not None and self._bag.dropped:
+            rep.problems.append(f"{self._bag.dropped} row(s) not in the MCAP bag (with their "
+                                "images): the disk was slower than the frames")  # fmt: skip
         contact = self._contact_record()
         source = describe(self.capture) if hasattr(self.capture, "describe") else self._input
         meta = sidecar(
@@ -740,7 +749,8 @@ class LiveSession:
             contact=contact,
             mcap=None if self._bag is None else {"file": str(self._bag.path),
                                                  "rows": self._bag.rows,
-                                                 "images": self._bag.images},
+                                                 "images": self._bag.images,
+                                                 "dropped": self._bag.dropped},
             lsl=None if self._lsl is None else self._lsl.describe(self._t0),
         )  # fmt: skip
         write_sidecar(self.out_csv, meta)

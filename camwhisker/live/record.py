@@ -28,8 +28,8 @@ import numpy as np
 from camwhisker.files.atomic import sync_file, sync_folder
 from camwhisker.io.sources import TIMESTAMP_COLUMNS, timestamps_path
 
-__all__ = ["MjpgRoundTrip", "SessionRecorder", "DecodeKeepingJpeg", "decode_only",
-           "recorded_jpegs", "JPEG_QUALITY", "IMAGE_JPEG_QUALITY"]
+__all__ = ["MjpgRoundTrip", "SessionRecorder", "decode_keeping_jpeg", "decode_only",
+           "encode_jpeg", "recorded_jpegs", "JPEG_QUALITY", "IMAGE_JPEG_QUALITY"]
 
 #: JPEG quality of frames encoded for a recording: 95 keeps the sensor noise
 #: (the C310's own MJPG is ~q 85-90), at ~2.5 ms per 720p frame on one core.
@@ -41,6 +41,14 @@ IMAGE_JPEG_QUALITY = 90
 
 def _is_jpeg_bytes(image: np.ndarray) -> bool:
     return image.dtype == np.uint8 and (image.ndim == 1 or (image.ndim == 2 and 1 in image.shape))
+
+
+def encode_jpeg(image: np.ndarray, quality: int = IMAGE_JPEG_QUALITY) -> bytes:
+    """A BGR frame's JPEG bytes at ``quality`` (OpenCV's encoder)."""
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return buf.tobytes()
 
 
 class MjpgRoundTrip:
@@ -55,13 +63,7 @@ class MjpgRoundTrip:
         self._ctx.thread_count = 1
 
     def __call__(self, image: np.ndarray) -> tuple[np.ndarray, bytes]:
-        if _is_jpeg_bytes(image):
-            data = image.tobytes()
-        else:
-            ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-            if not ok:
-                raise ValueError("JPEG encoding failed")
-            data = buf.tobytes()
+        data = image.tobytes() if _is_jpeg_bytes(image) else encode_jpeg(image, self.jpeg_quality)
         frames = self._ctx.decode(av.Packet(data))
         if not frames:
             raise ValueError("the JPEG frame did not decode")
@@ -75,21 +77,14 @@ def decode_only(image: np.ndarray) -> tuple[np.ndarray, None]:
     return image, None
 
 
-class DecodeKeepingJpeg:
+def decode_keeping_jpeg(image: np.ndarray) -> tuple[np.ndarray, bytes | None]:
     """``prepare`` for an MCAP without a recording: the frame as :func:`decode_only` gives
-    it (the same pixels as without the MCAP), and JPEG bytes: a camera's own (raw MJPG)
-    as sent, else the frame encoded at ``quality``."""
-
-    def __init__(self, quality: int = IMAGE_JPEG_QUALITY):
-        self.quality = int(quality)
-
-    def __call__(self, image: np.ndarray) -> tuple[np.ndarray, bytes]:
-        if _is_jpeg_bytes(image):
-            return decode_only(image)[0], image.tobytes()
-        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
-        if not ok:
-            raise ValueError("JPEG encoding failed")
-        return image, buf.tobytes()
+    it (the same pixels as without the MCAP), with a camera's own JPEG bytes (raw MJPG) as
+    sent; a decoded frame has none here, the bag's thread encodes it (:func:`encode_jpeg`)
+    off the frame's way to its row."""
+    if _is_jpeg_bytes(image):
+        return decode_only(image)[0], image.tobytes()
+    return image, None
 
 
 def recorded_jpegs(video: str | Path) -> Iterator[bytes]:
