@@ -1,0 +1,156 @@
+"""The per-pixel loops, compiled: ahead of time at install, numba's JIT where that build is missing.
+
+Each kernel is a numba function (:func:`kernel`) beside its kin in
+``camwhisker/kernels/*.py`` (numpy and numba only, so that the install can
+import them), called by the Python function that states its contract in
+:mod:`camwhisker.vision` (or :mod:`camwhisker.sensor.polygon`). The install
+(``setup.py``, :mod:`camwhisker.kernels.build`) compiles the same source with
+numba's AOT compiler into ``camwhisker/kernels/_aot``, one entry per signature
+the kernel lists, with the digest of :data:`MODULES`' source: a first run then
+compiles nothing. A call whose arguments match none of the listed signatures,
+and every call where ``_aot`` is missing or older than the source (one warning),
+goes to numba's JIT (``cache=True``), as before.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import logging
+
+import numpy as np
+from numba import njit, types
+from numba.core import sigutils
+from numba.extending import typeof_impl
+from numba.np.numpy_support import as_dtype
+
+__all__ = ["MODULES", "Kernel", "compiled_module", "kernel", "registered", "source_digest"]
+
+log = logging.getLogger(__name__)
+
+# The modules whose kernels the install compiles; their source makes the digest.
+MODULES = (
+    "camwhisker.kernels.polygon",
+    "camwhisker.kernels.blobs",
+    "camwhisker.kernels.colour",
+    "camwhisker.kernels.lk",
+    "camwhisker.kernels.pose",
+    "camwhisker.kernels.tip",
+    "camwhisker.kernels.tracker",
+)
+AOT_MODULE = "camwhisker.kernels._aot"
+
+_registry: dict[str, Kernel] = {}
+_aot_state: list = []  # [module or None], filled on the first call of any kernel
+
+
+class Kernel:
+    """A numba kernel: the install's compiled entry whose signature the arguments
+    match, else numba's JIT (``.jit``, a dispatcher; ``.py_func``, the Python source).
+
+    Inside another kernel it is typed as its dispatcher, so kernels call kernels.
+    """
+
+    def __init__(self, py_func, signatures: tuple[str, ...]):
+        self.py_func = py_func
+        self.jit = njit(cache=True, nogil=True, error_model="numpy")(py_func)
+        self.signatures = signatures
+        self.name = f"{py_func.__module__.rsplit('.', 1)[-1]}__{py_func.__name__}"
+        self.__doc__, self.__name__ = py_func.__doc__, py_func.__name__
+        self._entries: list | None = None  # [(argument checks, compiled function)]
+
+    def entry_names(self) -> list[str]:
+        """The names of this kernel's compiled entries in ``_aot``, one per signature."""
+        return [f"{self.name}__{i}" for i in range(len(self.signatures))]
+
+    def __call__(self, *args):
+        entries = self._entries
+        if entries is None:
+            entries = self._entries = self._load_entries()
+        for checks, fn in entries:
+            # The compiled entry trusts its argument types (a wrong dtype reads garbage).
+            if len(args) == len(checks) and all(c(a) for c, a in zip(checks, args, strict=True)):
+                return fn(*args)
+        return self.jit(*args)
+
+    def _load_entries(self) -> list:
+        aot = compiled_module()
+        if aot is None:
+            return []
+        return [(_arg_checks(sig), getattr(aot, name))
+                for sig, name in zip(self.signatures, self.entry_names(), strict=True)]  # fmt: skip
+
+
+@typeof_impl.register(Kernel)
+def _typeof_kernel(val, c):
+    return types.Dispatcher(val.jit)
+
+
+def kernel(*signatures: str):
+    """Decorator: a :class:`Kernel`, compiled at install for each signature, its
+    arguments' types in numba's notation (e.g. ``"f8[:, ::1], i8"``; the return
+    type is inferred); none for one that only other kernels call."""
+
+    def wrap(py_func) -> Kernel:
+        k = Kernel(py_func, signatures)
+        _registry[k.name] = k
+        return k
+
+    return wrap
+
+
+def registered() -> list[Kernel]:
+    """Every kernel of :data:`MODULES`, imported."""
+    for name in MODULES:
+        importlib.import_module(name)
+    return [k for k in _registry.values() if k.py_func.__module__ in MODULES]
+
+
+def source_digest() -> int:
+    """A 63-bit digest of :data:`MODULES`' source: the compiled module's must equal it."""
+    h = hashlib.sha256()
+    for name in MODULES:
+        with open(importlib.util.find_spec(name).origin, "rb") as f:
+            h.update(f.read())
+    return int.from_bytes(h.digest()[:8], "little") >> 1
+
+
+def compiled_module():
+    """The install's compiled kernels, or None (with one warning) where they are
+    missing or were built from other source."""
+    if not _aot_state:
+        try:
+            aot = importlib.import_module(AOT_MODULE)
+            why = "built from other source" if aot.source_digest() != source_digest() else ""
+        except ImportError:
+            aot, why = None, "not built"
+        if why:
+            log.warning(
+                "camwhisker's compiled kernels are %s (reinstall: pip install -e .); "
+                "numba compiles them on first use instead (~30 s, cached)",
+                why,
+            )
+            aot = None
+        _aot_state.append(aot)
+    return _aot_state[0]
+
+
+def _arg_checks(signature: str) -> list:
+    """One predicate per argument of ``signature``: whether a value has its type exactly."""
+    args, _ = sigutils.normalize_signature(signature)
+    return [_check(t) for t in args]
+
+
+def _check(t):
+    if isinstance(t, types.Array):
+        dtype, ndim, contiguous = as_dtype(t.dtype), t.ndim, t.layout == "C"
+        return lambda a: (type(a) is np.ndarray and a.dtype == dtype and a.ndim == ndim
+                          and (not contiguous or a.flags.c_contiguous))  # fmt: skip
+    if isinstance(t, types.Boolean):
+        return lambda a: isinstance(a, bool | np.bool_)
+    if isinstance(t, types.Integer):
+        return lambda a: isinstance(a, int | np.integer) and not isinstance(a, bool | np.bool_)
+    if isinstance(t, types.Float):
+        return lambda a: isinstance(a, float | int | np.floating | np.integer)
+    raise TypeError(f"kernel signature: no argument check for numba type {t}")
