@@ -6,7 +6,8 @@ import them), called by the Python function that states its contract in
 :mod:`camwhisker.vision` (or :mod:`camwhisker.sensor.polygon`). The install
 (``setup.py``, :mod:`camwhisker.kernels.build`) compiles the same source with
 numba's AOT compiler into ``camwhisker/kernels/_aot``, one entry per signature
-the kernel lists, with the digest of :data:`MODULES`' source: a first run then
+the kernel lists, for this machine's CPU, with the digest of :data:`MODULES`' source
+and the CPU: a first run then
 compiles nothing. A call whose arguments match none of the listed signatures,
 and every call where ``_aot`` is missing or older than the source (one warning),
 goes to numba's JIT (``cache=True``), as before.
@@ -19,6 +20,7 @@ import importlib
 import importlib.util
 import logging
 
+import llvmlite.binding as llvm
 import numpy as np
 from numba import njit, types
 from numba.core import sigutils
@@ -108,8 +110,11 @@ def registered() -> list[Kernel]:
 
 
 def source_digest() -> int:
-    """A 63-bit digest of :data:`MODULES`' source: the compiled module's must equal it."""
-    h = hashlib.sha256()
+    """A 63-bit digest of :data:`MODULES`' source and this machine's CPU (the build's
+    code is for the CPU it ran on, as the JIT's): the compiled module's must equal it."""
+    h = hashlib.sha256(
+        f"{llvm.get_host_cpu_name()} {llvm.get_host_cpu_features().flatten()}".encode()
+    )
     for name in MODULES:
         with open(importlib.util.find_spec(name).origin, "rb") as f:
             h.update(f.read())
@@ -118,11 +123,15 @@ def source_digest() -> int:
 
 def compiled_module():
     """The install's compiled kernels, or None (with one warning) where they are
-    missing or were built from other source."""
+    missing, or were built from other source or on another CPU."""
     if not _aot_state:
         try:
             aot = importlib.import_module(AOT_MODULE)
-            why = "built from other source" if aot.source_digest() != source_digest() else ""
+            why = (
+                "built from other source or for another CPU"
+                if aot.source_digest() != source_digest()
+                else ""
+            )
         except ImportError:
             aot, why = None, "not built"
         if why:
