@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camwhisker.kernels import _arg_checks, compiled_module, registered
+from camwhisker.kernels import _dispatcher, compiled_module, registered
 from camwhisker.kernels.polygon import polygon_area, polygon_centroid, polygon_centroid_jacobian
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,14 +48,19 @@ def test_every_kernel_has_its_compiled_entries():
 def test_a_call_of_another_type_is_not_given_to_a_compiled_entry():
     # A compiled entry trusts its arguments' types: a float32 or strided array would be
     # read as contiguous float64, garbage; the checks send such a call to numba's JIT.
-    (check,) = _arg_checks("f8[:, ::1],")
+    def f(uv, n):
+        return uv, n
+
+    call = _dispatcher(f, ("f8[:, ::1], i8",), [lambda *a: "compiled"], lambda *a: "jit")
     uv = np.zeros((4, 2))
-    assert check(uv)
-    assert not check(uv.astype(np.float32))
-    assert not check(np.zeros((4, 4))[:, ::2])
-    assert not check(uv.tolist())
-    (scalar,) = _arg_checks("i8,")
-    assert scalar(3) and scalar(np.int32(3)) and not scalar(3.0) and not scalar(True)
+    assert call(uv, 3) == "compiled"
+    assert call(uv, np.int32(3)) == "compiled"
+    assert call(uv.astype(np.float32), 3) == "jit"
+    assert call(np.zeros((4, 4))[:, ::2], 3) == "jit"
+    assert call(np.zeros(8), 3) == "jit"
+    assert call(uv.tolist(), 3) == "jit"
+    assert call(uv, 3.0) == "jit"
+    assert call(uv, True) == "jit"
 
 
 def test_compiled_polygon_kernels_equal_their_python_source():

@@ -6,11 +6,10 @@ import them), called by the Python function that states its contract in
 :mod:`camwhisker.vision` (or :mod:`camwhisker.sensor.polygon`). The install
 (``setup.py``, :mod:`camwhisker.kernels.build`) compiles the same source with
 numba's AOT compiler into ``camwhisker/kernels/_aot``, one entry per signature
-the kernel lists, for this machine's CPU, with the digest of :data:`MODULES`' source
-and the CPU: a first run then
-compiles nothing. A call whose arguments match none of the listed signatures,
-and every call where ``_aot`` is missing or older than the source (one warning),
-goes to numba's JIT (``cache=True``), as before.
+the kernel lists, for this machine's CPU, with a digest of :data:`MODULES`'
+source and the CPU: a first run then compiles nothing. A call whose arguments
+match none of the listed signatures, and every call where ``_aot`` is missing or
+its digest differs (one warning), goes to numba's JIT (``cache=True``), as before.
 """
 
 from __future__ import annotations
@@ -60,28 +59,20 @@ class Kernel:
         self.signatures = signatures
         self.name = f"{py_func.__module__.rsplit('.', 1)[-1]}__{py_func.__name__}"
         self.__doc__, self.__name__ = py_func.__doc__, py_func.__name__
-        self._entries: list | None = None  # [(argument checks, compiled function)]
+        self._call = self._first_call
 
     def entry_names(self) -> list[str]:
         """The names of this kernel's compiled entries in ``_aot``, one per signature."""
         return [f"{self.name}__{i}" for i in range(len(self.signatures))]
 
     def __call__(self, *args):
-        entries = self._entries
-        if entries is None:
-            entries = self._entries = self._load_entries()
-        for checks, fn in entries:
-            # The compiled entry trusts its argument types (a wrong dtype reads garbage).
-            if len(args) == len(checks) and all(c(a) for c, a in zip(checks, args, strict=True)):
-                return fn(*args)
-        return self.jit(*args)
+        return self._call(*args)
 
-    def _load_entries(self) -> list:
+    def _first_call(self, *args):
         aot = compiled_module()
-        if aot is None:
-            return []
-        return [(_arg_checks(sig), getattr(aot, name))
-                for sig, name in zip(self.signatures, self.entry_names(), strict=True)]  # fmt: skip
+        entries = [] if aot is None else [getattr(aot, n) for n in self.entry_names()]
+        self._call = _dispatcher(self.py_func, self.signatures, entries, self.jit)
+        return self._call(*args)
 
 
 @typeof_impl.register(Kernel)
@@ -145,21 +136,49 @@ def compiled_module():
     return _aot_state[0]
 
 
-def _arg_checks(signature: str) -> list:
-    """One predicate per argument of ``signature``: whether a value has its type exactly."""
-    args, _ = sigutils.normalize_signature(signature)
-    return [_check(t) for t in args]
+def _dispatcher(py_func, signatures, entries, jit):
+    """A function of ``py_func``'s arguments that calls the first compiled entry whose
+    signature the arguments have exactly, else ``jit``.
+
+    A compiled entry trusts its arguments' types (an array of another dtype or
+    layout is read as if it had its own: garbage), so each is checked first: as
+    one generated expression, since a generic loop over the arguments costs more
+    than many kernels' calls (~2 us).
+    """
+    if not entries:
+        return jit
+    n = py_func.__code__.co_argcount
+    params = ", ".join(f"a{i}" for i in range(n))
+    env = {"jit": jit, "ndarray": np.ndarray, "bools": (bool, np.bool_),
+           "ints": (int, np.integer), "reals": (float, int, np.floating, np.integer)}  # fmt: skip
+    lines = [f"def call({params}):"]
+    for k, (signature, entry) in enumerate(zip(signatures, entries, strict=True)):
+        args, _ = sigutils.normalize_signature(signature)
+        if len(args) != n:
+            raise TypeError(
+                f"{py_func.__name__}: signature {signature!r} has {len(args)} of {n} arguments"
+            )
+        checks = []
+        for i, t in enumerate(args):
+            checks.append(_check(f"a{i}", t, f"d{k}_{i}", env))
+        env[f"f{k}"] = entry
+        lines.append(f"    if {' and '.join(checks)}:\n        return f{k}({params})")
+    lines.append(f"    return jit({params})")
+    exec("\n".join(lines), env)
+    return env["call"]
 
 
-def _check(t):
+def _check(name: str, t, dtype_name: str, env: dict) -> str:
+    """A Python expression: whether the value ``name`` has numba type ``t`` exactly."""
     if isinstance(t, types.Array):
-        dtype, ndim, contiguous = as_dtype(t.dtype), t.ndim, t.layout == "C"
-        return lambda a: (type(a) is np.ndarray and a.dtype == dtype and a.ndim == ndim
-                          and (not contiguous or a.flags.c_contiguous))  # fmt: skip
+        env[dtype_name] = as_dtype(t.dtype)
+        c = f" and {name}.flags.c_contiguous" if t.layout == "C" else ""
+        return (f"type({name}) is ndarray and {name}.dtype == {dtype_name}"
+                f" and {name}.ndim == {t.ndim}{c}")  # fmt: skip
     if isinstance(t, types.Boolean):
-        return lambda a: isinstance(a, bool | np.bool_)
+        return f"isinstance({name}, bools)"
     if isinstance(t, types.Integer):
-        return lambda a: isinstance(a, int | np.integer) and not isinstance(a, bool | np.bool_)
+        return f"isinstance({name}, ints) and not isinstance({name}, bools)"
     if isinstance(t, types.Float):
-        return lambda a: isinstance(a, float | int | np.floating | np.integer)
+        return f"isinstance({name}, reals)"
     raise TypeError(f"kernel signature: no argument check for numba type {t}")
