@@ -106,7 +106,6 @@ def white_balance_gains(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -
     return kernels.gray_world(np.asarray(frame), rows, cols, CLOTH_MIN_FRACTION, SATURATED_DN)
 
 
-
 def apply_gains(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
     """A white-balanced float32 copy of a BGR image or region, shape (h, w, 3)."""
     out = bgr.astype(np.float32)
@@ -198,8 +197,7 @@ def share_patches(frame: np.ndarray, top_left: np.ndarray, size: int, weights: n
     with the gains and light level folded in, as :func:`unmixed_maps` uses them.
     """
     return kernels.share_patches(np.ascontiguousarray(frame), np.asarray(top_left, np.intp), size,
-                          np.asarray(weights, np.float32))  # fmt: skip
-
+                                 np.asarray(weights, np.float32))  # fmt: skip
 
 
 def cloth_level(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, gains) -> float:

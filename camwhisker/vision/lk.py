@@ -69,8 +69,7 @@ def warp_templates(
     """
     centre = np.asarray(rest_uv, float) - np.asarray(rest_origin, float)
     return kernels.warp(np.ascontiguousarray(rest_map, np.float32),
-                 np.ascontiguousarray(affine, float), centre, half)  # fmt: skip
-
+                        np.ascontiguousarray(affine, float), centre, half)  # fmt: skip
 
 
 def refine_first_template(
@@ -127,7 +126,7 @@ def refine_first_template(
     # spring crossing the window) must not move it.
     in_mean = np.ones_like(weights) if keep is None else np.ascontiguousarray(keep, np.float64)
     d, quality = kernels.refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
-                         weights, in_mean, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
+                                weights, in_mean, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
     return d + origins, quality
 
 

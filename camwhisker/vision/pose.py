@@ -227,8 +227,6 @@ def _observations(measured_uv, offsets_uv, weights):
                                        np.asarray(offsets_uv, float), w)  # fmt: skip
 
 
-
-
 def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
     jtj, jtr, _ = kernels.normal_equations(uv, jac, target, sw, n_par)

@@ -144,7 +144,6 @@ def brightness(bgr: np.ndarray, gains: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return kernels.brightness(np.asarray(bgr), np.asarray(gains, np.float32))
 
 
-
 def face_near(frame, gains, centres_uv, radius_px: float, cloth_dn: float) -> bool:
     """Whether the face may lie near any of the positions: a quick look before a search.
 
@@ -155,8 +154,7 @@ def face_near(frame, gains, centres_uv, radius_px: float, cloth_dn: float) -> bo
     """
     level = np.float32(FACE_DARK_FRACTION * cloth_dn)
     return kernels.any_dark(np.asarray(frame), np.asarray(gains, np.float32),
-                     np.asarray(centres_uv, float).reshape(-1, 2), float(radius_px), level)
-
+                            np.asarray(centres_uv, float).reshape(-1, 2), float(radius_px), level)
 
 
 def _not_found(reason: str) -> TipMeasurement:
@@ -424,8 +422,6 @@ def _beside_body(pts: np.ndarray, rim: np.ndarray, body_hull_uv: np.ndarray) -> 
                                       BODY_PROTRUSION_PX, BODY_BLUR_PX)  # fmt: skip
 
 
-
-
 def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
     """Shift t that best puts the model rim on the edge points.
 
@@ -434,13 +430,11 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
     centroid + t, mean radius) or (None, nan).
     """
     centre, radius = kernels.rim_shift_kernel(np.ascontiguousarray(pts, float),
-                                       np.ascontiguousarray(rim, float), RIM_FIT_ITER,
-                                       RIM_FIT_TOL_PX, OUTLIER_PX, MIN_RIM_RAYS)  # fmt: skip
+                                              np.ascontiguousarray(rim, float), RIM_FIT_ITER,
+                                              RIM_FIT_TOL_PX, OUTLIER_PX, MIN_RIM_RAYS)  # fmt: skip
     if not np.isfinite(centre).all():
         return None, math.nan
     return centre, radius
-
-
 
 
 @functools.cache
@@ -478,12 +472,11 @@ def _edge_points(val, lum, seed, r_seed, thr):
     vrise = cv2.filter2D(prof, -1, _dog_kernel(), borderType=cv2.BORDER_REPLICATE)
     win = int(round(EDGE_SEARCH_PX / 2 / EDGE_STEP_PX))
     r_edge, valid = kernels.ray_edges(prof, rise, vrise, thr, win, radii, EDGE_STEP_PX,
-                               MIN_RISE_FRACTION, EDGE_AGREE_PX)
+                                      MIN_RISE_FRACTION, EDGE_AGREE_PX)
     if valid.sum() < N_RAYS // 2:
         return None
     pts = seed + dirs * r_edge[:, None]
     return pts[valid]
-
 
 
 def _fit_ellipse_centre(pts: np.ndarray):

@@ -850,7 +850,6 @@ def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> Ti
     return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
 
 
-
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
     """Whether the pose changed enough to reshape the tip's model rim."""
     dz, a, b, sx, sy = (abs(x - y) for x, y in zip(q1.tolist(), q0.tolist(), strict=True))
