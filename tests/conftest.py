@@ -90,10 +90,11 @@ def build_clip_true(tmp_path_factory, worker_id):
     return rc, folder / "clip_true.csv"
 
 
-# numba's kernels compiled once, before any test needs them: on a fresh clone each xdist
-# worker, and each command a test starts before the cache is written, would compile them
-# again (~25 s of a core each). The controller starts the compile beside the workers'
-# collection; each worker waits for it before its first test.
+# Where the install's compiled kernels are missing (camwhisker.kernels), numba's JIT
+# compiles them once, before any test needs them: each xdist worker, and each command a
+# test starts before the cache is written, would compile them again (~25 s of a core
+# each). The controller starts the compile beside the workers' collection; each worker
+# waits for it before its first test.
 WARM_DONE_ENV = "CAMWHISKER_TEST_KERNELS_CACHED"
 WARM_TIMEOUT_S = 600.0  # a bound on waiting only: the compile takes ~25 s, ~60 s when loaded
 WARM_UP = """
@@ -125,6 +126,10 @@ def pytest_configure(config):
         return  # a worker, or a run without workers: its tests compile where they need to
     for key, value in ONE_THREAD_ENV.items():
         os.environ.setdefault(key, value)  # read by the workers, started after this hook
+    from camwhisker.kernels import compiled_module
+
+    if compiled_module() is not None:
+        return  # the install compiled them: nothing to warm up
     done = Path(tempfile.mkdtemp(prefix="camwhisker-kernels-")) / "done"
     os.environ[WARM_DONE_ENV] = str(done)  # the workers inherit the controller's environment
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get(

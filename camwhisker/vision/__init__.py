@@ -14,8 +14,9 @@ Modules, in the order the data flows:
 
 The per-pixel loops (the corners' LK and template warp, the colour-share
 patches, the tip's brightness, ray edges and rim fit, blob statistics) are
-numba-compiled functions (``cache=True``), each beside the Python function
-that states its contract; everything else is numpy and OpenCV.
+numba kernels in :mod:`camwhisker.kernels`, compiled when the package installs,
+each called by the Python function here that states its contract; everything
+else is numpy and OpenCV.
 """
 
 from camwhisker.vision.detect import FeaturesNotFound

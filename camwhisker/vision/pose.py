@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
+from camwhisker.kernels import pose as kernels
 from camwhisker.sensor.model import TIP, PlateModel
 from camwhisker.sensor.plate import Pose, q_to_pose
 
@@ -223,53 +223,13 @@ def _observations(measured_uv, offsets_uv, weights):
     problem are exact zeros: the normal equations are those of the used points,
     without selecting them anew at every step."""
     w = np.ones(TIP + 1) if weights is None else np.asarray(weights, float)
-    return _observations_kernel(np.asarray(measured_uv, float), np.asarray(offsets_uv, float), w)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _observations_kernel(measured, offsets, weights):
-    n = measured.shape[0]
-    target = np.zeros((n, 2))
-    use = np.zeros(n, np.bool_)
-    sw = np.zeros((n, 1))
-    for k in range(n):
-        u, v = measured[k, 0] - offsets[k, 0], measured[k, 1] - offsets[k, 1]
-        if np.isfinite(u) and np.isfinite(v) and weights[k] > 0:
-            target[k, 0], target[k, 1] = u, v
-            use[k] = True
-            sw[k, 0] = np.sqrt(weights[k])
-    return target, use, sw
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _normal_equations(uv, jac, target, sw, n_par):
-    """J^T J (n_par, n_par), J^T r (n_par, 1) and r^T r of the weighted problem:
-    residuals r = sw (target - uv), Jacobian J = sw jac[..., :n_par]; unused
-    points have sw = 0 and add nothing."""
-    jtj = np.zeros((n_par, n_par))
-    jtr = np.zeros((n_par, 1))
-    rr = 0.0
-    for k in range(uv.shape[0]):
-        w = sw[k, 0]
-        if w == 0.0:
-            continue
-        for c in range(2):
-            r = w * (target[k, c] - uv[k, c])
-            rr += r * r
-            for i in range(n_par):
-                ji = w * jac[k, c, i]
-                jtr[i, 0] += ji * r
-                for j in range(i + 1):
-                    jtj[i, j] += ji * w * jac[k, c, j]
-    for i in range(n_par):
-        for j in range(i):
-            jtj[j, i] = jtj[i, j]
-    return jtj, jtr, rr
+    return kernels.observations_kernel(np.asarray(measured_uv, float),
+                                       np.asarray(offsets_uv, float), w)  # fmt: skip
 
 
 def _gn_step(q, uv, jac, target, sw, n_par):
     """One Gauss-Newton step, taken on q in place: the step (5,), or None if singular."""
-    jtj, jtr, _ = _normal_equations(uv, jac, target, sw, n_par)
+    jtj, jtr, _ = kernels.normal_equations(uv, jac, target, sw, n_par)
     # Cholesky (the normal equations are symmetric positive definite unless singular)
     # by OpenCV: far less call overhead than np.linalg.solve at 5 x 5.
     solved, step = cv2.solve(jtj, jtr, flags=cv2.DECOMP_CHOLESKY)
@@ -283,7 +243,7 @@ def _gn_step(q, uv, jac, target, sw, n_par):
 
 def _pose_fit(q, uv, jac, target, use, sw, n_par, converged) -> PoseFit:
     """The fit at q, given the model pixels and Jacobian there."""
-    jtj, _, rr = _normal_equations(uv, jac, target, sw, n_par)
+    jtj, _, rr = kernels.normal_equations(uv, jac, target, sw, n_par)
     n_obs = 2 * int(use.sum())
     s2 = rr / max(n_obs - n_par, 1)
     cov = np.zeros((5, 5))

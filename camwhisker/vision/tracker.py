@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from numba import njit
 
+from camwhisker.kernels import tracker as kernels
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.model import N_SQUARE, TIP, PlateModel
 from camwhisker.sensor.polygon import polygon_area
@@ -744,7 +744,7 @@ class FrontEnd:
         """Corners whose patch of 2 half + 1 px around ``uv`` lies inside the frame,
         and the patches' top-left pixels (0 where not)."""
         h, w = frame.shape[:2]
-        return _patch_corners(np.asarray(uv, float), half, h, w)
+        return kernels.patch_corners(np.asarray(uv, float), half, h, w)
 
     def _share_patches(self, look: _Look, uv, half):
         """Red-share (cross) or blue-share (square) patches around each corner.
@@ -848,23 +848,6 @@ def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> Ti
     moved by the tip's rest offset (px) and to where a blur of ``blur_px`` shows it."""
     rim, rod, _ = model.outlines(q)
     return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _patch_corners(uv, half, h, w):
-    """FrontEnd._patches_inside in one compiled pass over the corners."""
-    n = 2 * half + 1
-    inside = np.zeros(uv.shape[0], np.bool_)
-    tl = np.zeros((uv.shape[0], 2), np.intp)
-    for k in range(uv.shape[0]):
-        u, v = uv[k, 0], uv[k, 1]
-        if not (np.isfinite(u) and np.isfinite(v)):
-            continue
-        u0, v0 = int(np.rint(u)) - half, int(np.rint(v)) - half
-        if u0 >= 0 and v0 >= 0 and u0 + n <= w and v0 + n <= h:
-            inside[k] = True
-            tl[k, 0], tl[k, 1] = u0, v0
-    return inside, tl
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
