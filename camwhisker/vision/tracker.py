@@ -327,6 +327,12 @@ class FrontEnd:
     """
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
+        # scipy's modules that the frames use (the blur's fits, the templates' reblur),
+        # loaded with the front end: in the first frame, or the first tilted one, they
+        # cost ~0.15 s. Not at the top: the CLI's parser imports this module.
+        import scipy.fft  # noqa: F401
+        import scipy.special  # noqa: F401
+
         self.sensor = sensor
         self.options = options or FrontEndOptions()
         self.model = PlateModel(sensor)
