@@ -129,10 +129,11 @@ class Build:
 
     def describe(self) -> dict:
         """JSON-able description: seed, deviations, appearance, webcam, true sensor."""
+        other = {} if (self.pipeline, self.look) == ("webcam", "drawn") else {
+            "pipeline": self.pipeline, "look": self.look}  # the bundled builds' files as made
         return {
             "seed": self.seed,
-            "pipeline": self.pipeline,
-            "look": self.look,
+            **other,
             "deviations": self.deviations,
             "appearance": dataclasses.asdict(self.appearance),
             "webcam": self.webcam,
