@@ -450,6 +450,8 @@ def calibrate_sensor(
             known, sd = known_dz_from_stage(tracked, len(videos) - len(dz_steps) + j, log)
             has = np.isfinite(known)
             known_dz[has], known_sd[has] = known[has], sd[has]
+        # A step the rest test took for rest (0.1 mm moves the corners ~0.6 px) is not rest.
+        tracked = replace(tracked, rest=tracked.rest & (np.nan_to_num(known_dz) == 0))
         adj = adjust_tracked(tracked, pts, start, fixed, known_dz, known_sd)
         if on_round is not None:
             on_round(k, adj)
