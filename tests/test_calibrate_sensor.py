@@ -19,6 +19,7 @@ from camwhisker.calibration.adjust import (
     SE_LIMIT,
     SYSTEMATIC_PHI0_RAD,
     SYSTEMATIC_PX,
+    DzScale,
     adjust_geometry,
     tolerances,
 )
@@ -675,3 +676,6 @@ def test_known_dz_steps_pin_the_gain_that_a_biased_sweep_misses(build):
     assert abs(gain_error) < 0.003
     assert scale.se < 0.3 * scale.se_sweep  # and the report says the steps pinned it
     assert abs(gain_error) < 3 * scale.se
+    assert not any("known dz steps read" in w for w in adj.warnings)  # within their SEs
+    # Steps 2 % off a sweep that knows its gain to 0.3 %: 6.3 SE, a tracking bias somewhere.
+    assert "6.3 SE from one" in DzScale(0.003, 0.001, 1.02, 0.001).warnings()[0]

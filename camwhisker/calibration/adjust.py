@@ -157,6 +157,8 @@ _STEP_PASSES = 4
 #: Warn when dz's gain is known from the sweep alone to no better than this (1 SE,
 #: relative): the paper's test 2 reads dz to ~0.3 % of its 1 mm range.
 DZ_GAIN_WARN = 0.003
+#: Warn where the steps' gain and the sweep's differ by more than this many combined SEs.
+STEPS_DISAGREE_SE = 3.0
 #: Parameters no sweep determines, always held at nominal, and why.
 ALWAYS_HELD = {
     "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
@@ -208,8 +210,16 @@ class DzScale:
         return out
 
     def warnings(self) -> list[str]:
-        """A warning where the sweep leaves dz's scale weakly determined."""
-        if math.isfinite(self.steps_gain) or not self.se > DZ_GAIN_WARN:
+        """A warning where the sweep leaves dz's scale weakly determined, or where the
+        steps read the sweep's fit's dz off by more than both their SEs explain."""
+        if math.isfinite(self.steps_gain):
+            z = abs(self.steps_gain - 1.0) / math.hypot(self.se_sweep, self.steps_gain_se)
+            if not z > STEPS_DISAGREE_SE:
+                return []
+            return [f"the known dz steps read the sweep's fit's dz x{self.steps_gain:.4f}, "
+                    f"{z:.1f} SE from one: the sweep's or the steps' tracking is biased (the "
+                    "fit follows the steps); check the dz RMSE against a stage run"]
+        if not self.se > DZ_GAIN_WARN:
             return []
         return [f"dz's scale is known to +-{100 * self.se:.2f} % (1 SE) from the sweep alone "
                 f"(> {100 * DZ_GAIN_WARN:g} %): add a video of known dz steps "
