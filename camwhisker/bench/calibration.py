@@ -170,6 +170,12 @@ def _cells(r: RealityRow | None) -> list[str]:
     return [f"{100 * r.ok:.1f}%", f"{r.phi_rmse_deg:.4f}", f"{r.dz_rmse_mm:.4f}"]
 
 
+def _gain_cell(r: CalibrationRow) -> str:
+    if not math.isfinite(r.gain_error):
+        return "-"
+    return f"{100 * r.gain_error:+.2f} / {100 * r.gain_se:.2f}"
+
+
 def table(rows: list[CalibrationRow]) -> str:
     """One Markdown row per build."""
     head = ["build"]
@@ -183,7 +189,7 @@ def table(rows: list[CalibrationRow]) -> str:
                  f"{r.ratio('phi_rmse_deg'):.2f}", f"{r.ratio('dz_rmse_mm'):.2f}",
                  f"{100 * r.within_3se:.0f}% of {r.n_fitted}",
                  f"{r.phi_error_deg:.4f} / {r.phi_se_deg:.4f}",
-                 f"{100 * r.gain_error:+.2f} / {100 * r.gain_se:.2f}", f"{r.calibration_s:.0f}",
+                 _gain_cell(r), f"{r.calibration_s:.0f}",
                  r.note]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
