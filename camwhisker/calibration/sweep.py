@@ -450,6 +450,7 @@ def calibrate_sensor(
             known, sd = known_dz_from_stage(tracked, len(videos) - len(dz_steps) + j, log)
             has = np.isfinite(known)
             known_dz[has], known_sd[has] = known[has], sd[has]
+        tracked = replace(tracked, rest=_steps_rest(tracked, known_dz))
         adj = adjust_tracked(tracked, pts, start, fixed, known_dz, known_sd)
         if on_round is not None:
             on_round(k, adj)
@@ -463,6 +464,21 @@ def calibrate_sensor(
             break
         previous = adj
     return SensorFit(adj, tracked, ok_fraction, radius_px, *used)
+
+
+def _steps_rest(tracked: TrackedSweep, known_dz: np.ndarray) -> np.ndarray:
+    """The rest flags, a video with known dz at rest only until its last frame known at
+    dz zero before its first step: the rest test (REST_PX) takes the first ramp's
+    frames for rest (0.1 mm moves the corners ~0.6 px), the stage log does not."""
+    rest = tracked.rest.copy()
+    frame = np.arange(len(rest))
+    for k in np.unique(tracked.video[np.isfinite(known_dz)]):
+        mine = tracked.video == k
+        moved = np.flatnonzero(mine & (np.nan_to_num(known_dz) != 0))
+        zero = np.flatnonzero(mine & (known_dz == 0) & (frame < moved.min(initial=len(rest))))
+        if len(zero):
+            rest[mine & (frame > zero.max())] = False
+    return rest
 
 
 def adjust_tracked(tracked: TrackedSweep, points_uv: np.ndarray, start: Sensor, fixed: dict,
