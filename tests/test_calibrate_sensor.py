@@ -679,3 +679,16 @@ def test_known_dz_steps_pin_the_gain_that_a_biased_sweep_misses(build):
     assert not any("known dz steps read" in w for w in adj.warnings)  # within their SEs
     # Steps 2 % off a sweep that knows its gain to 0.3 %: 6.3 SE, a tracking bias somewhere.
     assert "6.3 SE from one" in DzScale(0.003, 0.001, 1.02, 0.001).warnings()[0]
+
+
+def test_a_lossy_steps_video_is_warned_about(tmp_path):
+    from camwhisker.calibration.sweep import lossy_steps_warnings
+    from camwhisker.io.video_out import write_video
+
+    frames = [np.full((48, 64, 3), 128, np.uint8)] * 2
+    mjpg, kept = tmp_path / "steps.avi", tmp_path / "steps.mp4"
+    write_video(mjpg, frames, 30.0)
+    write_video(kept, frames, 30.0, h264_crf=0)
+    warned = lossy_steps_warnings([(mjpg, None), (kept, None)])
+    # Exactly the MJPG one: its quantisation is what misplaces the corners at small steps.
+    assert len(warned) == 1 and str(mjpg) in warned[0] and "mjpeg" in warned[0]
