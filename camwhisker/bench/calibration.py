@@ -10,14 +10,16 @@ geometry's phi error at 20 deg against the report's SE, the calibration's
 seconds) and a summary against the acceptance limits.
 
 With ``--dz-steps`` each build also films the paper's test 2 (0.1 mm axial steps
-to 1 mm, scene ``dz_steps``, another render seed) with its stage log, and the
-calibration gets it; the row then also gives the fitted file's dz gain error
-(linearised at CHECK_DZ_MM, against the build's true geometry) and the
-report's SE of dz's scale, and the limits are the steps' (dz within
-MAX_RATIO_STEPS, gain within MAX_GAIN_ERROR).
+to 1 mm, scene ``dz_steps``, another render seed) with its stage log, recorded
+without compression (H.264 at CRF 0; ``--steps-mjpg``: the webcam's MJPG, whose
+quantisation moves each corner by 0.1-0.5 px at such small moves,
+``camwhisker dev subpixel-bench``), and the calibration gets it; the row then also
+gives the fitted file's dz gain error (linearised at CHECK_DZ_MM, against the
+build's true geometry) and the report's SE of dz's scale, and the limits are the
+steps' (dz within MAX_RATIO_STEPS, gain within MAX_GAIN_ERROR).
 
     camwhisker dev calibration-bench [--seeds 100-104] [--sweep-s 12] [--clip-frames 120]
-                                     [--dz-steps]
+                                     [--dz-steps [--steps-mjpg]]
 """
 
 from __future__ import annotations
@@ -119,10 +121,11 @@ def outside_3se(value: np.ndarray, se: np.ndarray, truth: np.ndarray) -> tuple[s
     return tuple(n for n, o in zip(GEOMETRY_NAMES, off, strict=True) if o)
 
 
-def render_steps(build, seed: int, folder: Path) -> tuple[Path, StageLog]:
-    """Build ``seed``'s video of known dz steps and its stage log (the scene's exact dz)."""
+def render_steps(build, seed: int, folder: Path, lossless: bool = True) -> tuple[Path, StageLog]:
+    """Build ``seed``'s video of known dz steps (``lossless``: uncompressed, else the
+    webcam's MJPG) and its stage log (the scene's exact dz)."""
     scenario, video = render_build_clip(build, "dz_steps", dz_steps_frames(FPS),
-                                        seed + STEPS_SEED_OFFSET, folder)  # fmt: skip
+                                        seed + STEPS_SEED_OFFSET, folder, lossless)  # fmt: skip
     track = scenario.track
     log = stage_log_from_arrays(track.t_s, track.dz_mm, source=f"{video.stem}.stage.csv",
                                 dz_mm=track.dz_mm)  # fmt: skip
@@ -130,15 +133,16 @@ def render_steps(build, seed: int, folder: Path) -> tuple[Path, StageLog]:
 
 
 def run_build(seed: int, sweep_frames: int, clip_frames: int, folder: Path,
-              nominal: Sensor | None = None, dz_steps: bool = False) -> CalibrationRow:  # fmt: skip
-    """Calibrate build ``seed`` on its sweep (and its dz steps) and score the three files
-    on a separate clip."""
+              nominal: Sensor | None = None, dz_steps: bool = False,
+              steps_lossless: bool = True) -> CalibrationRow:  # fmt: skip
+    """Calibrate build ``seed`` on its sweep (and its dz steps, ``steps_lossless`` or
+    MJPG) and score the three files on a separate clip."""
     nominal = nominal or Sensor()
     build = draw_build(seed, nominal)
     _, sweep = render_build_clip(build, "calibration_sweep", sweep_frames, seed, folder)
     scenario, clip = render_build_clip(build, "nominal", clip_frames, seed + CLIP_SEED_OFFSET,
                                        folder)  # fmt: skip
-    steps = [render_steps(build, seed, folder)] if dz_steps else []
+    steps = [render_steps(build, seed, folder, steps_lossless)] if dz_steps else []
     t0 = time.perf_counter()
     try:
         cal = calibrate_sensor([sweep], nominal, build.sensor.plate.square_side_mm,
@@ -245,6 +249,8 @@ def main(argv: list[str] | None = None) -> int:
     add_sweep_arguments(p, sweep_s=12.0)
     p.add_argument("--dz-steps", action="store_true",
                    help="calibrate with a video of known dz steps too (the paper's test 2)")
+    p.add_argument("--steps-mjpg", action="store_true",
+                   help="the steps' video in the webcam's MJPG, not uncompressed")
     args = p.parse_args(argv)
     sweep_frames = sweep_frames_of(p, args)
     rows = []
@@ -253,12 +259,14 @@ def main(argv: list[str] | None = None) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         for seed in args.seeds:
             rows.append(run_build(seed, sweep_frames, args.clip_frames, folder,
-                                  dz_steps=args.dz_steps))  # fmt: skip
+                                  dz_steps=args.dz_steps,
+                                  steps_lossless=not args.steps_mjpg))  # fmt: skip
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     print()
     print(table(rows))
     print(f"\n{summary(rows)}")
-    steps = ", with dz steps (scene dz_steps)" if args.dz_steps else ""
+    codec = "MJPG" if args.steps_mjpg else "uncompressed"
+    steps = f", with dz steps (scene dz_steps, {codec})" if args.dz_steps else ""
     print(f"sweep {args.sweep_s:g} s ({sweep_frames} frames){steps}, clip 'nominal' "
           f"{args.clip_frames} frames (MJPG), seeds {','.join(map(str, args.seeds))}; "
           f"tune only on seeds {REALITY_SUITE.tuning_seeds}")  # fmt: skip
