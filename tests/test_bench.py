@@ -163,17 +163,25 @@ def test_calibration_table_and_summary_on_made_up_rows():
     text = table([good, failed])
     lines = text.splitlines()
     assert len(lines) == 4 and all(line.count("|") == lines[0].count("|") for line in lines)
-    assert "| 1.50 | 1.20 | 100% of 20 | 0.0200 / 0.0100 | 41 |" in lines[2]
+    assert "| 1.50 | 1.20 | 100% of 20 | 0.0200 / 0.0100 | - | 41 |" in lines[2]
     assert "| - | - | - |" in lines[3] and "no fit" in lines[3]
     assert good.meets() == {"phi": True, "dz": True, "ok": True, "se": True}
     assert not any(failed.meets().values())
     half = CalibrationRow(102, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.012),
                           row("true", 1.0, 0.02, 0.01), 0.5, 4, 40.0, "",
                           ("camera.k1", "plate.h_r_mm"), 0.01, 0.05)  # fmt: skip
-    first, pooled, phi = summary([good, failed, half]).splitlines()
-    assert first.endswith("all four 1/3")
+    first, gains, pooled, phi = summary([good, failed, half]).splitlines()
+    assert first.endswith("all 1/3")
+    assert gains.endswith("within 3 reported SE: 0/2")  # neither row has a gain
     assert "builds pooled: 22/24" in pooled and "camera.k1 1, plate.h_r_mm 1" in pooled
     assert phi.endswith("within 3 reported SE: 1/2")  # 0.02 within 0.03, 0.05 not
+    # With known dz steps: dz within 1.2x (here 1.15) and the gain within 0.3 %.
+    steps = CalibrationRow(103, row("nominal", 0.5, 0.3, 0.02), row("fitted", 1.0, 0.03, 0.0115),
+                           row("true", 1.0, 0.02, 0.01), 1.0, 20, 41.0, gain_error=0.0025,
+                           gain_se=0.001, dz_steps=True)  # fmt: skip
+    assert steps.meets() == {"phi": True, "dz": True, "ok": True, "se": True, "gain": True}
+    assert "+0.25 / 0.10" in table([steps])
+    assert "dz gain within 0.3 % 1/1" in summary([steps])
     value, se = np.zeros(len(GEOMETRY_NAMES)), np.full(len(GEOMETRY_NAMES), 0.1)
     truth, se[2] = value + 0.25, np.nan  # 2.5 SE off, one held
     truth[[1, 2]] = 0.35  # 3.5 SE off, and held

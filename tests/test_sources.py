@@ -172,3 +172,29 @@ def test_image_folder_goes_on_past_a_bad_image(tmp_path):
     assert src.frames_read == 2
     assert "01.png (frame 1: cannot read image)" in src.problem
     assert "02.png (frame 2: 60x40 px, not 128x72 as the first)" in src.problem
+
+
+@pytest.mark.parametrize("suffix,crf,codec", [(".avi", 18, "mjpeg"), (".mp4", 18, "h264"),
+                                              (".mp4", 0, "")])  # fmt: skip
+def test_lossy_codec_names_the_codec_that_quantised_the_frames(tmp_path, suffix, crf, codec):
+    from camwhisker.io.sources import lossy_codec
+
+    path = tmp_path / f"v{suffix}"
+    frames = _frames(3)
+    write_video(path, frames, 30.0, h264_crf=crf)
+    assert lossy_codec(path) == codec
+    if codec == "":  # x264 at CRF 0 keeps the frames: to the YUV conversion's rounding
+        decoded = [f.image for f in open_source(path)]
+        err = np.abs(np.stack(decoded).astype(int) - np.stack(frames).astype(int))
+        assert err.max() <= 3  # BGR -> YUV 4:4:4 -> BGR in 8 bits: a few DN at most
+
+
+def test_lossy_codec_of_image_folders(tmp_path):
+    import cv2
+
+    from camwhisker.io.sources import lossy_codec
+
+    for name, suffix in (("png", ".png"), ("jpg", ".jpg")):
+        (tmp_path / name).mkdir()
+        cv2.imwrite(str(tmp_path / name / f"f0{suffix}"), _frames(1)[0])
+    assert lossy_codec(tmp_path / "png") == "" and lossy_codec(tmp_path / "jpg") == "JPEG"

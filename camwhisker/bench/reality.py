@@ -84,19 +84,24 @@ class RealityRow:
 
 
 def render_build_clip(build: Build | None, scene: str, n_frames: int, render_seed: int,
-                      folder: Path) -> tuple[Scenario, Path]:  # fmt: skip
+                      folder: Path, lossless: bool = False) -> tuple[Scenario, Path]:  # fmt: skip
     """Build ``build`` (None: the nominal sensor and look) seeing ``scene`` rendered
     into ``folder``; a clip already there is reused.
 
-    ``render_seed`` seeds both the scene's poses and the render's noise.
+    ``render_seed`` seeds both the scene's poses and the render's noise. ``lossless``:
+    H.264 at CRF 0 (``.mp4``, 4:4:4) instead of the webcam's MJPG, as a recording made
+    without compression keeps the frames.
     """
     scenario = make_scenario(scene, n_frames, render_seed)
     if build is not None:
+        if lossless:
+            build = replace(build, webcam={**build.webcam, "h264_crf": 0})
         scenario = build.scenario(scenario)
     name = "nominal" if build is None else f"build{build.seed}"
     if build is not None and (build.pipeline, build.look) != ("webcam", "drawn"):
         name += f"-{build.pipeline}-{build.look}"
-    video = Path(folder) / f"{scene}-{name}-n{n_frames}-r{render_seed}.avi"
+    kind = "-lossless.mp4" if lossless else ".avi"
+    video = Path(folder) / f"{scene}-{name}-n{n_frames}-r{render_seed}{kind}"
     if not (video.exists() and sidecar_paths(video)["meta"].exists()):
         sensor = Sensor() if build is None else build.sensor
         render_scenario(scenario, sensor, video, render_seed, build=build)

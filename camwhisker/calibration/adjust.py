@@ -21,6 +21,16 @@ Gauges, and what holds them:
   square's side, measured with calipers) must be held at its value, or frames
   with a known dz (a stage's axial steps) given: a prior on their poses.
 
+Known dz steps and dz's scale: with a known length, the sweep still leaves dz's
+gain weakly determined (z_i and fx trade off, and a tilt-dependent tracking error
+moves them together). The steps measure that gain directly: after the fit, their
+frames' dz is read at the fitted geometry (each video's rest offsets taken out, as
+the front end does), a line through the pauses gives the gain and its SE, and the
+geometry is moved to make it one, weighted against the fit's full covariance (a
+Kalman update along ``dz_gain_response``). Without a length the steps' prior on
+the poses also holds the scale's gauge. ``DzScale`` says how well the gain is
+known, from the sweep and with the steps.
+
 The tracked corners: a tracked corner is the plate point that its rest
 template is centred on, the detected corner, which lies off the true corner
 by a constant (blur rounds a corner, compression moves an edge). With
@@ -50,8 +60,10 @@ value, the worst first, and the rest fitted again.
 Both leave out what no residual shows: a tracking error that grows smoothly with
 the tilt, which the fit takes into the geometry. Each point is given one per
 coordinate, c1 a/PHI0 + c2 b/PHI0 + c3 (a^2 + b^2)/PHI0^2 with each c of SD
-``SYSTEMATIC_PX`` (measured on tuning builds), and the geometry's linear response
-to them adds to every variance. Which parameters to hold is decided without it:
+``SYSTEMATIC_PX`` (measured on tuning builds) or more where the point's residuals,
+regressed on the terms, show more (:func:`systematic_px`: a tracker worse than the
+tuning builds'), and the geometry's linear response to them adds to every variance
+and covariance. Which parameters to hold is decided without it:
 holding one does not remove that error, it passes it to the parameters correlated
 with the held one and adds its own (up to its tolerance).
 """
@@ -59,7 +71,7 @@ with the held one and adds its own (up to its tolerance).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -75,17 +87,21 @@ from camwhisker.sensor.model import (
     with_geometry,
 )
 from camwhisker.sensor.plate import rigid_motion
-from camwhisker.vision.mismatch import CHECK_PHI_DEG, phi_response
+from camwhisker.vision.mismatch import CHECK_DZ_MM, CHECK_PHI_DEG, dz_gain_response, phi_response
 
 __all__ = [
     "HUBER_PX",
     "SE_LIMIT",
     "PHI_MIN_SWEEP_DEG",
     "Adjustment",
+    "DzScale",
+    "step_levels",
+    "steps_gain",
     "tolerances",
     "adjust_geometry",
     "corner_shift_jacobian",
     "bias_terms",
+    "systematic_px",
 ]
 
 #: The Huber loss is quadratic within this distance of a point's model (px):
@@ -132,6 +148,17 @@ _NOISE_PASSES = 4
 MIN_POINTS = 4
 #: SD of a known dz (mm) per stage pause: a stage's step error.
 KNOWN_DZ_SD_MM = 0.001
+#: Fewest distinct known dz levels (pauses) whose line gives dz's gain.
+MIN_STEP_LEVELS = 3
+#: The geometry is moved along the steps' gain until they read it within this many of its
+#: SEs of one, in this many passes at most (the gain's response is linear to ~1 %).
+STEP_GAIN_RTOL = 0.1
+_STEP_PASSES = 4
+#: Warn when dz's gain is known from the sweep alone to no better than this (1 SE,
+#: relative): the paper's test 2 reads dz to ~0.3 % of its 1 mm range.
+DZ_GAIN_WARN = 0.003
+#: Warn where the steps' gain and the sweep's differ by more than this many combined SEs.
+STEPS_DISAGREE_SE = 3.0
 #: Parameters no sweep determines, always held at nominal, and why.
 ALWAYS_HELD = {
     "plate.rod_diameter_mm": "moves only the tip's centroid, at second order: held at nominal",
@@ -152,6 +179,51 @@ COST_ATOL = 0.01
 def tolerances(sensor: Sensor) -> np.ndarray:
     """Each parameter's build tolerance, in the order of ``GEOMETRY_NAMES``."""
     return build_tolerances(sensor)
+
+
+@dataclass(frozen=True)
+class DzScale:
+    """How well dz's scale (its gain, read over true, at ``CHECK_DZ_MM``) is known.
+
+    Attributes
+    ----------
+    se_sweep : float
+        Relative SE of the gain from the sweep's fit (its full covariance).
+    se : float
+        ... after the known dz steps (``se_sweep`` without them).
+    steps_gain, steps_gain_se : float
+        The gain the steps measured on the sweep's fit, and its relative SE (NaN
+        without steps): the fit's geometry was then moved to make it one.
+    """
+
+    se_sweep: float = math.nan
+    se: float = math.nan
+    steps_gain: float = math.nan
+    steps_gain_se: float = math.nan
+
+    def text(self) -> str:
+        """One line for the user."""
+        out = f"dz's scale known to +-{100 * self.se_sweep:.2f} % (1 SE) from the sweep"
+        if math.isfinite(self.steps_gain):
+            out += (f"; +-{100 * self.se:.2f} % with the known dz steps (they read the "
+                    f"sweep's fit's dz x{self.steps_gain:.4f} +- {100 * self.steps_gain_se:.2f} %)")
+        return out
+
+    def warnings(self) -> list[str]:
+        """A warning where the sweep leaves dz's scale weakly determined, or where the
+        steps read the sweep's fit's dz off by more than both their SEs explain."""
+        if math.isfinite(self.steps_gain):
+            z = abs(self.steps_gain - 1.0) / math.hypot(self.se_sweep, self.steps_gain_se)
+            if not z > STEPS_DISAGREE_SE:
+                return []
+            return [f"the known dz steps read the sweep's fit's dz x{self.steps_gain:.4f}, "
+                    f"{z:.1f} SE from one: the sweep's or the steps' tracking is biased (the "
+                    "fit follows the steps); check the dz RMSE against a stage run"]
+        if not self.se > DZ_GAIN_WARN:
+            return []
+        return [f"dz's scale is known to +-{100 * self.se:.2f} % (1 SE) from the sweep alone "
+                f"(> {100 * DZ_GAIN_WARN:g} %): add a video of known dz steps "
+                "(--dz-steps VIDEO LOG, the paper's test 2) to pin it"]
 
 
 @dataclass(frozen=True)
@@ -186,6 +258,8 @@ class Adjustment:
         Each point's noise SD per coordinate, which weights its residuals: their
         robust SD inflated for their frame-to-frame correlation.
     warnings : list of str
+    dz_scale : DzScale
+        How well dz's gain is known, with and without known dz steps.
     """
 
     sensor: Sensor
@@ -203,6 +277,7 @@ class Adjustment:
     corner_shifts_mm: np.ndarray
     noise_px: np.ndarray
     warnings: list = field(default_factory=list)
+    dz_scale: DzScale = field(default_factory=DzScale)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -436,13 +511,32 @@ def _noise(ne: _Normal, p: _Problem, moving: np.ndarray
     return sigma, noise, huber
 
 
-def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
+def systematic_px(residual: np.ndarray, q: np.ndarray, moving: np.ndarray,
+                  noise_px: np.ndarray) -> np.ndarray:  # fmt: skip
+    """Each point's tilt-dependent tracking error's SD per term (px), shape (13,): at
+    least ``SYSTEMATIC_PX``, more where the fit's residuals (F, 13, 2) regressed on
+    :func:`bias_terms` (with a constant) show larger coefficients than their noise
+    (``noise_px``) explains: what the geometry could not take in, a floor of the rest."""
+    terms = np.array([bias_terms(qq) for qq in q])
+    out = np.full(TIP + 1, SYSTEMATIC_PX)
+    for j in range(TIP + 1):
+        use = moving & np.isfinite(residual[:, j]).all(axis=1)
+        if use.sum() < MIN_NOISE_DOF:
+            continue
+        x = np.column_stack([np.ones(use.sum()), terms[use]])
+        coef = np.linalg.lstsq(x, residual[use, j], rcond=None)[0][1:]  # (3, 2)
+        noise = noise_px[j] ** 2 * np.diag(np.linalg.pinv(x.T @ x))[1:, None]
+        out[j] = max(SYSTEMATIC_PX, math.sqrt(max(float(np.mean(coef**2 - noise)), 0.0)))
+    return out
+
+
+def _standard_errors(ne: _Normal, p: _Problem, q: np.ndarray, moving: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """SE of the free parameters (their units) from the undamped reduced system, whose
     residuals are in units of their noise SD: the larger of the model's covariance
     S^-1 and the sandwich S^-1 M S^-1 with the residuals' scores summed over blocks
     of ``BLOCK_FRAMES`` (errors correlated in any way within a block, not across),
-    and that plus the variance from the tilt-dependent errors (``SYSTEMATIC_PX``).
+    and that plus the variance from the tilt-dependent errors (:func:`systematic_px`).
     Third, the covariance behind the second: the sandwich's correlations with those
     variances, plus the tilt-dependent errors' own."""
     if not len(p.free):
@@ -461,11 +555,12 @@ def _standard_errors(ne: _Normal, p: _Problem, moving: np.ndarray
     s_inv = np.linalg.inv(S)
     sandwich = s_inv @ meat @ s_inv
     var = np.clip(np.maximum(np.diag(s_inv), np.diag(sandwich)), 0.0, None)
-    response = s_inv @ ne.systematic.reshape(-1, S.shape[0]).T  # (n, 13 * 2 * 3)
-    var_sys = SYSTEMATIC_PX**2 * np.sum(response**2, axis=1)
+    sys_px = np.repeat(systematic_px(ne.residual, q, moving, p.noise_px), 2 * 3)
+    response = s_inv @ ne.systematic.reshape(-1, S.shape[0]).T * sys_px  # (n, 13 * 2 * 3)
+    var_sys = np.sum(response**2, axis=1)
     d = np.sqrt(np.clip(np.diag(sandwich), 1e-300, None))
     scale = np.sqrt(var) / d
-    cov = sandwich * np.outer(scale, scale) + SYSTEMATIC_PX**2 * response @ response.T
+    cov = sandwich * np.outer(scale, scale) + response @ response.T
     tol = p.tol[p.free]
     return np.sqrt(var) * tol, np.sqrt(var + var_sys) * tol, cov * np.outer(tol, tol)
 
@@ -502,7 +597,7 @@ def _fit_holding(p: _Problem, g, q, moving, nominal, held: dict, se_limit: float
             # The weights were off: fit again with the measured SDs and Huber distances.
             p.noise_px, p.huber_px = noise, huber
             continue
-        se_data, se_free, cov = _standard_errors(ne, p, moving)
+        se_data, se_free, cov = _standard_errors(ne, p, q, moving)
         n_free_geo = int(np.count_nonzero(p.free < n_geo))
         # By what the sweep's data say: holding does not remove the tilt-dependent error,
         # it passes it to the parameters correlated with the held one, and adds its own.
@@ -596,28 +691,22 @@ def adjust_geometry(
         See ``HUBER_PX`` (each point's Huber distance at most) and ``SE_LIMIT``.
     known_dz_mm, known_dz_sd_mm : ndarray, shape (F,), optional; float or ndarray
         A frame's known dz (mm; NaN where unknown), such as a stage's axial steps, and
-        its SD: a prior on the frame's pose that fixes the scale without a length.
+        its SD: they fix dz's gain after the fit (module notes); without a known
+        length, also a prior on the frame's pose, which fixes the scale.
 
     Returns
     -------
     Adjustment
     """
-    points_uv, rest, video, corner_offsets_uv, fixed = _checked(
-        points_uv, rest, video, corner_offsets_uv, fixed
-    )
+    points_uv, rest, video, corner_offsets_uv, fixed = _checked(points_uv, rest, video,
+                                                                corner_offsets_uv, fixed)
     known_dz, known_sd = _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames := len(points_uv))
     n_videos = len(corner_offsets_uv)
-    valid = np.isfinite(points_uv).all(axis=-1)
-    used = valid.sum(axis=1) >= MIN_POINTS
-    if not (rest & used).any():
-        raise ValueError("no rest frame with enough tracked points: the depth has no zero")
-    valid &= used[:, None]
-    valid[rest, TIP] = False  # see the module notes
-    g = geometry_vector(sensor)
-    for name, value in fixed.items():
-        g[GEOMETRY_NAMES.index(name)] = value
-    start = with_geometry(sensor, g)
+    valid, used = _usable(points_uv, rest)
     nominal = geometry_vector(sensor)
+    g = nominal.copy()
+    g[[GEOMETRY_NAMES.index(name) for name in fixed]] = list(fixed.values())
+    start = with_geometry(sensor, g)
     n_geo = len(g)
     shift_prior, shift_sd = _shift_prior(start, corner_offsets_uv)
     g = np.concatenate([g, shift_prior])  # then the corners' shifts (mm)
@@ -625,24 +714,42 @@ def adjust_geometry(
     q[rest | ~used] = 0.0
     moving = used & ~rest
     tol = np.concatenate([tolerances(sensor), shift_sd])
-    held = {name: "held at the given value" for name in fixed}
-    held.update({k: v for k, v in ALWAYS_HELD.items() if k not in held})
+    held = {n: "held at the given value" for n in fixed} | {
+        k: v for k, v in ALWAYS_HELD.items() if k not in fixed}
+    # With a known length the steps enter after the fit (_dz_scale), else also as a prior.
+    prior = np.full(n_frames, np.nan) if _length_known(fixed) else known_dz
     p = _Problem(points_uv, valid, rest, video, start, tol, shift_prior, np.zeros(0, dtype=int),
                  huber_px, np.full(TIP + 1, huber_px), np.full(TIP + 1, NOISE_START_PX),
-                 known_dz, known_sd)  # fmt: skip
+                 prior, known_sd)  # fmt: skip
     g, q, ne, n_iter = _solve(p, g, q, moving, _START_ITER)  # the poses alone first
     free_geo = [i for i, n in enumerate(GEOMETRY_NAMES) if n not in held]
     p.free = np.array(free_geo + (list(range(n_geo, len(g))) if corner_shifts else []), int)
     g, q, ne, se_free, sigma, it = _fit_holding(p, g, q, moving, nominal, held, se_limit)
     n_iter += it
     se, se_data, covariance = _geometry_errors(p.free, n_geo, *se_free)
+    scaled_by_dz = bool(np.nan_to_num(known_dz)[moving].any())
+    g, q, residual, covariance, steps = _dz_scale(p, g, q, moving, known_dz if scaled_by_dz
+                                                  else None, covariance, ne.residual)  # fmt: skip
+    se = np.where(np.isfinite(se), np.sqrt(np.diag(covariance)), np.nan)
     g, shifts = g[:n_geo], g[n_geo:].reshape(n_videos, TIP, 2)
     q5 = np.where(used[:, None], np.pad(q, ((0, 0), (0, 2))), np.nan)
-    scaled_by_dz = bool(np.nan_to_num(known_dz)[moving].any())
     return Adjustment(
-        with_geometry(sensor, g), nominal, g, se, se_data, covariance, held, q5, ne.residual,
-        used, sigma, n_iter, shifts, p.noise_px, _warnings(q5, held, fixed, scaled_by_dz),
+        with_geometry(sensor, g), nominal, g, se, se_data, covariance, held, q5, residual,
+        used, sigma, n_iter, shifts, p.noise_px,
+        _warnings(q5, held, fixed, scaled_by_dz) + steps.warnings(), steps,
     )  # fmt: skip
+
+
+def _usable(points_uv: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which points count (F, 13) and which frames (F,): those with MIN_POINTS tracked;
+    not the tip at rest (see the module notes). ValueError without a rest frame."""
+    valid = np.isfinite(points_uv).all(axis=-1)
+    used = valid.sum(axis=1) >= MIN_POINTS
+    if not (rest & used).any():
+        raise ValueError("no rest frame with enough tracked points: the depth has no zero")
+    valid &= used[:, None]
+    valid[rest, TIP] = False
+    return valid, used
 
 
 def _geometry_errors(free: np.ndarray, n_geo: int, se, se_data, cov):
@@ -654,6 +761,105 @@ def _geometry_errors(free: np.ndarray, n_geo: int, se, se_data, cov):
     covariance = np.zeros((n_geo, n_geo))
     covariance[np.ix_(geo, geo)] = cov[: len(geo), : len(geo)]
     return out_se, out_se_data, covariance
+
+
+def _length_known(fixed: dict) -> bool:
+    """A length (not an offset fixed at zero) is held at a given value: it sets the scale."""
+    return any(n.endswith("_mm") and fixed[n] != 0 for n in fixed)
+
+
+def _gain_variance(sensor: Sensor, g: np.ndarray, covariance: np.ndarray,
+                   dz_mm: float = CHECK_DZ_MM) -> float:  # fmt: skip
+    """Variance of dz's relative gain at ``dz_mm`` from the geometry's covariance."""
+    r = dz_gain_response(PlateModel(with_geometry(sensor, g)), dz_mm)
+    return float(r @ covariance @ r)
+
+
+def _read_dz(p: _Problem, g: np.ndarray, q: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """dz (mm) of ``frames`` (F,) as their images read at the geometry g: their poses
+    refitted with the geometry held and without the known dz's prior; NaN elsewhere.
+    Each video's mean residual at rest is taken out first, as the front end's rest
+    offsets do: else the rest image's mismatch reads as dz in every moving frame."""
+    still = replace(p, valid=p.valid & p.rest[:, None], free=np.zeros(0, int))
+    rest_residual = _normal(still, g, q).residual
+    offsets = np.zeros((int(p.video.max()) + 1, TIP + 1, 2))
+    for v in np.unique(p.video[frames]):  # each video's rest offsets, as the front end's
+        at_rest = rest_residual[p.rest & (p.video == v)]
+        seen = np.isfinite(at_rest)
+        offsets[v] = np.nansum(at_rest, axis=0) / np.maximum(seen.sum(axis=0), 1)
+    sub = replace(p, obs=p.obs - offsets[p.video], valid=p.valid & frames[:, None],
+                  free=np.zeros(0, int), known_dz=np.full(len(frames), np.nan))  # fmt: skip
+    return np.where(frames, _solve(sub, g, q, frames)[1][:, 0], np.nan)
+
+
+def step_levels(known_dz_mm: np.ndarray, video: np.ndarray, read_dz_mm: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each pause's known dz and the median of its frames' read dz (mm): a pause is a run
+    of consecutive frames of one video with one known dz (NaN frames end a run)."""
+    has = np.isfinite(known_dz_mm) & np.isfinite(read_dz_mm)
+    idx = np.flatnonzero(has)
+    if not len(idx):
+        return np.zeros(0), np.zeros(0)
+    new = np.ones(len(idx), bool)
+    new[1:] = ((np.diff(idx) > 1) | (np.diff(known_dz_mm[idx]) != 0)
+               | (np.diff(video[idx]) != 0))  # fmt: skip
+    runs = np.split(idx, np.flatnonzero(new)[1:])
+    return (np.array([known_dz_mm[r[0]] for r in runs]),
+            np.array([np.median(read_dz_mm[r]) for r in runs]))  # fmt: skip
+
+
+def steps_gain(known_mm: np.ndarray, read_mm: np.ndarray) -> tuple[float, float]:
+    """dz's gain (read over known, the slope of a line through the pauses' levels) and
+    its SE: from the levels' scatter about the line, at least a stage step's error
+    (``KNOWN_DZ_SD_MM`` per pause). NaN where fewer than MIN_STEP_LEVELS levels differ."""
+    if len(np.unique(known_mm)) < MIN_STEP_LEVELS:
+        return math.nan, math.nan
+    slope, intercept = np.polyfit(known_mm, read_mm, 1)
+    spread = float(np.sum((known_mm - known_mm.mean()) ** 2))
+    scatter = float(np.sum((read_mm - slope * known_mm - intercept) ** 2)) / (len(known_mm) - 2)
+    sd = max(math.sqrt(scatter), KNOWN_DZ_SD_MM)
+    return float(slope), sd / math.sqrt(spread) / abs(float(slope))
+
+
+def _dz_scale(p: _Problem, g, q, moving, known_dz, covariance, residual):
+    """How well the fit knows dz's gain (:class:`DzScale`), and with known dz steps
+    (``known_dz``, else None) the fit moved by them (:func:`_scale_from_steps`): returns
+    g, q, the residuals, the covariance and the scale."""
+    se_gain = math.sqrt(max(_gain_variance(p.sensor, g[: len(GEOMETRY_NAMES)], covariance), 0))
+    scale = DzScale(se_gain, se_gain)
+    if known_dz is None:
+        return g, q, residual, covariance, scale
+    return _scale_from_steps(p, g, q, moving, known_dz, covariance, scale)
+
+
+def _scale_from_steps(p: _Problem, g, q, moving, known_dz, covariance, scale: DzScale):
+    """The fit's geometry moved so that the known steps read at their dz: the gain the
+    steps measure (:func:`steps_gain`, the poses read at the fitted geometry) taken as
+    a measurement of the geometry (``dz_gain_response``), weighted against the fit's full
+    covariance (Kalman update: the weakly determined directions move, mostly z_i with
+    fx). Returns g, the poses and residuals at it, the updated covariance, and the scale."""
+    n_geo = len(GEOMETRY_NAMES)
+    frames = moving & np.isfinite(known_dz)
+    level = float(np.mean(np.abs(known_dz[frames])))
+    gain, gain_se = math.nan, math.nan
+    for k in range(_STEP_PASSES):
+        found, found_se = steps_gain(*step_levels(known_dz, p.video, _read_dz(p, g, q, frames)))
+        if k == 0:
+            gain, gain_se = found, found_se
+            if not math.isfinite(gain):
+                break
+            r = dz_gain_response(PlateModel(with_geometry(p.sensor, g[:n_geo])), level)
+            gain_c = covariance @ r
+            k_gain = gain_c / (r @ gain_c + gain_se**2)
+            covariance = covariance - np.outer(k_gain, gain_c)
+        elif abs(found - 1.0) < STEP_GAIN_RTOL * gain_se:
+            break
+        g[:n_geo] += k_gain * (1.0 / found - 1.0)  # the gain's relative error, linearised
+    fixed_geo = replace(p, free=np.zeros(0, int))
+    g, q, ne, _ = _solve(fixed_geo, g, q, moving)
+    se_after = math.sqrt(max(_gain_variance(p.sensor, g[:n_geo], covariance), 0.0))
+    return g, q, ne.residual, covariance, replace(scale, se=se_after, steps_gain=gain,
+                                                  steps_gain_se=gain_se)  # fmt: skip
 
 
 def _checked_dz(known_dz_mm, known_dz_sd_mm, n_frames: int):

@@ -9,6 +9,8 @@ For ``BUILD.toml``::
                         corners' offsets at rest; frames used; phi's SE
                         at 20 deg of tilt read with the fitted file (from the
                         fitted parameters' covariance; held ones count as exact);
+                        dz's scale: its gain's relative SE from the sweep, and
+                        with known dz steps, the gain they measured;
                         warnings; version, inputs, command
     BUILD.report.png    residuals per point and per frame, parameter shifts in SE
 
@@ -99,6 +101,13 @@ def calibration_record(cal: SensorFit, nominal: Sensor, inputs: dict, command: s
         },
         "phi_max_deg": number(adj.phi_max_deg),
         "phi_se_deg_at_20_deg": number(adj.phi_se_deg()),
+        "dz_scale": {
+            "se_relative_from_sweep": number(adj.dz_scale.se_sweep),
+            "se_relative": number(adj.dz_scale.se),
+            "steps_gain_of_sweep_fit": number(adj.dz_scale.steps_gain),
+            "steps_gain_se_relative": number(adj.dz_scale.steps_gain_se),
+            "summary": adj.dz_scale.text(),
+        },
         "tip_radius_at_rest_px": number(cal.tip_radius_px),
         "tip_rim_scale_in_tilted_frames": number(cal.rim_scale),
         "tip_tilted_frames": cal.rim_frames,

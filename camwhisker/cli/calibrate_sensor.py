@@ -133,6 +133,7 @@ def _run_calibrate_sensor(args) -> int:
           f"starting file, {100 * cal.ok_fraction[-1]:.1f} % with the fit; residual "
           f"{adj.sigma_px:.3f} px; phi at 20 deg read with the fit: SE "
           f"{adj.phi_se_deg():.3f} deg")  # fmt: skip
+    print(adj.dz_scale.text())
     for warning in adj.warnings:
         print(f"camwhisker calibrate-sensor: warning: {warning}", file=sys.stderr)
     for path in paths.values():

@@ -14,6 +14,7 @@ BENCH_SCRIPTS = {
     "reality-bench": ("reality", "front end on hand-made builds, true and nominal sensor file"),
     "systematics-bench": ("systematics", "where a calibration's error comes from"),
     "calibration-bench": ("calibration", "calibrate-sensor on held-out builds"),
+    "subpixel-bench": ("subpixel", "the corners' sub-pixel bias: the LK alone, then per codec"),
     "throughput-bench": ("throughput", "batch frames/s with 1 worker against 2"),
     "live-bench": ("live", "the front end's time per 720p frame on one core"),
     "view-bench": ("view", "the live loop's latency with the browser view open and without"),

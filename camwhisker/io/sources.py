@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,9 +34,14 @@ from camwhisker.vision.stream import Frame
 __all__ = [
     "SourceError", "VideoSource", "ImageFolderSource", "SessionSource", "is_session",
     "open_source", "timestamps_path", "read_timestamps", "TIMESTAMP_COLUMNS", "check_frame_size",
+    "lossy_codec",
 ]  # fmt: skip
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: Video codecs that keep every frame exactly (FFmpeg's names).
+LOSSLESS_CODECS = ("ffv1", "png", "rawvideo", "huffyuv", "ffvhuff", "utvideo", "magicyuv")
+#: x264's settings in its first frame when it kept every frame (CRF 0 is QP 0).
+X264_LOSSLESS = re.compile(rb"rc=cqp .*?\bqp=0\b", re.DOTALL)
 #: Frame rate assumed for an image folder, or a video that states none.
 DEFAULT_FPS = 30.0
 #: A recorded session's timestamps file: one row per row of the live table.
@@ -372,6 +378,33 @@ def open_source(path: str | Path, fps: float | None = None, decode_threads: int 
     if is_session(path):
         return SessionSource(path, decode_threads)
     return VideoSource(path, decode_threads)
+
+
+def lossy_codec(path: str | Path) -> str:
+    """The lossy codec that stored a video or a folder of images ("" where lossless
+    or unreadable): "JPEG" for .jpg images, else FFmpeg's name for the video's codec.
+
+    H.264 counts as lossless where x264 wrote it at QP 0 (its settings travel in the
+    first frame; another encoder's H.264 counts as lossy)."""
+    path = Path(path)
+    if path.is_dir():
+        jpeg = any(p.suffix.lower() in (".jpg", ".jpeg") for p in path.iterdir())
+        return "JPEG" if jpeg else ""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                return ""
+            stream = container.streams.video[0]
+            name = stream.codec_context.name
+            first = next(iter(container.demux(stream)), None) if name == "h264" else None
+            settings = b"" if first is None else bytes(first)
+    except (av.error.FFmpegError, ValueError, OSError):
+        return ""
+    if name in LOSSLESS_CODECS or X264_LOSSLESS.search(settings):
+        return ""
+    return name
 
 
 def check_frame_size(source, sensor) -> None:

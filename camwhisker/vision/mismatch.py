@@ -33,10 +33,12 @@ from camwhisker.sensor.model import (
 )
 
 __all__ = ["MismatchCheck", "check_mismatch", "prior_scales", "phi_response", "phi_error_deg",
-           "edge_corners", "edge_crossings", "PHI_ERROR_WARN_DEG"]
+           "dz_gain_response", "edge_corners", "edge_crossings", "PHI_ERROR_WARN_DEG"]
 
 #: Tilt at which the deviation's effect on phi is judged (deg): a working tilt.
 CHECK_PHI_DEG = 20.0
+#: dz (mm) at which the dz gain is checked: mid-range of the paper's test 2 (0.1-1.0 mm).
+CHECK_DZ_MM = 0.5
 #: Tilt directions it is judged at (deg); the largest effect counts.
 CHECK_THETA_DEG = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
 #: Warn when the predicted phi error at CHECK_PHI_DEG exceeds this (deg).
@@ -210,22 +212,36 @@ def _pose_fit_weights() -> np.ndarray:
     return np.repeat(np.where(np.arange(TIP + 1) == TIP, TIP_WEIGHT, 1.0), 2)
 
 
+def _pose_response(model: PlateModel, q: np.ndarray) -> np.ndarray:
+    """The pose (5,) that the front end reads per unit deviation of each of
+    ``GEOMETRY_NAMES`` at pose ``q``, the rest offsets absorbing the deviation's rest
+    image: shape (5, G); linearised."""
+    rest_shift = model.jacobians(np.zeros(5)).geometry.reshape(-1, len(GEOMETRY_NAMES))
+    sw = np.sqrt(_pose_fit_weights())
+    jac = model.jacobians(q)
+    residual = jac.geometry.reshape(rest_shift.shape) - rest_shift
+    return np.linalg.lstsq(jac.pose.reshape(-1, 5) * sw[:, None], residual * sw[:, None],
+                           rcond=None)[0]  # fmt: skip
+
+
 def phi_response(model: PlateModel, phi_deg: float = CHECK_PHI_DEG) -> np.ndarray:
     """Error of phi at ``phi_deg`` per unit deviation of each of ``GEOMETRY_NAMES``,
     in each direction of CHECK_THETA_DEG, the rest offsets absorbing the deviation's
     rest image: shape (len(CHECK_THETA_DEG), G), deg per unit; linearised."""
-    rest_shift = model.jacobians(np.zeros(5)).geometry.reshape(-1, len(GEOMETRY_NAMES))
-    sw = np.sqrt(_pose_fit_weights())
     phi = math.radians(phi_deg)
     rows = []
     for theta in np.radians(CHECK_THETA_DEG):
         q = np.array([0.0, phi * math.cos(theta), phi * math.sin(theta), 0.0, 0.0])
-        jac = model.jacobians(q)
-        residual = jac.geometry.reshape(rest_shift.shape) - rest_shift
-        dq = np.linalg.lstsq(jac.pose.reshape(-1, 5) * sw[:, None], residual * sw[:, None],
-                             rcond=None)[0]  # fmt: skip
+        dq = _pose_response(model, q)
         rows.append(np.degrees(q[1] * dq[1] + q[2] * dq[2]) / phi)
     return np.array(rows)
+
+
+def dz_gain_response(model: PlateModel, dz_mm: float = CHECK_DZ_MM) -> np.ndarray:
+    """Relative error of dz read at ``dz_mm`` (no tilt) per unit deviation of each of
+    ``GEOMETRY_NAMES`` (the file's value minus the truth), shape (G,); linearised.
+    dz's gain less one: axial steps measure it directly."""
+    return -_pose_response(model, np.array([dz_mm, 0.0, 0.0, 0.0, 0.0]))[0] / dz_mm
 
 
 def phi_error_deg(model: PlateModel, deviation: np.ndarray, phi_deg: float = CHECK_PHI_DEG):

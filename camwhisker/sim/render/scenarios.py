@@ -311,6 +311,44 @@ def _calibration_sweep(n, seed, fps=30.0):
     )
 
 
+#: The paper's test 2 (docs/sensor.md section 7): 0.1 mm axial steps up to 1.0 mm,
+#: each reached in a 0.2 s ramp and held 1.5 s, after 1 s at rest.
+DZ_STEP_MM = 0.1
+DZ_STEPS = 10
+DZ_RAMP_S = 0.2
+DZ_PAUSE_S = 1.5
+DZ_REST_S = 1.0
+
+
+def dz_steps_track(n: int, fps: float) -> PoseTrack:
+    """Rest, then known axial steps (``DZ_STEPS`` of ``DZ_STEP_MM``) with pauses,
+    no tilt; a track longer than the steps holds the last one."""
+    t = np.arange(n) / fps
+    step_s = DZ_RAMP_S + DZ_PAUSE_S
+    k = np.clip((t - DZ_REST_S) / step_s, 0.0, None)
+    whole = np.floor(k)
+    ramp = np.clip((k - whole) * step_s / DZ_RAMP_S, 0.0, 1.0)
+    dz = DZ_STEP_MM * np.minimum(whole + ramp, DZ_STEPS)
+    zero = np.zeros(n)
+    return PoseTrack(t, dz, zero, zero.copy(), zero.copy(), zero.copy())
+
+
+def dz_steps_frames(fps: float = 30.0) -> int:
+    """Frames that the steps take, from the rest to the last pause's end."""
+    return int(math.ceil((DZ_REST_S + DZ_STEPS * (DZ_RAMP_S + DZ_PAUSE_S)) * fps))
+
+
+def _dz_steps(n, seed, fps=30.0):
+    return Scenario(
+        "dz_steps",
+        "rest, then 0.1 mm axial steps to 1.0 mm, 1.5 s pauses (the paper's test 2, "
+        "for calibrate-sensor --dz-steps)",
+        dz_steps_track(n, fps),
+        NOMINAL_ARTEFACTS,
+        fps,
+    )
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "nominal": _nominal,
     "distortion": _distortion,
@@ -323,6 +361,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "saturated": _saturated,
     "heavy_blur": _heavy_blur,
     "calibration_sweep": _calibration_sweep,
+    "dz_steps": _dz_steps,
 }
 
 
