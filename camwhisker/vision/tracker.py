@@ -327,10 +327,9 @@ class FrontEnd:
     """
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
-        # scipy's modules that the frames use (the blur's fits, the templates' reblur),
-        # loaded with the front end: in the first frame, or the first tilted one, they
-        # cost ~0.15 s. Not at the top: the CLI's parser imports this module.
-        import scipy.fft  # noqa: F401
+        # The blur's fits' scipy module, loaded with the front end: in the first frame it
+        # cost ~0.12 s. Not at the top: the CLI's parser imports this module. (scipy.fft
+        # stays where it is used: a stop that lands in its import ends a batch by SIGINT.)
         import scipy.special  # noqa: F401
 
         self.sensor = sensor
