@@ -115,8 +115,7 @@ finally:
 
 
 #: Each worker computes on one thread: two workers' pools of two threads each (BLAS,
-#: OpenMP under torch, OpenCV) spin against each other on two cores (learn's fixture 5 s
-#: on one thread, 32 s on two under load).
+#: OpenMP under torch, OpenCV) would spin against each other on two cores.
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                   "OPENCV_FOR_THREADS_NUM": "1"}  # fmt: skip
 

@@ -60,7 +60,8 @@ def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
     The rows are independent 4-parameter problems, solved together: Levenberg-Marquardt
     on the loss's reweighted normal equations (its weight 1 / sqrt(1 + (r / f_scale)^2)),
     each row damped and stopped on its own, within the bounds b >= 0, x0 in the window,
-    0.05 <= sigma <= 2 x[-1]. One sparse scipy problem over all rows took 0.1-0.3 s.
+    0.05 <= sigma <= 2 x[-1]: small dense systems, where one sparse problem over every
+    row pays for its generality.
     """
     # Here, not at the top: the CLI's parser imports this module and must stay light.
     from scipy.special import ndtr

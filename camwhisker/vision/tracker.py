@@ -327,8 +327,8 @@ class FrontEnd:
     """
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
-        # The blur's fits' scipy module, loaded with the front end: in the first frame it
-        # cost ~0.12 s. Not at the top: the CLI's parser imports this module. (scipy.fft
+        # The blur's fits' scipy module, loaded with the front end rather than in its first
+        # frame's time. Not at the top: the CLI's parser imports this module. (scipy.fft
         # stays where it is used: a stop that lands in its import ends a batch by SIGINT.)
         import scipy.special  # noqa: F401
 
