@@ -20,7 +20,9 @@ Events (a :class:`~camwhisker.io.sources.Frame`'s ``event``):
 The rest reference is not one frame's noise. From the rest frame (and from
 each re-zero) on, the frames are tracked against that frame's reference while
 they stay at rest (:func:`at_rest`), up to ``options.rest_frames`` frames
-within ``REST_SPAN_S``; the reference
+within ``REST_SPAN_S``; a frame off rest is held out of the mean, and
+``REST_EXIT_FRAMES`` in a row end the segment before the last of them (a noisy
+read is not motion). The reference
 is then rebuilt from their mean image (:func:`~camwhisker.vision.rest.mean_image`),
 its points where the first frame's detection found them (no detection to fail).
 With ``hold_rest`` (batch) their rows are held back and measured again with
@@ -71,6 +73,10 @@ REST_SPAN_S = 1.0
 REST_DZ_MM = 0.05
 REST_PHI_DEG = 0.1
 REST_SHIFT_MM = 0.02
+#: Frames off rest in a row that end a rest segment: one or two reads past the limits
+#: are noise (a demosaiced, blurred camera's at-rest phi crosses REST_PHI_DEG one frame
+#: in four), held out of the mean; a motion stays past them.
+REST_EXIT_FRAMES = 3
 #: Fewest rest frames whose points' scatter the mismatch check uses (fewer: its default).
 SCATTER_MIN_FRAMES = 5
 #: Said where a rest reference comes from one frame.
@@ -144,14 +150,21 @@ class _RestSegment:
 
     def __init__(self, fe: FrontEnd, frame: Frame, result: FrameResult):
         self.fe = fe
-        self.frames = [frame]
+        self.frames = [frame]  # every frame of the segment, in order
         self.results = [result]
+        self.still = [True]  # ... and whether it was at rest (in the mean)
+        self.off = 0  # frames off rest at the end, in a row
+
+    @property
+    def used(self) -> int:
+        """Frames at rest: those the mean is built from."""
+        return sum(self.still)
 
     def take(self, frame: Frame) -> FrameResult | None:
-        """``frame``'s row if it is at rest (it joins the segment); None where the
-        segment ends before it (an event, a gap, motion, ``options.rest_frames``
-        frames or REST_SPAN_S reached)."""
-        full = len(self.frames) >= self.fe.options.rest_frames
+        """``frame``'s row if it joins the segment (at rest, or off rest fewer than
+        REST_EXIT_FRAMES in a row); None where the segment ends before it (an event,
+        a gap, motion, ``options.rest_frames`` frames or REST_SPAN_S reached)."""
+        full = self.used >= self.fe.options.rest_frames
         if frame.event or frame.image is None or full or self._span_s(frame) > REST_SPAN_S:
             return None
         # A shallow copy: update() replaces the state it changes, so a frame that
@@ -161,11 +174,14 @@ class _RestSegment:
             r = trial.update(frame.image, frame.index)
         except ValueError:  # another size: the stream's own path handles it
             return None
-        if not at_rest(r):
+        still = at_rest(r)
+        if not still and (not r.ok or self.off + 1 >= REST_EXIT_FRAMES):
             return None
+        self.off = 0 if still else self.off + 1
         self.fe = trial
         self.frames.append(frame)
         self.results.append(r)
+        self.still.append(still)
         return r
 
     def _span_s(self, frame: Frame) -> float:
@@ -176,27 +192,28 @@ class _RestSegment:
     def scatter_px(self) -> np.ndarray:
         """Each point's scatter over the segment (px, per coordinate) over sqrt(frames):
         the noise of their mean; NaN with fewer than SCATTER_MIN_FRAMES frames."""
-        if len(self.frames) < SCATTER_MIN_FRAMES:
+        if self.used < SCATTER_MIN_FRAMES:
             return np.full(self.results[0].points_uv.shape[0], np.nan)
-        uv = np.stack([r.points_uv for r in self.results])
+        uv = np.stack([r.points_uv for r, s in zip(self.results, self.still, strict=True) if s])
         sd = np.sqrt(np.nanmean(np.nanvar(uv, axis=0, ddof=1), axis=-1))
-        return sd / math.sqrt(len(self.frames))
+        return sd / math.sqrt(self.used)
 
     def rebuild(self, sensor: Sensor, options: FrontEndOptions | None):
         """The front end with the reference rebuilt from the segment's mean image,
         the frames it used and the warnings; the first frame's where it is alone
         or the features are not found in the mean."""
         first = self.frames[0].index
-        if len(self.frames) == 1:
+        if self.used == 1:
             return self.fe, 1, [ONE_FRAME_WARNING] if self.fe.options.rest_frames > 1 else []
         fe = FrontEnd(sensor, options)
         try:
-            fe.start(mean_image([f.image for f in self.frames]), first, self.fe.rest.uv)
+            images = [f.image for f, s in zip(self.frames, self.still, strict=True) if s]
+            fe.start(mean_image(images), first, self.fe.rest.uv)
         except ValueError as exc:  # FeaturesNotFound is one
             last = self.frames[-1].index
             return self.fe, 1, [f"rest frames {first}-{last}: their mean failed ({exc}); "
                                 f"frame {first} alone is the reference"]  # fmt: skip
-        return fe, len(self.frames), []
+        return fe, self.used, []
 
 
 def _close(segment: _RestSegment, sensor, options, hold: bool, rest_log: list | None):
