@@ -18,6 +18,7 @@ import math
 
 import cv2
 import numpy as np
+from numpy import fft  # imported with the module, not by a live frame's first use
 
 from camwhisker.sensor.model import N_SQUARE
 
@@ -66,8 +67,8 @@ def _ndtr(z: np.ndarray) -> np.ndarray:
 def _frequencies(n: int) -> tuple[np.ndarray, ...]:
     """Angular frequencies (rad / px) of an n x n real FFT: along u (its last axis,
     halved), along v, shapes (1, n // 2 + 1) and (n, 1); and their squares."""
-    ku = (2.0 * np.pi * np.fft.rfftfreq(n))[None, :]
-    kv = (2.0 * np.pi * np.fft.fftfreq(n))[:, None]
+    ku = (2.0 * np.pi * fft.rfftfreq(n))[None, :]
+    kv = (2.0 * np.pi * fft.fftfreq(n))[:, None]
     return ku, kv, ku**2, kv**2
 
 
@@ -187,7 +188,7 @@ def reblur_templates(big: np.ndarray, affine: np.ndarray, sigma_px: float) -> np
     gain = np.exp(-0.5 * quad).astype(np.float32)
     # irfft2(rfft2(big) * gain) one axis at a time, as numpy's does it (the same values)
     # without its checks and copies.
-    spectrum = np.fft.fft(np.fft.rfft(big, axis=-1), axis=-2)
+    spectrum = fft.fft(fft.rfft(big, axis=-1), axis=-2)
     spectrum *= gain
-    out = np.fft.irfft(np.fft.ifft(spectrum, axis=-2), n=n, axis=-1)
+    out = fft.irfft(fft.ifft(spectrum, axis=-2), n=n, axis=-1)
     return np.ascontiguousarray(out[:, p:-p, p:-p], dtype=np.float32)
