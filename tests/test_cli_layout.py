@@ -33,7 +33,7 @@ def test_dev_holds_every_simulator_and_benchmark():
     names = _commands(dev)
     assert names[: len(DEV)] == DEV
     assert names[len(DEV):] == list(BENCH_SCRIPTS)
-    assert len(BENCH_SCRIPTS) == 16  # every `python -m camwhisker.bench.X` script with a main
+    assert len(BENCH_SCRIPTS) == 17  # every `python -m camwhisker.bench.X` script with a main
 
 
 def test_a_benchmark_script_parses_its_own_options(capsys):

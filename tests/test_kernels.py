@@ -6,8 +6,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from numba import types
+from numba.core import sigutils
+from numba.np.numpy_support import as_dtype
 
-from camwhisker.kernels import _dispatcher, compiled_module, registered
+from camwhisker.kernels import _dispatcher, compiled_module, parse_signature, registered
 from camwhisker.kernels.polygon import polygon_area, polygon_centroid, polygon_centroid_jacobian
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,7 +27,8 @@ root = sys.argv[1]
 video = open_source(f"{root}/sample_frames/nominal_mjpg.avi")
 frames = (f.image for f in itertools.islice(video, 4))
 rows = list(track(frames, load_sensor(f"{root}/sample_frames/nominal_mjpg.sensor.toml")))
-print(json.dumps({"compiled": compiled_module() is not None, "frames": len(rows),
+heavy = [m for m in ("numba", "scipy") if m in sys.modules]  # before .jit, which imports numba
+print(json.dumps({"compiled": compiled_module() is not None, "frames": len(rows), "heavy": heavy,
                   "jit": [k.name for k in registered() if k.jit.signatures]}))
 """
 
@@ -35,6 +39,9 @@ def test_the_front_end_compiles_nothing_after_install():
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["compiled"], "the install did not build camwhisker/kernels/_aot"
     assert got["frames"] == 4
+    # Neither is needed: the compiled entries run without numba, the blur's fits and FFT
+    # are numpy's. Each costs ~0.1 s of every batch's start-up.
+    assert got["heavy"] == []
     assert got["jit"] == []  # a kernel listed here was compiled (or loaded from numba's cache)
 
 
@@ -43,6 +50,25 @@ def test_every_kernel_has_its_compiled_entries():
     names = [n for k in registered() for n in k.entry_names()]
     assert len(names) >= 20  # every signature the front end calls (tests above)
     assert [n for n in names if not hasattr(aot, n)] == []
+
+
+def test_signatures_read_as_numba_reads_them():
+    # The argument checks read the signatures without numba: the same dtype, ndim and
+    # layout as numba's own parse, for every signature the install compiles.
+    n = 0
+    for k in registered():
+        for signature in k.signatures:
+            ours = parse_signature(signature)
+            theirs, _ = sigutils.normalize_signature(signature)
+            assert len(ours) == len(theirs), signature
+            for (kind, dtype, ndim, layout), t in zip(ours, theirs, strict=True):
+                assert dtype == as_dtype(t.dtype if isinstance(t, types.Array) else t), signature
+                if isinstance(t, types.Array):
+                    assert (kind, ndim, layout) == ("array", t.ndim, t.layout), signature
+                else:
+                    assert ndim == 0, signature
+                n += 1
+    assert n >= 60  # every argument of the >= 20 entries
 
 
 def test_a_call_of_another_type_is_not_given_to_a_compiled_entry():

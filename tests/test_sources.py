@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pytest
 
@@ -198,3 +200,23 @@ def test_lossy_codec_of_image_folders(tmp_path):
         (tmp_path / name).mkdir()
         cv2.imwrite(str(tmp_path / name / f"f0{suffix}"), _frames(1)[0])
     assert lossy_codec(tmp_path / "png") == "" and lossy_codec(tmp_path / "jpg") == "JPEG"
+
+
+def test_decoded_images_are_reused_only_once_no_one_holds_them(tmp_path):
+    path = tmp_path / "v.avi"
+    write_video(path, _frames(12), 20.0)
+    held, seen, reused = {}, [], 0
+    for k, f in enumerate(VideoSource(path)):
+        # The same array object as an earlier frame's (alive only if the source kept it).
+        reused += any(ref() is f.image for ref in seen)
+        seen.append(weakref.ref(f.image))
+        if k in (0, 1, 5):
+            held[k] = f  # as a rest segment holds its frames
+    fresh = [f.image.copy() for f in VideoSource(path)]
+    for k, f in held.items():
+        # A held frame's image is never written over: equal to a fresh decode's, exactly.
+        assert np.array_equal(f.image, fresh[k]), k
+    # Exactly, a count: of 12 frames (3 held, the last one always in the caller's hands
+    # while the next decodes), 7 come in an earlier frame's image, 5 in new ones;
+    # without the reuse, none.
+    assert reused == 7

@@ -16,6 +16,7 @@ BENCH_SCRIPTS = {
     "calibration-bench": ("calibration", "calibrate-sensor on held-out builds"),
     "subpixel-bench": ("subpixel", "the corners' sub-pixel bias: the LK alone, then per codec"),
     "throughput-bench": ("throughput", "batch frames/s with 1 worker against 2"),
+    "batch-bench": ("batch_read", "a batch against OpenCV's decode-only read, one core"),
     "live-bench": ("live", "the front end's time per 720p frame on one core"),
     "view-bench": ("view", "the live loop's latency with the browser view open and without"),
     "belief-bench": ("belief", "contact belief on rendered video: onset error, false contacts"),

@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import math
 import re
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -46,6 +47,8 @@ X264_LOSSLESS = re.compile(rb"rc=cqp .*?\bqp=0\b", re.DOTALL)
 DEFAULT_FPS = 30.0
 #: A recorded session's timestamps file: one row per row of the live table.
 TIMESTAMP_COLUMNS = ("frame", "video_frame", "seq", "t_s", "event")
+#: Decoded images a video source keeps for reuse (see :class:`_Buffers`).
+REUSED_BUFFERS = 4
 
 
 class SourceError(ValueError):
@@ -82,6 +85,31 @@ def _container_times(path: Path) -> tuple[np.ndarray | None, float | None, int |
         if not times:
             return None, fps, count, np.empty(0)
     return (np.sort(np.array(times)) if times else None), fps, count, np.sort(np.array(keys))
+
+
+class _Buffers:
+    """Images for the decoder to write into: one no one else holds any more (by its
+    reference count: a frame, a view of it, a rest segment's list), else a fresh one.
+
+    A decoded 720p frame is 2.7 MB: a fresh array each frame costs its page faults
+    (~0.2 ms per frame), memory already mapped does not."""
+
+    def __init__(self, keep: int = REUSED_BUFFERS):
+        self.keep = keep
+        self.pool: list[np.ndarray] = []
+
+    def free(self) -> np.ndarray | None:
+        """An image no one else holds, or None (the decoder then allocates one)."""
+        for image in self.pool:
+            # Held by the pool, this loop and getrefcount's argument alone: free.
+            if sys.getrefcount(image) <= 3:
+                return image
+        return None
+
+    def took(self, image: np.ndarray) -> None:
+        """The decoder returned ``image``: kept for reuse, among the last ``keep`` new ones."""
+        if not any(image is b for b in self.pool):
+            self.pool = [*self.pool, image][-self.keep :]
 
 
 def _ranges(indices: list[int]) -> str:
@@ -180,6 +208,7 @@ class VideoSource:
         """
         cap = self._capture()
         known = self._known()
+        buffers = _Buffers()
         i = fails = read = 0
         # ended: the reads ran past the container's last frame; broken: a read failed,
         # and from then on frames are placed by their times.
@@ -188,7 +217,7 @@ class VideoSource:
         damaged_to = None  # the first key frame after the first lost frame
         try:
             while True:
-                ok, image = cap.read()
+                ok, image = cap.read(buffers.free())
                 if not ok or image is None:
                     fails += 1
                     broken = True
@@ -196,6 +225,7 @@ class VideoSource:
                         ended = True
                         break
                     continue
+                buffers.took(image)
                 index = self._index_of(cap, i) if broken else i
                 for k in range(i, index):
                     lost.append(k)

@@ -10,6 +10,8 @@ the kernel lists, for this machine's CPU, with a digest of :data:`MODULES`'
 source and the CPU: a first run then compiles nothing. A call whose arguments
 match none of the listed signatures, and every call where ``_aot`` is missing or
 its digest differs (one warning), goes to numba's JIT (``cache=True``), as before.
+numba itself is imported only then (or by the build): with the compiled module in
+use, a run never loads it (~0.1 s of every command's start-up).
 """
 
 from __future__ import annotations
@@ -18,15 +20,13 @@ import hashlib
 import importlib
 import importlib.util
 import logging
+import re
 
 import llvmlite.binding as llvm
 import numpy as np
-from numba import njit, types
-from numba.core import sigutils
-from numba.extending import typeof_impl
-from numba.np.numpy_support import as_dtype
 
-__all__ = ["MODULES", "Kernel", "compiled_module", "kernel", "registered", "source_digest"]
+__all__ = ["MODULES", "Kernel", "compiled_module", "kernel", "numba_njit", "parse_signature",
+           "registered", "source_digest"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +44,11 @@ AOT_MODULE = "camwhisker.kernels._aot"
 
 _registry: dict[str, Kernel] = {}
 _aot_state: list = []  # [module or None], filled on the first call of any kernel
+_numba_state: list = []  # [numba.njit], once numba is imported and knows the Kernel type
+#: One argument of a kernel's signature: a scalar type ("f8") or an array ("f8[:, ::1]").
+_ARGUMENT = re.compile(r"^([a-z]+[0-9]+)(?:\[([:, 1]+)\])?$")
+#: numba's scalar types in the signatures, as the argument checks read them.
+_SCALAR_KINDS = {"b1": "bool", "i4": "int", "i8": "int", "f4": "real", "f8": "real"}
 
 
 class Kernel:
@@ -55,11 +60,21 @@ class Kernel:
 
     def __init__(self, py_func, signatures: tuple[str, ...]):
         self.py_func = py_func
-        self.jit = njit(cache=True, nogil=True, error_model="numpy")(py_func)
         self.signatures = signatures
         self.name = f"{py_func.__module__.rsplit('.', 1)[-1]}__{py_func.__name__}"
         self.__doc__, self.__name__ = py_func.__doc__, py_func.__name__
         self._call = self._first_call
+        self._jit = None
+
+    @property
+    def jit(self):
+        """numba's dispatcher of ``py_func``, made (numba imported) on first use."""
+        if self._jit is None:
+            self._jit = numba_njit()(cache=True, nogil=True, error_model="numpy")(self.py_func)
+        return self._jit
+
+    def _jit_call(self, *args):
+        return self.jit(*args)
 
     def entry_names(self) -> list[str]:
         """The names of this kernel's compiled entries in ``_aot``, one per signature."""
@@ -71,13 +86,24 @@ class Kernel:
     def _first_call(self, *args):
         aot = compiled_module()
         entries = [] if aot is None else [getattr(aot, n) for n in self.entry_names()]
-        self._call = _dispatcher(self.py_func, self.signatures, entries, self.jit)
+        jit = self._jit_call if entries else self.jit
+        self._call = _dispatcher(self.py_func, self.signatures, entries, jit)
         return self._call(*args)
 
 
-@typeof_impl.register(Kernel)
-def _typeof_kernel(val, c):
-    return types.Dispatcher(val.jit)
+def numba_njit():
+    """numba's ``njit``, numba imported and taught that a :class:`Kernel` inside a
+    kernel is typed as its dispatcher (so kernels call kernels)."""
+    if not _numba_state:
+        from numba import njit, types
+        from numba.extending import typeof_impl
+
+        @typeof_impl.register(Kernel)
+        def _typeof_kernel(val, c):
+            return types.Dispatcher(val.jit)
+
+        _numba_state.append(njit)
+    return _numba_state[0]
 
 
 def kernel(*signatures: str):
@@ -153,7 +179,7 @@ def _dispatcher(py_func, signatures, entries, jit):
            "ints": (int, np.integer), "reals": (float, int, np.floating, np.integer)}  # fmt: skip
     lines = [f"def call({params}):"]
     for k, (signature, entry) in enumerate(zip(signatures, entries, strict=True)):
-        args, _ = sigutils.normalize_signature(signature)
+        args = parse_signature(signature)
         if len(args) != n:
             raise TypeError(
                 f"{py_func.__name__}: signature {signature!r} has {len(args)} of {n} arguments"
@@ -168,17 +194,45 @@ def _dispatcher(py_func, signatures, entries, jit):
     return env["call"]
 
 
+def parse_signature(signature: str) -> list[tuple[str, np.dtype, int, str]]:
+    """The arguments of a kernel's signature in numba's notation (``"f8[:, ::1], i8"``),
+    without numba: per argument (kind, dtype, ndim, layout), kind "array" (layout "C"
+    where the last axis is ``::1``, else "A") or the scalar's "bool", "int", "real"
+    (ndim 0, layout "")."""
+    args, depth, start = [], 0, 0
+    for i, ch in enumerate(signature + ","):
+        depth += (ch == "[") - (ch == "]")
+        if ch == "," and depth == 0:
+            if signature[start:i].strip():
+                args.append(signature[start:i].strip())
+            start = i + 1
+    out = []
+    for arg in args:
+        m = _ARGUMENT.match(arg)
+        if m is None or (m.group(2) is None and m.group(1) not in _SCALAR_KINDS):
+            raise TypeError(f"kernel signature {signature!r}: cannot read {arg!r}")
+        dtype = np.dtype(m.group(1))
+        if m.group(2) is None:
+            out.append((_SCALAR_KINDS[m.group(1)], dtype, 0, ""))
+            continue
+        axes = [a.strip() for a in m.group(2).split(",")]
+        if any(a not in (":", "::1") for a in axes) or "::1" in axes[:-1]:
+            raise TypeError(f"kernel signature {signature!r}: cannot read {arg!r}")
+        out.append(("array", dtype, len(axes), "C" if axes[-1] == "::1" else "A"))
+    return out
+
+
 def _check(name: str, t, dtype_name: str, env: dict) -> str:
-    """A Python expression: whether the value ``name`` has numba type ``t`` exactly."""
-    if isinstance(t, types.Array):
-        env[dtype_name] = as_dtype(t.dtype)
-        c = f" and {name}.flags.c_contiguous" if t.layout == "C" else ""
+    """A Python expression: whether the value ``name`` has the type ``t`` (an item of
+    :func:`parse_signature`) exactly."""
+    kind, dtype, ndim, layout = t
+    if kind == "array":
+        env[dtype_name] = dtype
+        c = f" and {name}.flags.c_contiguous" if layout == "C" else ""
         return (f"type({name}) is ndarray and {name}.dtype == {dtype_name}"
-                f" and {name}.ndim == {t.ndim}{c}")  # fmt: skip
-    if isinstance(t, types.Boolean):
+                f" and {name}.ndim == {ndim}{c}")  # fmt: skip
+    if kind == "bool":
         return f"isinstance({name}, bools)"
-    if isinstance(t, types.Integer):
+    if kind == "int":
         return f"isinstance({name}, ints) and not isinstance({name}, bools)"
-    if isinstance(t, types.Float):
-        return f"isinstance({name}, reals)"
-    raise TypeError(f"kernel signature: no argument check for numba type {t}")
+    return f"isinstance({name}, reals)"

@@ -11,7 +11,7 @@ import time
 import warnings
 from pathlib import Path
 
-from camwhisker.kernels import AOT_MODULE, registered, source_digest
+from camwhisker.kernels import AOT_MODULE, numba_njit, registered, source_digest
 
 
 def compile_kernels(output: Path) -> float:
@@ -22,6 +22,7 @@ def compile_kernels(output: Path) -> float:
         warnings.simplefilter("ignore")  # pycc's pending deprecation: it is what builds here
         from numba.pycc import CC, compiler
     compiler.Flags = _KernelFlags
+    numba_njit()  # kernels that call kernels: numba must know the Kernel type
     cc = CC(AOT_MODULE.rsplit(".", 1)[-1])
     cc.output_dir, cc.output_file = str(output.parent), output.name
     # This CPU's instructions, as the JIT's (generic x86-64 code runs some kernels ~20%

@@ -7,15 +7,18 @@ The blurred corner then matches a little inward of where it lies, the more so th
 larger the tilt, and the features read smaller: dz low, growing with phi^2.
 :func:`reblur_templates` adds the difference, sigma^2 (I - A A^T) (its positive
 part), with sigma measured once at rest across the square's edges
-(:func:`square_blur_px`).
+(:func:`square_blur_px`). numpy and the standard library only: importing scipy's
+special functions and FFT cost a batch ~0.15 s of start-up.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
 import numpy as np
+from numpy import fft  # imported with the module, not by a live frame's first use
 
 from camwhisker.sensor.model import N_SQUARE
 
@@ -50,6 +53,24 @@ REBLUR_PAD_PX = 5
 #: I up to rounding.
 MIN_REBLUR_VAR = 1e-6
 
+#: erfc elementwise (the standard library's, to ~1 ulp), for the normal CDF.
+_erfc = np.frompyfunc(math.erfc, 1, 1)
+
+
+def _ndtr(z: np.ndarray) -> np.ndarray:
+    """The standard normal CDF of each element: erfc(-z / sqrt 2) / 2, which keeps
+    its relative accuracy in both tails."""
+    return 0.5 * _erfc(-np.asarray(z, float) / math.sqrt(2.0)).astype(float)
+
+
+@functools.cache
+def _frequencies(n: int) -> tuple[np.ndarray, ...]:
+    """Angular frequencies (rad / px) of an n x n real FFT: along u (its last axis,
+    halved), along v, shapes (1, n // 2 + 1) and (n, 1); and their squares."""
+    ku = (2.0 * np.pi * fft.rfftfreq(n))[None, :]
+    kv = (2.0 * np.pi * fft.fftfreq(n))[:, None]
+    return ku, kv, ku**2, kv**2
+
 
 def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
     """Per row of ``prof`` (sampled at ``x``), the Gaussian sigma of a rising blurred
@@ -63,9 +84,6 @@ def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
     0.05 <= sigma <= 2 x[-1]: small dense systems, where one sparse problem over every
     row pays for its generality.
     """
-    # Here, not at the top: the CLI's parser imports this module and must stay light.
-    from scipy.special import ndtr
-
     prof = np.asarray(prof, float)
     n = prof.shape[0]
     # The start rises, by at least half the loss's scale.
@@ -76,7 +94,7 @@ def erf_sigmas(x: np.ndarray, prof: np.ndarray, f_scale: float) -> np.ndarray:
 
     def resid(q, p):
         z = (x - q[:, 2:3]) / q[:, 3:4]
-        cdf = ndtr(z)
+        cdf = _ndtr(z)
         return q[:, :1] + q[:, 1:2] * cdf - p, z, cdf
 
     def cost(r):
@@ -159,18 +177,18 @@ def reblur_templates(big: np.ndarray, affine: np.ndarray, sigma_px: float) -> np
     w, v = np.linalg.eigh(sigma_px**2 * (np.eye(2) - affine @ np.swapaxes(affine, 1, 2)))
     if not np.nanmax(w, initial=0.0) > MIN_REBLUR_VAR:  # also a NaN sigma
         return np.ascontiguousarray(big[:, p:-p, p:-p])
-    # Here, not at the top: the CLI's parser imports this module and must stay light.
-    from scipy import fft
-
     cov = np.einsum("kij,kj,klj->kil", v, np.clip(w, 0.0, None), v)  # (K, 2, 2), (u, v)
     # In the Fourier domain: a Gaussian of any covariance, however thin (a tilt
     # foreshortens one direction only), without sampling its kernel on the pixel grid.
     # The padding takes the transform's wrap-around (3 sigma < REBLUR_PAD_PX).
     n = big.shape[-1]
-    ku = (2.0 * np.pi * fft.rfftfreq(n))[None, :]
-    kv = (2.0 * np.pi * fft.fftfreq(n))[:, None]
+    ku, kv, ku2, kv2 = _frequencies(n)
     c = cov[:, None, None]
-    quad = c[..., 0, 0] * ku**2 + 2.0 * c[..., 0, 1] * ku * kv + c[..., 1, 1] * kv**2
+    quad = c[..., 0, 0] * ku2 + 2.0 * c[..., 0, 1] * ku * kv + c[..., 1, 1] * kv2
     gain = np.exp(-0.5 * quad).astype(np.float32)
-    out = fft.irfft2(fft.rfft2(big) * gain, s=big.shape[-2:])
+    # irfft2(rfft2(big) * gain) one axis at a time, as numpy's does it (the same values)
+    # without its checks and copies.
+    spectrum = fft.fft(fft.rfft(big, axis=-1), axis=-2)
+    spectrum *= gain
+    out = fft.irfft(fft.ifft(spectrum, axis=-2), n=n, axis=-1)
     return np.ascontiguousarray(out[:, p:-p, p:-p], dtype=np.float32)

@@ -21,6 +21,8 @@ References
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from camwhisker.kernels import lk as kernels
@@ -119,19 +121,22 @@ def refine_first_template(
     origins[:] = origin
     d0 = np.asarray(start_uv, float) - origins
     ok = np.asarray(active, bool) & np.isfinite(d0).all(axis=1)
-    weights = np.broadcast_to(_fit_weights(templates.shape[1] - 2, apex_px),
-                              (k_all, *[templates.shape[1] - 2] * 2))  # fmt: skip
-    weights = np.ascontiguousarray(weights if keep is None else weights * keep)
-    # The intensity offset is taken over the pixels kept: what lies outside them (a
-    # spring crossing the window) must not move it.
-    in_mean = np.ones_like(weights) if keep is None else np.ascontiguousarray(keep, np.float64)
+    weights, in_mean = _fit_weights(k_all, templates.shape[1] - 2, apex_px)
+    if keep is not None:
+        weights = weights * keep
+        # The intensity offset is taken over the pixels kept: what lies outside them (a
+        # spring crossing the window) must not move it.
+        in_mean = np.ascontiguousarray(keep, np.float64)
     d, quality = kernels.refine(stack, which, np.ascontiguousarray(templates, np.float32), d0, ok,
                                 weights, in_mean, LK_STEP_TOL_PX, LK_MAX_ITER)  # fmt: skip
     return d + origins, quality
 
 
-def _fit_weights(m: int, apex_px: float) -> np.ndarray:
-    """Each pixel's weight in the fit over an m x m window: 0 closer than
-    ``apex_px`` to its centre, else 1."""
+@functools.lru_cache(maxsize=8)
+def _fit_weights(k: int, m: int, apex_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel's weight in the fit over k m x m windows, shape (k, m, m): 0 closer
+    than ``apex_px`` to its centre, else 1; and the offset's weights, all 1. Made once
+    (the kernel only reads them): each frame's LK calls take the same."""
     r = np.arange(m) - (m - 1) / 2
-    return (np.hypot(r[:, None], r[None, :]) >= apex_px).astype(np.float64)
+    one = (np.hypot(r[:, None], r[None, :]) >= apex_px).astype(np.float64)
+    return np.ascontiguousarray(np.broadcast_to(one, (k, m, m))), np.ones((k, m, m))

@@ -327,11 +327,6 @@ class FrontEnd:
     """
 
     def __init__(self, sensor: Sensor, options: FrontEndOptions | None = None):
-        # The blur's fits' scipy module, loaded with the front end rather than in its first
-        # frame's time. Not at the top: the CLI's parser imports this module. (scipy.fft
-        # stays where it is used: a stop that lands in its import ends a batch by SIGINT.)
-        import scipy.special  # noqa: F401
-
         self.sensor = sensor
         self.options = options or FrontEndOptions()
         self.model = PlateModel(sensor)
