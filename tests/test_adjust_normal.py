@@ -72,12 +72,7 @@ def _loop_normal(p, g, q):
             reduced = (jg - jp @ v_inv @ W[f].T) * sw[:, None]
             systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
                                        bias_terms(q[f]))  # fmt: skip
-    is_shift = p.free >= n_geo
-    k = p.free[is_shift] - n_geo
-    x = (g[n_geo:][k] - p.shift_prior[k]) / p.tol[p.free[is_shift]]
-    U[is_shift, is_shift] += 1.0
-    bg[is_shift] -= x
-    cost += float(x @ x)
+    cost += adjust._add_shift_prior(p, g, U, bg)  # the library's: not per frame
     return adjust._Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
 
 

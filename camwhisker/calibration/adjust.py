@@ -444,14 +444,20 @@ def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     reduced = (jg - jp @ (v_inv @ W[fm].transpose(0, 2, 1))) * rows.sw[moving][..., None]
     systematic = np.einsum("fjcn,fk->jckn", reduced.reshape(len(fm), TIP + 1, 2, n),
                            bias_terms(q[fm]))  # fmt: skip
-    # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
+    cost += _add_shift_prior(p, g, U, bg)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+
+
+def _add_shift_prior(p: _Problem, g: np.ndarray, U: np.ndarray, bg: np.ndarray) -> float:
+    """Add the free shifts' prior to U and bg, in units of its SD (residual: centre -
+    shift, Jacobian 1); returns its cost."""
+    n_geo = len(GEOMETRY_NAMES)
     is_shift = p.free >= n_geo
     k = p.free[is_shift] - n_geo
     x = (g[n_geo:][k] - p.shift_prior[k]) / p.tol[p.free[is_shift]]
     U[is_shift, is_shift] += 1.0
     bg[is_shift] -= x
-    cost += float(x @ x)
-    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+    return float(x @ x)
 
 
 def bias_terms(q3: np.ndarray) -> np.ndarray:
