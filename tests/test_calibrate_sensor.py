@@ -462,8 +462,17 @@ def test_the_fitted_file_tracks_a_separate_clip_like_the_true_one(calibrated, bu
     assert phi_nom > 4 * phi_fit
 
 
-def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, build):
-    from camwhisker.calibration.sweep import corner_offsets, track_sweep
+@pytest.fixture(scope="module")
+def tracked_true(calibrated, build):
+    """The sweep tracked with the build's true file."""
+    from camwhisker.calibration.sweep import track_sweep
+
+    return track_sweep([calibrated[2]["video"]], build)
+
+
+def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, build,
+                                                                     tracked_true):  # fmt: skip
+    from camwhisker.calibration.sweep import corner_offsets
     from camwhisker.io.sources import open_source
     from camwhisker.sim.render.scenarios import PoseTrack
     from camwhisker.vision.mismatch import edge_corners
@@ -471,7 +480,7 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
     from camwhisker.vision.tracker import FrontEnd
 
     _, _, sweep = calibrated
-    tracked = track_sweep([sweep["video"]], build)
+    tracked = tracked_true
     # The truth: each trusted moving frame's tracked corners less the true ones at its
     # true pose, carried into the plate and out again at rest, as corner_offsets does.
     truth, model = PoseTrack.read_csv(sweep["truth"]), PlateModel(build)
@@ -485,7 +494,11 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
         shift = np.linalg.solve(adjust.corner_shift_jacobian(model, q), off[..., None])
         true.append((at_rest @ shift)[..., 0])
     true = np.nanmedian(true, axis=0)  # a corner a spring hides in a frame is NaN there
-    moving = corner_offsets(sweep["video"], tracked, 0, build)
+    moving = tracked.corner_offsets_uv[0]
+    # Measured while tracking, as a second pass over the video measures them: the same
+    # images, points and poses, so the same numbers to the last bit.
+    assert np.array_equal(moving, corner_offsets(sweep["video"], tracked, 0, build),
+                          equal_nan=True)  # fmt: skip
     # The old measure: the crossings in the mean of the frames at rest alone.
     frames = zip(open_source(sweep["video"]), tracked.rest, strict=True)
     images = [f.image for f, is_rest in frames if is_rest]
@@ -502,13 +515,12 @@ def test_the_corners_offsets_from_moving_frames_beat_the_still_ones(calibrated, 
     assert err_moving < 0.7 * err_still and err_moving < 0.25
 
 
-def test_true_tracked_points_follow_the_tracked_corners(calibrated, build):
+def test_true_tracked_points_follow_the_tracked_corners(calibrated, build, tracked_true):
     from camwhisker.bench.systematics import true_poses, true_tracked_points
-    from camwhisker.calibration.sweep import track_sweep
     from camwhisker.sim.render.scenarios import PoseTrack
 
     _, _, sweep = calibrated
-    tracked = track_sweep([sweep["video"]], build)
+    tracked = tracked_true
     q = true_poses(PoseTrack.read_csv(sweep["truth"]))
     true = true_tracked_points(build, q, tracked.points_uv, tracked.rest)
     moving = tracked.ok & ~tracked.rest

@@ -73,10 +73,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-import cv2
 import numpy as np
 
-from camwhisker.sensor.camera import JAC_TVEC, project_rigid
 from camwhisker.sensor.file import Sensor, SensorFileError
 from camwhisker.sensor.model import (
     GEOMETRY_NAMES,
@@ -86,7 +84,6 @@ from camwhisker.sensor.model import (
     geometry_vector,
     with_geometry,
 )
-from camwhisker.sensor.plate import rigid_motion
 from camwhisker.vision.mismatch import CHECK_DZ_MM, CHECK_PHI_DEG, dz_gain_response, phi_response
 
 __all__ = [
@@ -352,88 +349,123 @@ def _huber(dist: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def corner_shift_jacobian(model: PlateModel, q5: np.ndarray) -> np.ndarray:
-    """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2).
+    """d uv / d each tracked corner's in-plane (x, y) position in the plate, (12, 2, 2);
+    at poses of shape (F, 5), (F, 12, 2, 2).
 
     Not in :class:`PlateModel`: its Jacobians are by the shared dimensions only.
     """
-    rvec, tvec = rigid_motion(q5, model.z_i_mm)
-    _, jac = project_rigid(model.object_points[:TIP], rvec, tvec, model.camera)
-    d_cam = jac.reshape(TIP, 2, -1)[:, :, JAC_TVEC]
-    return d_cam @ cv2.Rodrigues(rvec)[0][:, :2]
+    q5 = np.asarray(q5, dtype=float)
+    d_point = model.jacobians_many(q5.reshape(-1, 5)).corner_point[..., :2]
+    return d_point.reshape(*q5.shape[:-1], TIP, 2, 2)
+
+
+@dataclass
+class _Rows:
+    """The rows of the frames ``frames`` (Fa,): residuals r (Fa, 13, 2), zero where a
+    point does not count, its Huber loss rho and weight w (Fa, 13), the weights' square
+    roots over the noise sw (Fa, 26), and in units of the noise the residuals rw (Fa, 26),
+    the free parameters' Jacobian jg (Fa, 26, n) and the poses' jp (Fa, 26, 3)."""
+
+    frames: np.ndarray
+    r: np.ndarray
+    rho: np.ndarray
+    w: np.ndarray
+    sw: np.ndarray
+    rw: np.ndarray
+    jg: np.ndarray
+    jp: np.ndarray
+
+
+def _rows(p: _Problem, model: PlateModel, shifts: np.ndarray, q: np.ndarray) -> _Rows:
+    """Every frame with a point that counts, linearised at the model, the corners'
+    shifts (V, 12, 2) and the poses q (F, 3)."""
+    frames = np.flatnonzero(p.valid.any(axis=1))
+    n_a, m = len(frames), p.valid[frames]
+    q5 = np.zeros((n_a, 5))
+    q5[:, :3] = q[frames]
+    jac = model.jacobians_many(q5)
+    d_corner = jac.corner_point[..., :2]  # (Fa, 12, 2, 2)
+    video = p.video[frames]
+    uv = jac.uv.copy()
+    uv[:, :TIP] += np.einsum("fjab,fjb->fja", d_corner, shifts[video])  # first order
+    r = np.where(m[..., None], p.obs[frames] - uv, 0.0)
+    rho, w = _huber(np.linalg.norm(r, axis=-1), p.huber_px)
+    rho, w = np.where(m, rho, 0.0), np.where(m, w, 0.0)
+    sw = np.repeat(np.sqrt(w) / p.noise_px, 2, axis=1)  # residuals in units of their SD
+    # Each video's shifts: block-diagonal, each shift moves its own corner in its frames.
+    d_shift = np.zeros((n_a, TIP + 1, 2, len(shifts), TIP, 2))
+    f, j = np.arange(n_a)[:, None], np.arange(TIP)[None]
+    d_shift[f, j, :, video[:, None], j, :] = d_corner
+    d_all = np.concatenate([jac.geometry, d_shift.reshape(n_a, TIP + 1, 2, -1)], axis=-1)
+    n_rows = 2 * (TIP + 1)
+    jg = (d_all[..., p.free] * p.tol[p.free]).reshape(n_a, n_rows, len(p.free)) * sw[..., None]
+    jp = jac.pose[..., :3].reshape(n_a, n_rows, 3) * sw[..., None]
+    return _Rows(frames, r, rho, w, sw, r.reshape(n_a, -1) * sw, jg, jp)
 
 
 def _normal(p: _Problem, g: np.ndarray, q: np.ndarray) -> _Normal | None:
     """Linearise at g (the geometry, then the corners' shifts) and poses q (F, 3);
     None if g is not a valid sensor."""
     n_geo = len(GEOMETRY_NAMES)
-    shifts = g[n_geo:].reshape(-1, TIP, 2)
     try:
         model = PlateModel(with_geometry(p.sensor, g[:n_geo]))
     except SensorFileError:
         return None
     n_f, n = len(q), len(p.free)
-    U, bg = np.zeros((n, n)), np.zeros(n)
-    V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
-    bg_frame = np.zeros((n_f, n))
+    rows = _rows(p, model, g[n_geo:].reshape(-1, TIP, 2), q)
+    frames, jg, jp, rw = rows.frames, rows.jg, rows.jp, rows.rw
+    cost = float(np.sum(rows.rho / p.noise_px**2))
     residual = np.full((n_f, TIP + 1, 2), np.nan)
+    residual[frames] = np.where(p.valid[frames][..., None], rows.r, np.nan)
     weight = np.zeros((n_f, TIP + 1))
+    weight[frames] = rows.w
+    # Summed over per-frame products: BLAS threads one large one, and busy cores stall them.
+    U = (jg.transpose(0, 2, 1) @ jg).sum(axis=0)
+    bg_frame = np.zeros((n_f, n))
+    bg_frame[frames] = np.einsum("fri,fr->fi", jg, rw)
+    bg = bg_frame.sum(axis=0)
+    V, bp, W = np.zeros((n_f, 3, 3)), np.zeros((n_f, 3)), np.zeros((n_f, n, 3))
     leverage = np.zeros((n_f, TIP + 1))
-    d_shift = np.zeros((TIP + 1, 2, shifts.size))
-    systematic = np.zeros((TIP + 1, 2, 3, n))
-    cost = 0.0
-    q5 = np.zeros(5)
-    for f in np.flatnonzero(p.valid.any(axis=1)):
-        q5[:3] = q[f]
-        jac = model.jacobians(q5)
-        d_corner = corner_shift_jacobian(model, q5)
-        d_shift[:] = 0.0
-        first = 2 * TIP * p.video[f]
-        for j in range(TIP):  # block-diagonal: each shift moves its own corner
-            d_shift[j, :, first + 2 * j : first + 2 * j + 2] = d_corner[j]
-        m = p.valid[f]
-        uv = jac.uv.copy()
-        uv[:TIP] += np.einsum("jab,jb->ja", d_corner, shifts[p.video[f]])  # first order
-        r = p.obs[f][m] - uv[m]
-        rho, w = _huber(np.linalg.norm(r, axis=1), p.huber_px[m])
-        residual[f][m], weight[f][m] = r, w
-        cost += float(np.sum(rho / p.noise_px[m] ** 2))
-        sw = np.repeat(np.sqrt(w) / p.noise_px[m], 2)  # residuals in units of their SD
-        rw = r.reshape(-1) * sw
-        d_all = np.concatenate([jac.geometry, d_shift], axis=2)
-        jg = (d_all[m][:, :, p.free] * p.tol[p.free]).reshape(len(rw), n) * sw[:, None]
-        U += jg.T @ jg
-        bg_frame[f] = jg.T @ rw
-        bg += bg_frame[f]
-        if not p.rest[f]:
-            jp = jac.pose[m][:, :, :3].reshape(-1, 3) * sw[:, None]
-            V[f], bp[f], W[f] = jp.T @ jp, jp.T @ rw, jg.T @ jp
-            if np.isfinite(p.known_dz[f]):  # a prior on the pose's dz, in units of its SD
-                r_dz = (p.known_dz[f] - q[f, 0]) / p.known_dz_sd[f]
-                V[f][0, 0] += p.known_dz_sd[f] ** -2
-                bp[f][0] += r_dz / p.known_dz_sd[f]
-                cost += r_dz**2
-            v_inv = np.linalg.pinv(V[f])
-            # The hat matrix's diagonal: how much of each residual the pose absorbs.
-            hat = np.einsum("ij,jk,ik->i", jp, v_inv, jp)
-            leverage[f][m] = hat.reshape(-1, 2).sum(axis=1)
-            # What of the geometry's rows the pose cannot absorb, per pixel of bias.
-            reduced = (jg - jp @ v_inv @ W[f].T) * sw[:, None]
-            systematic[m] += np.einsum("jcn,k->jckn", reduced.reshape(len(rw) // 2, 2, n),
-                                       bias_terms(q[f]))  # fmt: skip
-    # The shifts' prior, in units of its SD: residual (centre - shift), Jacobian 1.
+    moving = ~p.rest[frames]
+    fm, jg, jp, rw = frames[moving], jg[moving], jp[moving], rw[moving]
+    V[fm] = jp.transpose(0, 2, 1) @ jp
+    bp[fm] = np.einsum("fri,fr->fi", jp, rw)
+    W[fm] = jg.transpose(0, 2, 1) @ jp
+    k = fm[np.isfinite(p.known_dz[fm])]  # a prior on the pose's dz, in units of its SD
+    r_dz = (p.known_dz[k] - q[k, 0]) / p.known_dz_sd[k]
+    V[k, 0, 0] += p.known_dz_sd[k] ** -2
+    bp[k, 0] += r_dz / p.known_dz_sd[k]
+    cost += float(np.sum(r_dz**2))
+    v_inv = np.linalg.pinv(V[fm]) if len(fm) else np.zeros((0, 3, 3))
+    # The hat matrix's diagonal: how much of each residual the pose absorbs.
+    hat = np.sum((jp @ v_inv) * jp, axis=-1)
+    leverage[fm] = hat.reshape(len(fm), TIP + 1, 2).sum(axis=-1)
+    # What of the geometry's rows the pose cannot absorb, per pixel of bias.
+    reduced = (jg - jp @ (v_inv @ W[fm].transpose(0, 2, 1))) * rows.sw[moving][..., None]
+    systematic = np.einsum("fjcn,fk->jckn", reduced.reshape(len(fm), TIP + 1, 2, n),
+                           bias_terms(q[fm]))  # fmt: skip
+    cost += _add_shift_prior(p, g, U, bg)
+    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+
+
+def _add_shift_prior(p: _Problem, g: np.ndarray, U: np.ndarray, bg: np.ndarray) -> float:
+    """Add the free shifts' prior to U and bg, in units of its SD (residual: centre -
+    shift, Jacobian 1); returns its cost."""
+    n_geo = len(GEOMETRY_NAMES)
     is_shift = p.free >= n_geo
     k = p.free[is_shift] - n_geo
     x = (g[n_geo:][k] - p.shift_prior[k]) / p.tol[p.free[is_shift]]
     U[is_shift, is_shift] += 1.0
     bg[is_shift] -= x
-    cost += float(x @ x)
-    return _Normal(cost, U, bg, V, bp, W, residual, weight, bg_frame, leverage, systematic)
+    return float(x @ x)
 
 
 def bias_terms(q3: np.ndarray) -> np.ndarray:
-    """The tilt-dependent tracking error's terms at pose (dz, a, b), shape (3,)."""
-    a, b = q3[1:3] / SYSTEMATIC_PHI0_RAD
-    return np.array([a, b, a * a + b * b])
+    """The tilt-dependent tracking error's terms at pose (dz, a, b), shape (3,); at
+    poses of shape (F, 3), (F, 3)."""
+    q3 = np.asarray(q3, dtype=float)
+    a, b = q3[..., 1] / SYSTEMATIC_PHI0_RAD, q3[..., 2] / SYSTEMATIC_PHI0_RAD
+    return np.stack([a, b, a * a + b * b], axis=-1)
 
 
 def _reduced(ne: _Normal, lam: float, moving: np.ndarray):
@@ -517,7 +549,7 @@ def systematic_px(residual: np.ndarray, q: np.ndarray, moving: np.ndarray,
     least ``SYSTEMATIC_PX``, more where the fit's residuals (F, 13, 2) regressed on
     :func:`bias_terms` (with a constant) show larger coefficients than their noise
     (``noise_px``) explains: what the geometry could not take in, a floor of the rest."""
-    terms = np.array([bias_terms(qq) for qq in q])
+    terms = bias_terms(q)
     out = np.full(TIP + 1, SYSTEMATIC_PX)
     for j in range(TIP + 1):
         use = moving & np.isfinite(residual[:, j]).all(axis=1)

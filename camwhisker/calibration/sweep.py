@@ -186,33 +186,54 @@ def corner_offsets(video: str | Path, tracked: TrackedSweep, k: int, sensor: Sen
     again at rest; the median over the frames. The moving frames, not the rest ones:
     compression moves an edge by up to ~1 px, the same way in every still frame but
     differently as the edge crosses the blocks. NaN where no frame found the edges.
-    ``tracked`` (without its offsets yet) was tracked with ``sensor``.
+    ``tracked`` (without its offsets yet) was tracked with ``sensor``; :func:`track_sweep`
+    measures them as it tracks, without this second pass over the video.
     """
     mine = np.flatnonzero(tracked.video == k)
-    use = set((mine[tracked.ok[mine] & ~tracked.rest[mine]] - mine[0]).tolist())
-    model = PlateModel(sensor)
-    at_rest = corner_shift_jacobian(model, np.zeros(5))
-    fe, found = None, []
+    use = tracked.ok[mine] & ~tracked.rest[mine]
+    measure, found = _CornerOffsets(sensor, options), []
     for i, frame in enumerate(open_source(video)):
-        if fe is None:
-            fe = FrontEnd(sensor, options)
-            fe.start(frame.image)
-        if i not in use:
-            continue
-        uv, q = tracked.points_uv[mine[i], :TIP], tracked.q[mine[i]]
+        measure.see(frame.image)
+        if i < len(use) and use[i]:
+            found.append(measure(frame.image, tracked.points_uv[mine[i]], tracked.q[mine[i]]))
+    return measure.median(found)
+
+
+class _CornerOffsets:
+    """:func:`corner_offsets` frame by frame: shown each of the video's images in order
+    (:meth:`see`) and called with a frame's image, tracked points (13, 2) and pose (5,),
+    it returns that frame's offsets at rest (12, 2); :meth:`median` is over frames."""
+
+    def __init__(self, sensor: Sensor, options: FrontEndOptions | None):
+        self.sensor, self.options, self.fe = sensor, options, None
+        self.model = PlateModel(sensor)
+        self.at_rest = corner_shift_jacobian(self.model, np.zeros(5))
+
+    def see(self, image: np.ndarray) -> None:
+        if self.fe is None:  # the video's first frame: its rest reference's weights
+            self.fe = FrontEnd(self.sensor, self.options)
+            self.fe.start(image)
+
+    def __call__(self, image: np.ndarray, points_uv: np.ndarray, q: np.ndarray) -> np.ndarray:
+        uv = points_uv[:TIP]
         box = np.floor(np.nanmin(uv, axis=0)).astype(int) - CORNER_BOX_PX
-        h, w = frame.image.shape[:2]
+        h, w = image.shape[:2]
         u0, v0 = np.clip(box, 0, [w - 1, h - 1])
         u1, v1 = np.ceil(np.nanmax(uv, axis=0)).astype(int) + CORNER_BOX_PX
-        crop = frame.image[v0:v1, u0:u1]
-        red, blue = unmixed_maps(crop, fe.rest.weights, fe.gains(frame.image))
-        edges, _ = edge_crossings(red, blue, uv - (u0, v0), model.edge_directions(q))
-        shift = np.linalg.solve(corner_shift_jacobian(model, q), (uv - edges - (u0, v0))[..., None])
-        found.append((at_rest @ shift)[..., 0])
-    if not found:
-        return np.full((TIP, 2), np.nan)
-    with np.errstate(all="ignore"):
-        return np.nanmedian(found, axis=0)
+        crop = image[v0:v1, u0:u1]
+        red, blue = unmixed_maps(crop, self.fe.rest.weights, self.fe.gains(image))
+        edges, _ = edge_crossings(red, blue, uv - (u0, v0), self.model.edge_directions(q))
+        shift = np.linalg.solve(corner_shift_jacobian(self.model, q),
+                                (uv - edges - (u0, v0))[..., None])  # fmt: skip
+        return (self.at_rest @ shift)[..., 0]
+
+    @staticmethod
+    def median(found: list) -> np.ndarray:
+        """The median of the frames' offsets ``found``; NaN where none."""
+        if not found:
+            return np.full((TIP, 2), np.nan)
+        with np.errstate(all="ignore"):
+            return np.nanmedian(found, axis=0)
 
 
 def rest_tip_radius_px(video: str | Path, sensor: Sensor,
@@ -327,32 +348,39 @@ def track_sweep(
     camwhisker.vision.FeaturesNotFound
         A video's first frame lacks a feature.
     """
-    parts = []
+    parts, offsets = [], []
     for k, video in enumerate(videos):
         times: list[float] = []
-        images = _images_noting_times(video, times)
-        results = []
-        for r in track(images, sensor, options):
+        # The images whose rows the tracker holds back (a rest segment's): the corners'
+        # offsets are measured on each image as its row comes, not in a second decode.
+        waiting: dict[int, np.ndarray] = {}
+        images = _images_noting_times(video, times, waiting)
+        results, found, measure = [], [], _CornerOffsets(sensor, options)
+        for i, r in enumerate(track(images, sensor, options)):
             results.append(r)
+            image = waiting.pop(i)
+            measure.see(image)
+            found.append(measure(image, np.asarray(r.points_uv, dtype=float),
+                                 _q_from_results([r])[0]) if r.ok else None)  # fmt: skip
             if on_frame is not None:
                 on_frame()
         if not results:
             raise ValueError(f"{video}: no frames")
         pts = np.array([r.points_uv for r in results], dtype=float).reshape(-1, TIP + 1, 2)
-        parts.append((pts, _q_from_results(results), np.array([r.ok for r in results]),
-                      rest_frames(pts), np.full(len(results), k),
+        ok, rest = np.array([r.ok for r in results]), rest_frames(pts)
+        offsets.append(measure.median([f for f, u in zip(found, ok & ~rest, strict=True) if u]))
+        parts.append((pts, _q_from_results(results), ok, rest, np.full(len(results), k),
                       np.array(times[: len(results)])))  # fmt: skip
-    tracked = TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
-                           np.full((len(videos), TIP, 2), np.nan))  # fmt: skip
-    # A second pass over each video: the stream does not keep its images.
-    offsets = [corner_offsets(v, tracked, k, sensor, options) for k, v in enumerate(videos)]
-    return replace(tracked, corner_offsets_uv=np.array(offsets))
+    return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
+                        np.array(offsets))  # fmt: skip
 
 
-def _images_noting_times(video: str | Path, times: list) -> Iterator[np.ndarray]:
-    """The video's images, each frame's time appended to ``times`` as it passes."""
-    for frame in open_source(video):
+def _images_noting_times(video: str | Path, times: list, images: dict) -> Iterator[np.ndarray]:
+    """The video's images, each frame's time appended to ``times`` and its image kept
+    in ``images`` by its index as it passes."""
+    for i, frame in enumerate(open_source(video)):
         times.append(frame.t_s)
+        images[i] = frame.image
         yield frame.image
 
 
@@ -456,6 +484,8 @@ def calibrate_sensor(
         if on_round is not None:
             on_round(k, adj)
         current = adj.sensor
+        if k == rounds - 1:  # no round after it to use the rim's scale
+            break
         # The rim measured against this round's fit, its geometry and poses: against the
         # tracking's (the round before's fit) the rod's size lags the depths and swings.
         fitted = replace(tracked, q=np.where(adj.used[:, None], adj.q, tracked.q))

@@ -15,7 +15,8 @@ Jacobians: :meth:`PlateModel.project` gives d uv / d q, the hot path's
 (its tip row is the disc centre's); :meth:`PlateModel.jacobians` gives the
 exact d uv / d q and d uv / d geometry, the camera intrinsics and every
 dimension of the ``[plate]`` table (``GEOMETRY_NAMES``; its optional keys, a
-build's misplacements and rod tilt, included), for calibration. A
+build's misplacements and rod tilt, included), for calibration
+(:meth:`PlateModel.jacobians_many`: at many poses at once). A
 key added to that table joins the geometry by itself once
 :func:`tracked_object_points` depends on it.
 """
@@ -124,11 +125,14 @@ class ModelJacobians:
         d uv / d q, q = (dz_mm, a_rad, b_rad, sx_mm, sy_mm).
     geometry : ndarray, shape (13, 2, len(GEOMETRY_NAMES))
         d uv / d the geometry parameters of ``GEOMETRY_NAMES``.
+    corner_point : ndarray, shape (12, 2, 3)
+        d uv / d each tracked corner's position in the plate frame.
     """
 
     uv: np.ndarray
     pose: np.ndarray
     geometry: np.ndarray
+    corner_point: np.ndarray
 
 
 class PlateModel:
@@ -237,25 +241,36 @@ class PlateModel:
         chained through its rim's rows (:func:`polygon_centroid_jacobian`).
         Not for the hot path: :meth:`project` is the pose fit's.
         """
-        rvec, tvec = rigid_motion(q, self.z_i_mm)
-        pts, jac = project_rigid(self.object_points, rvec, tvec, self.camera)
-        jac = jac.reshape(len(pts), 2, -1)
-        d_cam = jac[:, :, JAC_TVEC]  # d uv / d the point in the camera frame
-        rot = cv2.Rodrigues(rvec)[0]
-        d_plate = np.einsum("nij,jk,nkp->nip", d_cam, rot, self._points_by_plate)
-        d_plate[:, :, _PLATE_KEYS.index("z_i_mm")] += d_cam[:, :, 2]
-        d_geometry = np.concatenate([jac[:, :, JAC_INTRINSICS], d_plate], axis=2)
-        d_pose = pose_jacobian(jac)
-        rim = pts[TIP + 1 :]
+        many = self.jacobians_many(np.asarray(q, dtype=float)[None])
+        return ModelJacobians(*(getattr(many, f.name)[0] for f in dataclasses.fields(many)))
 
-        def with_tip(rows, tip):  # the 12 corners' rows and the face centroid's
-            return np.concatenate([rows[:TIP], tip[None]])
-
-        return ModelJacobians(
-            with_tip(pts, polygon_centroid(rim)),
-            with_tip(d_pose, polygon_centroid_jacobian(rim, d_pose[TIP + 1 :])),
-            with_tip(d_geometry, polygon_centroid_jacobian(rim, d_geometry[TIP + 1 :])),
-        )
+    def jacobians_many(self, q: np.ndarray) -> ModelJacobians:
+        """:meth:`jacobians` at each of the poses q, shape (F, 5): every array with a
+        leading axis of F. One projection per pose; the chain rule over all at once."""
+        q = np.asarray(q, dtype=float).reshape(-1, 5)
+        n_f, n_pts = len(q), len(self.object_points)
+        pts, jac = np.empty((n_f, n_pts, 2)), np.empty((n_f, n_pts, 2, 15))
+        rot = np.empty((n_f, 3, 3))
+        for f, qf in enumerate(q):
+            rvec, tvec = rigid_motion(qf, self.z_i_mm)
+            pts[f], jac_f = project_rigid(self.object_points, rvec, tvec, self.camera)
+            jac[f] = jac_f.reshape(n_pts, 2, -1)
+            rot[f] = cv2.Rodrigues(rvec)[0]
+        d_cam = jac[..., JAC_TVEC]  # d uv / d the point in the camera frame
+        d_point = d_cam @ rot[:, None]  # ... in the plate frame
+        n_pose, n_cam = 5, len(INTRINSIC_NAMES)
+        d_all = np.empty((n_f, n_pts, 2, n_pose + len(GEOMETRY_NAMES)))  # pose, then geometry
+        d_all[..., :n_pose] = pose_jacobian(jac)
+        d_all[..., n_pose : n_pose + n_cam] = jac[..., JAC_INTRINSICS]
+        np.matmul(d_point, self._points_by_plate, out=d_all[..., n_pose + n_cam :])
+        d_all[..., n_pose + n_cam + _PLATE_KEYS.index("z_i_mm")] += d_cam[..., 2]
+        uv, d_uv = np.empty((n_f, TIP + 1, 2)), np.empty((n_f, TIP + 1, 2, d_all.shape[-1]))
+        uv[:, :TIP], d_uv[:, :TIP] = pts[:, :TIP], d_all[:, :TIP]
+        rim, d_rim = pts[:, TIP + 1 :], d_all[:, TIP + 1 :]
+        for f in range(n_f):  # the compiled kernels take one polygon
+            uv[f, TIP] = polygon_centroid(rim[f])
+            d_uv[f, TIP] = polygon_centroid_jacobian(rim[f], d_rim[f])
+        return ModelJacobians(uv, d_uv[..., :n_pose], d_uv[..., n_pose:], d_point[:, :TIP])
 
 
 def build_tolerances(sensor: Sensor) -> np.ndarray:
