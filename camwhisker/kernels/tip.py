@@ -165,8 +165,8 @@ def ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
     """Per ray: ``vrise``'s steepest rise within ``win`` samples of the first sample at
     or above ``thr``, placed at the centroid of the rise above half its peak
     (:func:`upper_centroid`); radius and whether the ray is usable (a crossing, an
-    inner peak, ``rise``'s steepest point within ``agree`` px of ``vrise``'s, a
-    ``rise`` peak >= ``min_rise`` times the median)."""
+    inner peak, ``rise``'s edge within ``agree`` px of it, a ``rise`` peak >=
+    ``min_rise`` times the median)."""
     n_rays, n = rise.shape
     r_edge = np.full(n_rays, np.nan)
     peak = np.full(n_rays, -np.inf)
@@ -183,12 +183,12 @@ def ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
         if hi < lo:
             continue
         j = lo + np.argmax(rise[k, lo : hi + 1])
-        jv = lo + np.argmax(vrise[k, lo : hi + 1])
-        if abs(j - jv) * step > agree:
+        at = upper_centroid(vrise[k], lo + np.argmax(vrise[k, lo : hi + 1]))
+        if abs(at - upper_centroid(rise[k], j)) * step > agree:
             continue
         peak[k] = rise[k, j]
         valid[k] = True
-        r_edge[k] = radii[0] + upper_centroid(vrise[k], jv) * step
+        r_edge[k] = radii[0] + at * step
     if valid.sum() >= 1:
         med = np.median(peak[valid])
         for k in range(n_rays):

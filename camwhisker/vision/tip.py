@@ -13,9 +13,9 @@
    flat-topped blur (a defocus disc) it is still defined where the steepest
    point is noise. V, not luma: red, blue and cloth are all bright in V, so the
    face's edge stands alone where luma would mix in the colour edges a wide
-   blur reaches (the cross's red against its blue corners). Where luma's
-   steepest rise is not where V's is (a stronger luma edge just beyond a dark
-   colour), the ray is left out.
+   blur reaches (the cross's red against its blue corners). Where luma's rise
+   is not centred where V's is (a stronger luma edge just beyond a dark colour),
+   the ray is left out.
 3. An ellipse fitted to the edge points gives the face's centroid, which the
    pose fit compares with the model's projected-rim centroid.
 """
@@ -85,7 +85,7 @@ AREA_RANGE = (0.35, 2.5)
 #: Against the red cross or the rod's shaded flank luma rises 0.2-0.4 as steeply as
 #: against the cloth, and where those rays go, the centre rests on the rest of the rim.
 MIN_RISE_FRACTION = 0.15
-#: A ray is left out where the steepest rises of luma and of V lie farther apart than
+#: A ray is left out where the rises of luma and of V are centred farther apart than
 #: this (px): V rises at the face's own edge, while luma can jump to a stronger edge
 #: just beyond a dark colour (blue to cloth, where the face crosses the blue square).
 #: 1.5 px is the two's usual spread under the hard scene's blur.
