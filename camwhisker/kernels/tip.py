@@ -139,34 +139,14 @@ def shift_step(ux, uy, res, use):
     return (c * p - b * q) / det, (a * q - b * p) / det, True
 
 
-@kernel()
-def upper_centroid(rise, j):
-    """Where a rise peaking at sample ``j`` is centred: the centroid of its part above
-    half the peak, in samples. A blurred step's steepest point under a flat-topped blur
-    (a defocus disc) is noise; the centroid is its centre under any symmetric blur."""
-    half = 0.5 * rise[j]
-    a, b = j, j
-    while a > 0 and rise[a - 1] > half:
-        a -= 1
-    while b < len(rise) - 1 and rise[b + 1] > half:
-        b += 1
-    w_sum, m_sum = 0.0, 0.0
-    for i in range(a, b + 1):
-        w = rise[i] - half
-        w_sum += w
-        m_sum += w * i
-    return m_sum / w_sum if w_sum > 0 else float(j)
-
-
 @kernel(
     "f4[:, ::1], f4[:, ::1], f4[:, ::1], f8, i8, f8[::1], f8, f8, f8",
 )
 def ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
-    """Per ray: ``vrise``'s steepest rise within ``win`` samples of the first sample at
-    or above ``thr``, placed at the centroid of the rise above half its peak
-    (:func:`upper_centroid`); radius and whether the ray is usable (a crossing, an
-    inner peak, ``rise``'s edge within ``agree`` px of it, a ``rise`` peak >=
-    ``min_rise`` times the median)."""
+    """Per ray: the steepest rise within ``win`` samples of the first sample at or
+    above ``thr``, placed by a parabola; radius and whether the ray is usable
+    (a crossing, an inner peak, ``vrise``'s peak within ``agree`` px of it, a rise
+    >= ``min_rise`` times the median)."""
     n_rays, n = rise.shape
     r_edge = np.full(n_rays, np.nan)
     peak = np.full(n_rays, -np.inf)
@@ -183,15 +163,16 @@ def ray_edges(prof, rise, vrise, thr, win, radii, step, min_rise, agree):
         if hi < lo:
             continue
         j = lo + np.argmax(rise[k, lo : hi + 1])
-        at = upper_centroid(vrise[k], lo + np.argmax(vrise[k, lo : hi + 1]))
-        if abs(at - upper_centroid(rise[k], j)) * step > agree:
+        if abs(j - lo - np.argmax(vrise[k, lo : hi + 1])) * step > agree:
             continue
         peak[k] = rise[k, j]
         valid[k] = True
-        r_edge[k] = radii[0] + at * step
+        ym, y0, yp = rise[k, j - 1], rise[k, j], rise[k, j + 1]
+        den = ym - 2 * y0 + yp
+        frac = min(max(0.5 * (ym - yp) / den, -0.5), 0.5) if den < 0 else 0.0
+        r_edge[k] = radii[j] + frac * step
     if valid.sum() >= 1:
         med = np.median(peak[valid])
         for k in range(n_rays):
             valid[k] = valid[k] and peak[k] >= min_rise * med
     return r_edge, valid
-

@@ -6,16 +6,13 @@
    and >= 0.8 on the red cross, the blue square and the cloth. A threshold
    between the window's dark and bright levels, and the connected component
    nearest the expected position, give a seed centre and radius.
-2. Sub-pixel edge. Along rays from the seed, the face's edge is the centre of
-   V's steepest rise (the centroid of the rise above half its peak), searched
-   near V's threshold crossing. Unlike a threshold, the centre of a blurred
-   step's rise does not depend on how bright the other side is, and under a
-   flat-topped blur (a defocus disc) it is still defined where the steepest
-   point is noise. V, not luma: red, blue and cloth are all bright in V, so the
-   face's edge stands alone where luma would mix in the colour edges a wide
-   blur reaches (the cross's red against its blue corners). Where luma's rise
-   is not centred where V's is (a stronger luma edge just beyond a dark colour),
-   the ray is left out.
+2. Sub-pixel edge. Along rays from the seed, the face's edge is where the
+   luma rises fastest (see :func:`brightness`), searched near V's threshold
+   crossing. Unlike a threshold, the steepest point of a blurred step does
+   not depend on how bright the other side is (red, blue or cloth), so the
+   edge is unbiased wherever the face lies. Where luma's steepest rise is not
+   where V's is (a stronger luma edge just beyond a dark colour), the ray is
+   left out.
 3. An ellipse fitted to the edge points gives the face's centroid, which the
    pose fit compares with the model's projected-rim centroid.
 """
@@ -85,7 +82,7 @@ AREA_RANGE = (0.35, 2.5)
 #: Against the red cross or the rod's shaded flank luma rises 0.2-0.4 as steeply as
 #: against the cloth, and where those rays go, the centre rests on the rest of the rim.
 MIN_RISE_FRACTION = 0.15
-#: A ray is left out where the rises of luma and of V are centred farther apart than
+#: A ray is left out where the steepest rises of luma and of V lie farther apart than
 #: this (px): V rises at the face's own edge, while luma can jump to a stronger edge
 #: just beyond a dark colour (blue to cloth, where the face crosses the blue square).
 #: 1.5 px is the two's usual spread under the hard scene's blur.
@@ -106,10 +103,6 @@ RIM_FIT_ITER = 10
 RIM_FIT_TOL_PX = 1e-6
 #: Ellipse refit drops edge points farther than this from the first fit (px).
 OUTLIER_PX = 1.5
-#: The rim fit drops edge points farther than this from it (px): ~3x the edge points'
-#: scatter under the hard looks' blur, short of the 1 px a colour edge or the rod's
-#: flank pulls a ray by.
-RIM_OUTLIER_PX = 0.6
 #: Half-width (px) of the luma profile across the face's edge that :func:`edge_blur_px`
 #: fits: past ~1 blur sigma on each side, short of the next feature's edge.
 BLUR_WINDOW_PX = 3.0
@@ -433,12 +426,12 @@ def _fit_rim_shift(pts: np.ndarray, rim: np.ndarray):
     """Shift t that best puts the model rim on the edge points.
 
     Linearised radial residuals about the rim's centroid, iterated (dropping
-    points off by more than RIM_OUTLIER_PX while MIN_RIM_RAYS remain); returns (rim
+    points off by more than OUTLIER_PX while MIN_RIM_RAYS remain); returns (rim
     centroid + t, mean radius) or (None, nan).
     """
-    pts, rim = np.ascontiguousarray(pts, float), np.ascontiguousarray(rim, float)
-    centre, radius = kernels.rim_shift_kernel(pts, rim, RIM_FIT_ITER, RIM_FIT_TOL_PX,
-                                              RIM_OUTLIER_PX, MIN_RIM_RAYS)  # fmt: skip
+    centre, radius = kernels.rim_shift_kernel(np.ascontiguousarray(pts, float),
+                                              np.ascontiguousarray(rim, float), RIM_FIT_ITER,
+                                              RIM_FIT_TOL_PX, OUTLIER_PX, MIN_RIM_RAYS)  # fmt: skip
     if not np.isfinite(centre).all():
         return None, math.nan
     return centre, radius
