@@ -12,7 +12,7 @@ every row, and the mean over rows is far tighter.
 import numpy as np
 import pytest
 
-from camwhisker.sensor.camera import project
+from camwhisker.sensor.camera import pixel_rays, project
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.plate import Pose, plate_to_camera, square_corners
 from camwhisker.sim.render.render import SceneRenderer, fibonacci_offsets
@@ -134,3 +134,14 @@ def test_geometry_does_not_touch_the_background(plain):
     before = plain.background.copy()
     plain.geometry(Pose.from_degrees(0.5, 20.0, 100.0))
     assert np.array_equal(before, plain.background)
+
+
+def test_rays_computed_when_first_needed_are_the_cameras(distorted):
+    # Each pixel's ray is unprojected on its own, so a tile computed alone (in any order,
+    # over any region) equals the whole frame's rays to the bit: renders stay reproducible.
+    full = pixel_rays(distorted.sensor.camera)
+    fresh = SceneRenderer(distorted.sensor)
+    for rows, cols in [(slice(300, 331), slice(17, 90)), (slice(0, 720), slice(1200, 1280)),
+                       (slice(100, 500), slice(500, 800))]:  # fmt: skip
+        assert np.array_equal(fresh.rays(rows, cols), full[rows, cols], equal_nan=True)
+    assert fresh._ray_tiles.mean() < 0.3  # only the asked tiles were computed

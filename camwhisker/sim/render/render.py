@@ -21,7 +21,9 @@ The lattice is shifted by a fixed random amount in each pixel (a
 Cranley-Patterson rotation), so that along an edge the rounding errors of
 neighbouring pixels are independent and average out instead of adding up.
 Sub-pixel ray directions are interpolated bilinearly from the per-pixel
-rays, which is exact without distortion and within ~1e-6 px with it.
+rays, which is exact without distortion and within ~1e-6 px with it. A pixel's
+ray is computed the first time a layer's box covers it (most of the frame is
+cloth, which casts no ray).
 
 The springs are not tracked; they are drawn as antialiased polylines from
 their projected, deformed centre lines.
@@ -37,7 +39,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camwhisker.sensor.camera import pixel_rays, project
+from camwhisker.sensor.camera import project, unproject
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.plate import (
     Pose,
@@ -115,6 +117,8 @@ class SceneRenderer:
     BBOX_MARGIN_PX = 4
     #: Seed of the per-pixel lattice shifts: fixed, so every render is reproducible.
     LATTICE_SEED = 20261122
+    #: Side of the square tiles whose pixel rays are computed together when first needed.
+    RAY_TILE_PX = 32
 
     def __init__(self, sensor: Sensor, appearance: Appearance | None = None, samples: int = 89):
         self.sensor = sensor
@@ -124,7 +128,9 @@ class SceneRenderer:
         rng = np.random.default_rng(self.LATTICE_SEED)
         self._shifts = rng.uniform(0.0, 1.0, (cam.height_px, cam.width_px, 2))
         self.shape = (cam.height_px, cam.width_px)
-        self.rays = pixel_rays(cam)
+        self._ray_cache = np.full((cam.height_px, cam.width_px, 2), np.nan)
+        t = self.RAY_TILE_PX
+        self._ray_tiles = np.zeros((-(-cam.height_px // t), -(-cam.width_px // t)), bool)
         self.background = self._cloth()
         self._spring_paths = self._spring_centrelines()
 
@@ -144,6 +150,22 @@ class SceneRenderer:
         return img
 
     # ---------------------------------------------------------------- layers
+    def rays(self, rows: slice, cols: slice) -> np.ndarray:
+        """Normalised ray of each pixel centre in a region, shape (rows, cols, 2), as
+        :func:`camwhisker.sensor.camera.pixel_rays` gives them."""
+        t, (h, w) = self.RAY_TILE_PX, self.shape
+        r0, c0 = rows.start // t, cols.start // t
+        todo = np.argwhere(~self._ray_tiles[r0 : -(-rows.stop // t), c0 : -(-cols.stop // t)])
+        if len(todo):
+            tiles = [np.mgrid[i * t : min(i * t + t, h), j * t : min(j * t + t, w)]
+                     for i, j in todo + (r0, c0)]  # fmt: skip
+            v = np.concatenate([vv.ravel() for vv, _ in tiles])
+            u = np.concatenate([uu.ravel() for _, uu in tiles])
+            self._ray_cache[v, u] = unproject(np.column_stack([u, v]).astype(float),
+                                              self.sensor.camera)  # fmt: skip
+            self._ray_tiles[tuple((todo + (r0, c0)).T)] = True
+        return self._ray_cache[rows, cols]
+
     def _rays_at(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Bilinearly interpolated normalised rays at sub-pixel positions, shape (N, 2)."""
         h, w = self.shape
@@ -151,7 +173,8 @@ class SceneRenderer:
         v0 = np.clip(np.floor(v).astype(int), 0, h - 2)
         fu = (u - u0)[:, None]
         fv = (v - v0)[:, None]
-        r = self.rays
+        self.rays(slice(v0.min(), v0.max() + 2), slice(u0.min(), u0.max() + 2))
+        r = self._ray_cache
         top = r[v0, u0] * (1 - fu) + r[v0, u0 + 1] * fu
         bottom = r[v0 + 1, u0] * (1 - fu) + r[v0 + 1, u0 + 1] * fu
         return top * (1 - fv) + bottom * fv
@@ -219,7 +242,7 @@ class SceneRenderer:
 
     def _coverage(self, box, hit) -> np.ndarray:
         rows, cols = box
-        rays = self.rays[rows, cols]
+        rays = self.rays(rows, cols)
         shape = rays.shape[:2]
         centre = hit(rays.reshape(-1, 2)).reshape(shape)
         cover = centre.astype(np.float32)
@@ -294,7 +317,7 @@ class SceneRenderer:
         if box is None:
             return
         rows, cols = box
-        rays = self.rays[rows, cols]
+        rays = self.rays(rows, cols)
         shape = rays.shape[:2]
         label, colour = self._rod_shade(rays.reshape(-1, 2), pose)
         label = label.reshape(shape)
