@@ -62,8 +62,11 @@ def render_frames(
     light = illumination_field(renderer.shape, scenario.artefacts)
     rng = np.random.default_rng(seed)
     track = scenario.track
+    held, scene = None, None
     for i in tqdm(range(len(track)), desc=f"render {scenario.name}", disable=not progress):
-        scene = renderer.geometry(track.pose(i))
+        pose = track.pose(i)
+        if pose != held:  # a pose held over frames (rests, pauses) is drawn once
+            held, scene = pose, renderer.geometry(pose)
         yield apply_artefacts(scene, float(track.t_s[i]), scenario.artefacts, rng, light)
 
 
