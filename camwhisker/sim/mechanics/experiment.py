@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -197,6 +197,14 @@ def theta_deg_for(travel_sign: float) -> float:
 
 
 def _cached_sweep(scene, mech, positions, model):
+    """:func:`sweep`, solved once per process for each scene, whisker and positions (runs
+    repeat across noise levels, seeds and speeds); each caller gets its own arrays."""
+    solved = _solved_sweep(scene, mech, positions, model)
+    return replace(solved, **{f.name: np.copy(getattr(solved, f.name)) for f in fields(solved)})
+
+
+@functools.lru_cache(maxsize=64)
+def _solved_sweep(scene, mech, positions, model):
     return sweep(scene, mech, np.array(positions), model)
 
 
