@@ -126,15 +126,30 @@ def _assign_corners(hull: np.ndarray, centre: np.ndarray, model_dirs_deg: np.nda
     return out
 
 
-def _polygon_corners(mask: np.ndarray, n_expected: int) -> np.ndarray | None:
+def _polygon_corners(mask: np.ndarray, n_expected: int):
+    """The largest component's outline simplified to a polygon: (its vertices (M, 2),
+    the outline's points (P, 2), the simplification's tolerance in px), or None."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return None
     c = max(contours, key=cv2.contourArea)
     poly = c if n_expected != 4 else cv2.convexHull(c)
-    peri = cv2.arcLength(poly, True)
-    approx = cv2.approxPolyDP(poly, 0.01 * peri, True).reshape(-1, 2).astype(float)
-    return approx
+    tol_px = 0.01 * cv2.arcLength(poly, True)
+    approx = cv2.approxPolyDP(poly, tol_px, True).reshape(-1, 2).astype(float)
+    return approx, c.reshape(-1, 2).astype(float), tol_px
+
+
+def _outermost(outline: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray,
+               reach_px: float) -> np.ndarray:  # fmt: skip
+    """Each corner (K, 2) moved to the outline's point within ``reach_px`` farthest out
+    along the corner's bisector (away from both its edges): the corner itself."""
+    out = corners.copy()
+    for k, c in enumerate(corners):
+        e = edge_dirs[k] / np.hypot(*edge_dirs[k].T)[:, None]
+        near = outline[np.hypot(*(outline - c).T) <= reach_px]
+        if len(near):
+            out[k] = near[np.argmax(near @ -(e[0] + e[1]))]
+    return out
 
 
 def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray):
@@ -335,11 +350,18 @@ def _corners_of(comp, model_uv, n_vertices, gmap, edge_dirs) -> np.ndarray:
     if comp is None:
         return out
     mask, centre = comp
-    poly = _polygon_corners(mask, n_vertices)
-    if poly is None:
+    found = _polygon_corners(mask, n_vertices)
+    if found is None:
         return out
+    poly, outline, tol_px = found
     corners = _assign_corners(poly, centre, _dirs(model_uv, model_uv.mean(axis=0)))
-    return refine_corners(gmap, corners, edge_dirs)
+    out = refine_corners(gmap, corners, edge_dirs)
+    # A vertex can sit up to the tolerance off its corner where noise frays an edge.
+    lost = np.isfinite(corners).all(axis=1) & ~np.isfinite(out).all(axis=1)
+    if lost.any():
+        out[lost] = refine_corners(gmap, _outermost(outline, corners[lost], edge_dirs[lost],
+                                                    tol_px), edge_dirs[lost])  # fmt: skip
+    return out
 
 
 def _merged_component(mask, model_uv, area_exp, bridge_px):
