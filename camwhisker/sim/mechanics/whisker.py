@@ -25,6 +25,7 @@ part; :data:`PHI_LINEAR_MAX_DEG` is set from that measurement.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -191,26 +192,38 @@ def _integrate(mech: WhiskerMechanics, s_end, base_x, base_y, beta0, m0, fx, fy,
     part of the whisker beyond s exerts on the part before it; a force F at
     s_c gives M(s) = (r_c - r(s)) x F, hence M' above and M(s_c) = 0.
     """
+    return _rk4_compiled()(float(s_end), float(base_x), float(base_y), float(beta0),
+                           float(m0), float(fx), float(fy), int(n), mech.ei0_nmm2,
+                           1.0 / mech.apex_mm)  # fmt: skip
+
+
+@functools.cache
+def _rk4_compiled():
+    """:func:`_rk4` compiled by numba (imported here: the simulator's users alone pay it)."""
+    import numba
+
+    return numba.njit(cache=True)(_rk4)
+
+
+def _rk4(s_end, base_x, base_y, beta0, m0, fx, fy, n, ei0, inv_apex):
+    """:func:`_integrate`'s loop, on plain numbers."""
     h = s_end / n
-    ei0 = mech.ei0_nmm2
-    inv_apex = 1.0 / mech.apex_mm
     x, y, b, m = base_x, base_y, beta0, m0
-    cos, sin = math.cos, math.sin
     for i in range(n):
         s = i * h
         e1 = ei0 * (1.0 - s * inv_apex) ** 4
         e2 = ei0 * (1.0 - (s + 0.5 * h) * inv_apex) ** 4
         e3 = ei0 * (1.0 - (s + h) * inv_apex) ** 4
-        c1, s1 = cos(b), sin(b)
+        c1, s1 = math.cos(b), math.sin(b)
         kb1, km1 = m / e1, fx * s1 - fy * c1
         b2, m2 = b + 0.5 * h * kb1, m + 0.5 * h * km1
-        c2, s2 = cos(b2), sin(b2)
+        c2, s2 = math.cos(b2), math.sin(b2)
         kb2, km2 = m2 / e2, fx * s2 - fy * c2
         b3, m3 = b + 0.5 * h * kb2, m + 0.5 * h * km2
-        c3, s3 = cos(b3), sin(b3)
+        c3, s3 = math.cos(b3), math.sin(b3)
         kb3, km3 = m3 / e2, fx * s3 - fy * c3
         b4, m4 = b + h * kb3, m + h * km3
-        c4, s4 = cos(b4), sin(b4)
+        c4, s4 = math.cos(b4), math.sin(b4)
         kb4, km4 = m4 / e3, fx * s4 - fy * c4
         x += h / 6.0 * (c1 + 2 * c2 + 2 * c3 + c4)
         y += h / 6.0 * (s1 + 2 * s2 + 2 * s3 + s4)
