@@ -263,7 +263,7 @@ def _explained(signals, first, last, stage_x, pause_x) -> np.ndarray:
             if total <= 0.0:
                 continue
             use = inside & finite
-            model = slope[cell] * (x - x0[cell]) + y0[cell]
+            model = slope.take(cell) * (x - x0.take(cell)) + y0.take(cell)
             # Frames that the offset puts outside the log are not explained: they count
             # with their full deviation, so an offset that slides most of the signal off
             # the log cannot score high on the few frames left.
