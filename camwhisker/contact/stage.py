@@ -286,6 +286,7 @@ def _pause_fit(signal, first, last, xp):
     if ok.any():
         dev2[finite] = (signal[finite] - signal[finite].mean()) ** 2
         total = float(np.sum(dev2[finite]))
+    # Pause means from running sums: a pause's frames are a range of the time-ordered ones.
     cum = np.concatenate(([0.0], np.cumsum(np.where(finite, signal, 0.0))))
     level = np.divide(cum[last] - cum[first], count, out=np.full(count.shape, np.nan),
                       where=count > 0)
