@@ -6,10 +6,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from camwhisker.contact.stage import (
+    PAUSE_TRIM_S,
     StageLogError,
+    _offset_scores,
+    best_offset,
     contact_onset_x,
     detect_pauses,
     estimate_offset,
+    pause_index,
     pause_medians,
     read_stage_log,
     stage_log_from_arrays,
@@ -78,6 +82,60 @@ def test_offset_estimated_to_a_frame():
         errs.append(off - run.offset_s)
         assert score > 0.9
     assert np.max(np.abs(errs)) < 0.05
+
+
+def _explained_one(signal, idx, pauses, x):
+    """The explained share at one offset, frame by frame as the docstring of
+    estimate_offset states it (pause means, np.interp between them, frames off the log
+    counted with their full deviation)."""
+    sel = (idx >= 0) & np.isfinite(signal)
+    finite = np.isfinite(signal)
+    use = np.isfinite(x) & finite
+    if sel.sum() < 6 or use.sum() < 6:
+        return 0.0
+    levels = {p: signal[sel & (idx == p)].mean() for p in np.unique(idx[sel])}
+    xp = np.array([pauses.x_mm[p] for p in levels])
+    order = np.argsort(xp, kind="stable")
+    model = np.interp(x[use], xp[order], np.array(list(levels.values()))[order])
+    mean = signal[finite].mean()
+    total = np.sum((signal[finite] - mean) ** 2)
+    unexplained = np.sum((signal[use] - model) ** 2) + np.sum((signal[finite & ~use] - mean) ** 2)
+    return 1.0 - unexplained / total
+
+
+def test_offset_scores_match_a_per_offset_evaluation():
+    """The offset search scores all trial offsets at once: each score must be the one
+    offset's, frame by frame, up to float rounding, and the estimate the same."""
+    run = simulate_runs("compliant", 5)[1]
+    log = stage_log_from_arrays(run.stage["t_s"], run.stage["x_mm"])
+    pauses = detect_pauses(log)
+    assert np.ptp(pauses.t_end_s - pauses.t_start_s) > 0.3  # unequal pauses (jitter 1.2-1.8 s)
+    s = run.signals
+    t = s["t_s"].copy()
+    t[[400, 900]] = np.nan  # frames without a time: in no pause, off the log
+    phi = np.where(s["ok"], s["phi_deg"], np.nan)
+    phi[100:130] = np.nan  # a tracking gap inside the run
+    signals = [phi, s["dz_mm"]]
+    offsets = np.r_[np.arange(-30.0, 30.05, 0.1), run.offset_s + np.arange(-0.2, 0.2, 0.004)]
+
+    def reference(trial):
+        return np.array([np.mean([_explained_one(v, pause_index(t, pauses, o, PAUSE_TRIM_S),
+                                                 pauses, log.x_at(t - o)) for v in signals])
+                         for o in trial])  # fmt: skip
+
+    ref = reference(offsets)
+    order = np.argsort(t)  # as estimate_offset orders the frames: by time, NaN last
+    got = _offset_scores(log, pauses, t[order], [v[order] for v in signals], offsets)
+    # Sums in another order: the scores (O(1)) differ by rounding, ~1e-16.
+    assert np.max(np.abs(got - ref)) <= 1e-12
+    assert ref.max() > 0.9  # the true offset explains the signals
+    off, score = estimate_offset(log, t, phi, s["dz_mm"])
+    assert (off, score) == pytest.approx(best_offset(reference, (-30.0, 30.0)), abs=1e-12)
+    assert abs(off - run.offset_s) < 0.05  # within 1.5 frames, as above
+    # Frames in any order give the same estimate (sorted first), up to rounding.
+    perm = np.random.default_rng(0).permutation(t.size)
+    assert estimate_offset(log, t[perm], phi[perm], s["dz_mm"][perm]) == pytest.approx(
+        (off, score), abs=1e-12)
 
 
 def test_pause_medians_and_onset():

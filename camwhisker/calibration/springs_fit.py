@@ -190,7 +190,7 @@ def estimate_force_offset(signals: dict, log: ForceLog,
         return float(np.mean([_explained(s, _box_mean(log.t_s, f, tf, half), inside)
                               for s, f in pairs]))
 
-    return best_offset(score, search_s)
+    return best_offset(lambda offsets: np.array([score(o) for o in offsets]), search_s)
 
 
 def block_means(signals: dict, log: ForceLog, offset_s: float, column: str, attr: str):
