@@ -312,7 +312,9 @@ def _segments(xp, fp):
     hi = np.where(flat, lo, hi)
     rows = np.arange(k)[:, None]
     x0, y0 = xp[lo], fp[rows, lo]
-    return x0, y0, (fp[rows, hi] - y0) / np.where(flat, 1.0, xp[hi] - x0)
+    # Pauses at one x (a turning run's) make pieces of no width: no x looks them up.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x0, y0, (fp[rows, hi] - y0) / np.where(flat, 1.0, xp[hi] - x0)
 
 
 def _first_frame(t, offsets, bounds, after: bool) -> np.ndarray:
