@@ -236,6 +236,37 @@ class _CornerOffsets:
             return np.nanmedian(found, axis=0)
 
 
+class _TipViews:
+    """Each video's first image and, in each frame tilted near TILTED_TIP_MIN_DEG or beyond,
+    the tip's surroundings and the frame's white-balance gains: kept as a round tracks the
+    sweep, so that the rim is measured against the round's fit (:func:`tilted_rim_scale`)
+    without decoding the videos again."""
+
+    #: Frames tilted this much less than TILTED_TIP_MIN_DEG are kept too: the fit's poses
+    #: differ from the tracking's by far less.
+    MARGIN_DEG = 1.0
+
+    def __init__(self, sensor: Sensor):
+        # The tip's search window (tip_edge_points) with room for a larger fitted rod
+        # and for the blur's profiles across the edge.
+        self.half_px = int(1.4 * 1.2 * _rim_radius_px(sensor) + TIP_SEARCH_PX + 8)
+        self.first: dict[int, np.ndarray] = {}
+        self.views: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def see(self, video: int, frame: int, image: np.ndarray, tip_uv: np.ndarray,
+            phi_deg: float, fe: FrontEnd) -> None:  # fmt: skip
+        """Keep what the rim's measurement needs of ``frame`` (index over the sweep), the
+        gains as ``fe`` (the round's front end) finds them."""
+        if video not in self.first:
+            self.first[video] = image
+        if not (np.isfinite(tip_uv).all() and phi_deg >= TILTED_TIP_MIN_DEG - self.MARGIN_DEG):
+            return
+        u, v = np.round(tip_uv).astype(int)
+        u0, v0 = max(u - self.half_px, 0), max(v - self.half_px, 0)
+        crop = image[v0 : v + self.half_px + 1, u0 : u + self.half_px + 1].copy()
+        self.views[frame] = (np.array([u0, v0], float), crop, fe.gains(image))
+
+
 def rest_tip_radius_px(video: str | Path, sensor: Sensor,
                        options: FrontEndOptions | None = None) -> float:  # fmt: skip
     """The end face's radius (px) in the video's first frame: the median distance of
@@ -268,7 +299,7 @@ def _rim_radius_px(sensor: Sensor) -> float:
 
 
 def tilted_rim_scale(
-    videos: Sequence[str | Path],
+    views: _TipViews,
     sensor: Sensor,
     tracked: TrackedSweep,
     options: FrontEndOptions | None = None,
@@ -279,7 +310,8 @@ def tilted_rim_scale(
     shift of the edge taken out), how many frames gave one, and the blur (Gaussian
     sigma, px; :func:`~camwhisker.vision.tip.edge_blur_px`, median over BLUR_FRAMES
     of them; NaN, and no shift taken out, where no edge fits); (NaN, 0, NaN) where no
-    frame gives a scale. ``tracked``'s points place the search, its poses are ``sensor``'s."""
+    frame gives a scale. ``tracked``'s points place the search, its poses are ``sensor``'s;
+    ``views`` holds the frames, kept as they were tracked."""
     phi = np.degrees(np.hypot(tracked.q[:, 1], tracked.q[:, 2]))
     tilted = np.flatnonzero(tracked.ok & ~tracked.rest & (phi >= TILTED_TIP_MIN_DEG))
     if not len(tilted):
@@ -287,29 +319,20 @@ def tilted_rim_scale(
     keep = np.unique(np.linspace(0, len(tilted) - 1, TILTED_TIP_FRAMES).round().astype(int))
     pick = set(tilted[keep].tolist())
     model, radius_px, faces, blurs = PlateModel(sensor), _rim_radius_px(sensor), [], []
-    for k, video in enumerate(videos):
-        first = int(np.flatnonzero(tracked.video == k)[0])
-        mine = [f - first for f in pick if tracked.video[f] == k]
-        if not mine:
-            continue
-        fe = None
-        for i, frame in enumerate(open_source(video)):
-            if i > max(mine):
-                break
-            if fe is None:
-                fe = FrontEnd(sensor, options)
-                fe.start(frame.image)
-            guess = tracked.points_uv[first + i, TIP]
-            if first + i not in pick or not np.isfinite(guess).all():
-                continue
-            rim, rod, _ = model.outlines(tracked.q[first + i])
-            off, gains = fe.rest.offsets[TIP], fe.gains(frame.image)
-            edges, _, _ = tip_edge_points(frame.image, gains, guess, radius_px, TIP_SEARCH_PX)
+    for k in np.unique(tracked.video[sorted(pick)]):
+        fe = FrontEnd(sensor, options)
+        fe.start(views.first[k])
+        for f in sorted(f for f in pick if tracked.video[f] == k and f in views.views):
+            origin, crop, gains = views.views[f]
+            guess = tracked.points_uv[f, TIP] - origin
+            rim, rod, _ = model.outlines(tracked.q[f])
+            off = fe.rest.offsets[TIP] - origin
+            edges, _, _ = tip_edge_points(crop, gains, guess, radius_px, TIP_SEARCH_PX)
             if edges is None:
                 continue
-            faces.append((edges, rim + off, rod + off))
             if len(blurs) < BLUR_FRAMES:
-                blurs.append(edge_blur_px(brightness(frame.image, gains)[1], *faces[-1]))
+                blurs.append(edge_blur_px(brightness(crop, gains)[1], edges, rim + off, rod + off))
+            faces.append((edges + origin, rim + off + origin, rod + off + origin))
     blur = float(np.nanmedian(blurs)) if np.isfinite(blurs).any() else float("nan")
     scales = np.array([rim_scale(*face, np.nan_to_num(blur)) for face in faces])
     scales = scales[np.isfinite(scales)]
@@ -339,16 +362,18 @@ def track_sweep(
     sensor: Sensor,
     on_frame: Callable[[], None] | None = None,
     options: FrontEndOptions | None = None,
+    views: _TipViews | None = None,
 ) -> TrackedSweep:
     """Track every video of the sweep with ``sensor`` (and ``options``, such as the
-    user's rough feature positions); ``on_frame`` is called per frame.
+    user's rough feature positions); ``on_frame`` is called per frame; ``views`` is
+    filled with the frames the rim's measurement needs.
 
     Raises
     ------
     camwhisker.vision.FeaturesNotFound
         A video's first frame lacks a feature.
     """
-    parts, offsets = [], []
+    parts, offsets, n_before = [], [], 0
     for k, video in enumerate(videos):
         times: list[float] = []
         # The images whose rows the tracker holds back (a rest segment's): the corners'
@@ -360,6 +385,9 @@ def track_sweep(
             results.append(r)
             image = waiting.pop(i)
             measure.see(image)
+            if views is not None:
+                views.see(k, n_before + i, image, np.asarray(r.points_uv[TIP], dtype=float),
+                          r.phi_deg, measure.fe)  # fmt: skip
             found.append(measure(image, np.asarray(r.points_uv, dtype=float),
                                  _q_from_results([r])[0]) if r.ok else None)  # fmt: skip
             if on_frame is not None:
@@ -371,6 +399,7 @@ def track_sweep(
         offsets.append(measure.median([f for f, u in zip(found, ok & ~rest, strict=True) if u]))
         parts.append((pts, _q_from_results(results), ok, rest, np.full(len(results), k),
                       np.array(times[: len(results)])))  # fmt: skip
+        n_before += len(results)
     return TrackedSweep(*(np.concatenate(c) for c in zip(*parts, strict=True)),
                         np.array(offsets))  # fmt: skip
 
@@ -470,7 +499,8 @@ def calibrate_sensor(
             fixed[ROD_DIAMETER] = rod_diameter_mm(current, radius_px)
             used = (float("nan"), 0, float("nan"))
         current = current.replace(plate={"rod_diameter_mm": fixed[ROD_DIAMETER]})
-        tracked = track_sweep(videos, current, on_frame, options)
+        views = _TipViews(current)
+        tracked = track_sweep(videos, current, on_frame, options, views)
         ok_fraction.append(float(tracked.ok.mean()))
         # Only the rows the front end trusted: a lost track's points are no measurement.
         pts = np.where((tracked.ok | tracked.rest)[:, None, None], tracked.points_uv, np.nan)
@@ -489,7 +519,7 @@ def calibrate_sensor(
         # The rim measured against this round's fit, its geometry and poses: against the
         # tracking's (the round before's fit) the rod's size lags the depths and swings.
         fitted = replace(tracked, q=np.where(adj.used[:, None], adj.q, tracked.q))
-        scale, n_scaled, blur = tilted_rim_scale(videos, current, fitted, options)
+        scale, n_scaled, blur = tilted_rim_scale(views, current, fitted, options)
         rim_off = n_scaled >= MIN_TILTED_TIP_FRAMES and abs(scale) > RIM_SCALE_TOL
         if previous is not None and _stable(previous, adj) and not rim_off:
             break
