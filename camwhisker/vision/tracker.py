@@ -805,11 +805,10 @@ class FrontEnd:
         cross = (cross + offsets[N_SQUARE:TIP].mean(axis=0)).astype(np.float32)
         reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
-        for k in range(TIP):
-            pt = (float(uv[k, 0]), float(uv[k, 1]))
-            out[k] = cv2.pointPolygonTest(hull, pt, True) > -reach
-            if k < N_SQUARE:
-                out[k] |= cv2.pointPolygonTest(cross, pt, True) > -reach
+        for k in _near_box(uv, hull, reach):
+            out[k] = cv2.pointPolygonTest(hull, uv[k].tolist(), True) > -reach
+        for k in _near_box(uv[:N_SQUARE], cross, reach):
+            out[k] |= cv2.pointPolygonTest(cross, uv[k].tolist(), True) > -reach
         return out
 
     def _fit(self, measured, q0, offsets) -> PoseFit:
@@ -851,6 +850,15 @@ def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> Ti
     moved by the tip's rest offset (px) and to where a blur of ``blur_px`` shows it."""
     rim, rod, _ = model.outlines(q)
     return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
+
+
+def _near_box(uv: np.ndarray, polygon: np.ndarray, reach: float) -> list[int]:
+    """The points (rows of ``uv``) within ``reach`` (px, and 1 px more for rounding) of the
+    polygon's bounding box: the only ones that can lie within ``reach`` of the polygon."""
+    lo = polygon.reshape(-1, 2).min(axis=0) - (reach + 1.0)
+    hi = polygon.reshape(-1, 2).max(axis=0) + (reach + 1.0)
+    far = ((uv < lo) | (uv > hi)).any(axis=1)  # False for NaN: such a point is tested
+    return np.flatnonzero(~far).tolist()
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
