@@ -781,7 +781,7 @@ def test_occlusion_tests_every_point_near_the_polygon():
                               .astype(np.float32))  # fmt: skip
         uv = rng.uniform(150, 500, (12, 2))
         uv[0] = np.nan  # a lost point is tested, as before the box
-        near = set(_near_box(uv, poly, reach))
+        near = set(_near_box(uv.tolist(), poly, reach))
         inside = {k for k in range(1, 12)
                   if cv2.pointPolygonTest(poly, uv[k].tolist(), True) > -reach}  # fmt: skip
         assert inside <= near and 0 in near

@@ -805,10 +805,11 @@ class FrontEnd:
         cross = (cross + offsets[N_SQUARE:TIP].mean(axis=0)).astype(np.float32)
         reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
-        for k in _near_box(uv, hull, reach):
-            out[k] = cv2.pointPolygonTest(hull, uv[k].tolist(), True) > -reach
-        for k in _near_box(uv[:N_SQUARE], cross, reach):
-            out[k] |= cv2.pointPolygonTest(cross, uv[k].tolist(), True) > -reach
+        pts = np.asarray(uv, float).tolist()
+        for k in _near_box(pts, hull, reach):
+            out[k] = cv2.pointPolygonTest(hull, pts[k], True) > -reach
+        for k in _near_box(pts[:N_SQUARE], cross, reach):
+            out[k] |= cv2.pointPolygonTest(cross, pts[k], True) > -reach
         return out
 
     def _fit(self, measured, q0, offsets) -> PoseFit:
@@ -852,13 +853,15 @@ def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> Ti
     return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
 
 
-def _near_box(uv: np.ndarray, polygon: np.ndarray, reach: float) -> list[int]:
-    """The points (rows of ``uv``) within ``reach`` (px, and 1 px more for rounding) of the
+def _near_box(pts: list, polygon: np.ndarray, reach: float) -> list[int]:
+    """The points (u, v) within ``reach`` (px, and 1 px more for rounding) of the
     polygon's bounding box: the only ones that can lie within ``reach`` of the polygon."""
-    lo = polygon.reshape(-1, 2).min(axis=0) - (reach + 1.0)
-    hi = polygon.reshape(-1, 2).max(axis=0) + (reach + 1.0)
-    far = ((uv < lo) | (uv > hi)).any(axis=1)  # False for NaN: such a point is tested
-    return np.flatnonzero(~far).tolist()
+    x, y, w, h = cv2.boundingRect(polygon)  # whole pixels, around every vertex
+    m = reach + 1.0
+    lo_u, lo_v, hi_u, hi_v = x - m, y - m, x + w + m, y + h + m
+    # A NaN point compares False: it is tested.
+    return [k for k, (u, v) in enumerate(pts)
+            if not (u < lo_u or u > hi_u or v < lo_v or v > hi_v)]  # fmt: skip
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
