@@ -74,7 +74,8 @@ def test_the_batch_command_leaves_the_other_commands_modules_unimported():
 
     code = ("import sys; from camwhisker.cli import build_parser; build_parser('batch'); "
             "print([m for m in ('camwhisker.percept.contact_map', 'camwhisker.learn.train', "
-            "'camwhisker.sim.mechanics', 'camwhisker.sim.render.scenarios') "
+            "'camwhisker.sim.mechanics', 'camwhisker.sim.render.scenarios', "
+            "'camwhisker.cli.live', 'camwhisker.cli.bench', 'camwhisker.cli.synth') "
             "if m in sys.modules])")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout  # fmt: skip

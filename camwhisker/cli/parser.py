@@ -3,77 +3,68 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
 from camwhisker import __version__
-from camwhisker.cli import (
-    batch,
-    belief,
-    bench,
-    calibrate_sensor,
-    contact,
-    dev,
-    experiment,
-    learn,
-    live,
-    map,
-    overlay,
-    percept,
-    springs,
-    synth,
-    texture,
-    validate,
-)
 from camwhisker.cli.common import EXIT_CODES, INPUT_ERRORS, HelpFormatter, warnings_above_bars
 
 __all__ = ["build_parser", "main"]
 
-# The commands a researcher runs, in the order of the work (`camwhisker --help`), by name.
+# The commands a researcher runs, in the order of the work (`camwhisker --help`), by name:
+# the function of camwhisker.cli.MODULE that adds it, as "MODULE.FUNCTION" (a module is
+# imported only where its command is built).
 _COMMANDS = {
-    "batch": batch.add_batch,
-    "overlay": overlay.add_overlay,
-    "live": live.add_live,
-    "replay": live.add_replay,
-    "list-cameras": live.add_list_cameras,
-    "calibrate-sensor": calibrate_sensor.add_calibrate_sensor,
-    "calibrate": contact.add_calibrate,
-    "calibrate-springs": springs.add_calibrate_springs,
-    "validate": validate.add_validate,
-    "contact": contact.add_contact,
-    "belief": belief.add_belief,
-    "experiment": experiment.add_experiment,
-    "percept": percept.add_percept,
-    "map": map.add_map,
-    "texture": texture.add_texture,
-    "learn": learn.add_learn,
-    "predict": learn.add_predict,
+    "batch": "batch.add_batch",
+    "overlay": "overlay.add_overlay",
+    "live": "live.add_live",
+    "replay": "live.add_replay",
+    "list-cameras": "live.add_list_cameras",
+    "calibrate-sensor": "calibrate_sensor.add_calibrate_sensor",
+    "calibrate": "contact.add_calibrate",
+    "calibrate-springs": "springs.add_calibrate_springs",
+    "validate": "validate.add_validate",
+    "contact": "contact.add_contact",
+    "belief": "belief.add_belief",
+    "experiment": "experiment.add_experiment",
+    "percept": "percept.add_percept",
+    "map": "map.add_map",
+    "texture": "texture.add_texture",
+    "learn": "learn.add_learn",
+    "predict": "learn.add_predict",
 }
 
 # `camwhisker dev ...`: the simulators and the benchmarks against their truth.
 _DEV_COMMANDS = [
-    synth.add_render,
-    synth.add_bound,
-    synth.add_samples,
-    synth.add_describe,
-    synth.add_experiment,
-    synth.add_space_experiment,
-    contact.add_simulate_stage,
-    contact.add_simulate_space,
-    dev.add_simulate_taps,
-    dev.add_simulate_whisk,
-    texture.add_simulate_texture,
-    bench.add_chain,
-    bench.add_bench,
-    bench.add_contact_bench,
-    percept.add_percept_bench,
-    dev.add_bench_scripts,
+    "synth.add_render",
+    "synth.add_bound",
+    "synth.add_samples",
+    "synth.add_describe",
+    "synth.add_experiment",
+    "synth.add_space_experiment",
+    "contact.add_simulate_stage",
+    "contact.add_simulate_space",
+    "dev.add_simulate_taps",
+    "dev.add_simulate_whisk",
+    "texture.add_simulate_texture",
+    "bench.add_chain",
+    "bench.add_bench",
+    "bench.add_contact_bench",
+    "percept.add_percept_bench",
+    "dev.add_bench_scripts",
 ]
+
+
+def _add(sub, where: str) -> None:
+    """Add the command that camwhisker.cli's ``where`` ("MODULE.FUNCTION") adds."""
+    module, function = where.split(".")
+    getattr(importlib.import_module(f"camwhisker.cli.{module}"), function)(sub)
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser of every command; with ``command`` one of the user's commands (not
-    ``dev``), of that command alone: the others' defaults and choices import their
-    modules (~50 ms of every run's start-up)."""
+    ``dev``), of that command alone: the others' modules, and the modules their
+    defaults and choices come from, cost every run's start-up ~50 ms."""
     parser = argparse.ArgumentParser(
         prog="camwhisker",
         description="From webcam video of a camera-based robotic whisker to the plate's pose "
@@ -86,18 +77,18 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"camwhisker {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     if command in _COMMANDS:
-        _COMMANDS[command](sub)
+        _add(sub, _COMMANDS[command])
         sub.choices[command].formatter_class = HelpFormatter
         return parser
-    for add in _COMMANDS.values():
-        add(sub)
+    for where in _COMMANDS.values():
+        _add(sub, where)
     dev_parser = sub.add_parser(
         "dev", help="simulators and benchmarks: `camwhisker dev --help` lists them",
         description="Simulators with known truth, and the benchmarks that check the "
         "package against it. None of them is needed to process a real sensor's recordings.")
     dev_sub = dev_parser.add_subparsers(dest="dev_command", required=True, metavar="COMMAND")
-    for add in _DEV_COMMANDS:
-        add(dev_sub)
+    for where in _DEV_COMMANDS:
+        _add(dev_sub, where)
     for each in [*sub.choices.values(), *dev_sub.choices.values()]:
         each.formatter_class = HelpFormatter
     return parser
