@@ -53,3 +53,30 @@ def test_an_unknown_option_of_a_user_command_is_still_an_error(capsys):
 def test_dev_errors_name_the_dev_command(tmp_path, capsys):
     assert main(["dev", "bench", "--out", str(tmp_path / "b.md"), "--configs", "nope"]) == 2
     assert capsys.readouterr().err.startswith("camwhisker dev bench: error:")
+
+
+def test_a_user_command_builds_its_own_parser_alone_and_parses_the_same():
+    # main builds only the command it runs (the others' modules cost ~50 ms of start-up);
+    # each name must be the one its add function registers, and parse as the whole parser.
+    for name in USER_ORDER[:-1]:
+        assert _commands(build_parser(name)) == [name]
+    argv = ["batch", "v.mp4", "--sensor", "s.toml", "--out", "o.csv", "--rest-frame", "3"]
+    alone, whole = build_parser("batch").parse_args(argv), build_parser().parse_args(argv)
+    assert vars(alone) == vars(whole)
+    render = build_parser("dev").parse_args(["dev", "render", "nominal", "--out", "x.avi"])
+    assert render.frames == 60  # dev builds every dev command: render's default is there
+
+
+def test_the_batch_command_leaves_the_other_commands_modules_unimported():
+    # A fresh interpreter: this one has them already.
+    import subprocess
+    import sys
+
+    code = ("import sys; from camwhisker.cli import build_parser; build_parser('batch'); "
+            "print([m for m in ('camwhisker.percept.contact_map', 'camwhisker.learn.train', "
+            "'camwhisker.sim.mechanics', 'camwhisker.sim.render.scenarios', "
+            "'camwhisker.cli.live', 'camwhisker.cli.bench', 'camwhisker.cli.synth') "
+            "if m in sys.modules])")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout  # fmt: skip
+    assert out.strip() == "[]"

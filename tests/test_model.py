@@ -115,3 +115,13 @@ def test_z_i_moves_the_image_like_dz_the_other_way():
     dz = jac.pose[:, :, 0]
     z_i = jac.geometry[:, :, GEOMETRY_NAMES.index("plate.z_i_mm")]
     np.testing.assert_allclose(z_i, -dz, rtol=0, atol=1e-9 * np.abs(dz).max())
+
+
+def test_the_covers_are_the_outlines_rod_and_cross_to_the_bit():
+    # The occlusion test projects only the rod and the cross: each point's projection is
+    # its own, so they must equal outlines' exactly (0 tolerance: the same arithmetic).
+    model = PlateModel(DISTORTED)
+    for q in (np.zeros(5), _q(0.4, 25.0, 130.0, 0.1, -0.2)):
+        _, rod, cross = model.outlines(q)
+        rod_c, cross_c = model.covers(q)
+        assert np.array_equal(rod, rod_c) and np.array_equal(cross, cross_c)

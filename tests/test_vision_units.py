@@ -766,3 +766,24 @@ def test_bench_errors_and_table():
     text = table([BenchRow("nominal", "model", 4, 100.0, 120.0, 0.75, phi_rmse, dz_rmse,
                            theta_mae, bias)])  # fmt: skip
     assert "| nominal | model | 4 | 100 | 120 | 75% |" in text
+
+
+def test_occlusion_tests_every_point_near_the_polygon():
+    # The occlusion check runs OpenCV's point-polygon distance only on the points near
+    # the polygon's box: none it skips may lie within reach (exact: a skipped point is
+    # over reach + 1 px from the box, so from the polygon).
+    from camwhisker.vision.tracker import _near_box
+
+    rng = np.random.default_rng(3)
+    reach, hits = 20.0, 0
+    for _ in range(200):
+        poly = cv2.convexHull((rng.uniform(0, 60, (8, 2)) + rng.uniform(200, 400, 2))
+                              .astype(np.float32))  # fmt: skip
+        uv = rng.uniform(150, 500, (12, 2))
+        uv[0] = np.nan  # a lost point is tested, as before the box
+        near = set(_near_box(uv.tolist(), poly, reach))
+        inside = {k for k in range(1, 12)
+                  if cv2.pointPolygonTest(poly, uv[k].tolist(), True) > -reach}  # fmt: skip
+        assert inside <= near and 0 in near
+        hits += len(inside)
+    assert hits > 50  # the draw put points within reach often enough to mean something

@@ -6,12 +6,13 @@ import sys
 
 from camwhisker.cli.common import CommandError, command_line, sensor_arg
 from camwhisker.sensor.file import load_sensor
-from camwhisker.sim.render.scenarios import SCENARIOS
 
 __all__ = ["add_render", "add_bound", "add_samples", "add_describe", "add_experiment"]
 
 
 def add_render(sub) -> None:
+    from camwhisker.sim.render.scenarios import SCENARIOS
+
     p = sub.add_parser("render", help="render a synthetic scenario to video with its truth")
     p.add_argument("scenario", choices=sorted(SCENARIOS), help="what to render")
     p.add_argument("--out", required=True, metavar="VIDEO", help="output .avi (MJPG) or .mp4")
@@ -48,6 +49,8 @@ def _run_render(args) -> int:
 
 
 def add_bound(sub) -> None:
+    from camwhisker.sim.render.scenarios import SCENARIOS
+
     p = sub.add_parser("bound", help="Cramér-Rao bound on dz, phi, theta for a scene")
     p.add_argument(
         "--scenario",

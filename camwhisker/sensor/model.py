@@ -181,6 +181,12 @@ class PlateModel:
         uv = self._project(self._outline_points, q)[0]
         return uv[:N_RIM], uv[N_RIM : self._rod_end], uv[self._rod_end :]
 
+    def covers(self, q: np.ndarray):
+        """The rod's two end rims and the cross's outline of :meth:`outlines` alone
+        (what may cover a corner), from one projection of those points."""
+        uv = self._project(self._outline_points[N_RIM:], q)[0]
+        return uv[: self._rod_end - N_RIM], uv[self._rod_end - N_RIM :]
+
     def _project(self, pts: np.ndarray, q: np.ndarray):
         """Plate-frame points (n, 3) at pose q: pixels (n, 2) and project_rigid's
         Jacobian (2 n, 15)."""

@@ -103,7 +103,7 @@ def rigid_motion(q: np.ndarray, z_i_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """The plate's motion at pose vector q as (rvec, tvec) for
     :func:`camwhisker.sensor.camera.project_rigid`: rvec = (b, -a, 0) rad,
     tvec = (sx, sy, z_i - dz) mm. A 3-vector q has no shift."""
-    q = np.asarray(q, dtype=float)
+    q = np.asarray(q, dtype=float).tolist()  # Python floats: the same sums, no numpy calls
     sx, sy = (q[3], q[4]) if len(q) > 3 else (0.0, 0.0)
     return np.array([q[2], -q[1], 0.0]), np.array([sx, sy, z_i_mm - q[0]])
 

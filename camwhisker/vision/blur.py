@@ -185,10 +185,11 @@ def reblur_templates(big: np.ndarray, affine: np.ndarray, sigma_px: float) -> np
     ku, kv, ku2, kv2 = _frequencies(n)
     c = cov[:, None, None]
     quad = c[..., 0, 0] * ku2 + 2.0 * c[..., 0, 1] * ku * kv + c[..., 1, 1] * kv2
-    gain = np.exp(-0.5 * quad).astype(np.float32)
+    quad *= -0.5
+    gain = np.exp(quad, out=quad).astype(np.float32)
     # irfft2(rfft2(big) * gain) one axis at a time, as numpy's does it (the same values)
-    # without its checks and copies.
+    # without its checks and copies; the last axis's inverse only on the rows kept.
     spectrum = fft.fft(fft.rfft(big, axis=-1), axis=-2)
     spectrum *= gain
-    out = fft.irfft(fft.ifft(spectrum, axis=-2), n=n, axis=-1)
-    return np.ascontiguousarray(out[:, p:-p, p:-p], dtype=np.float32)
+    out = fft.irfft(fft.ifft(spectrum, axis=-2)[:, p:-p], n=n, axis=-1)
+    return np.ascontiguousarray(out[:, :, p:-p], dtype=np.float32)

@@ -198,14 +198,16 @@ class _RestSegment:
         sd = np.sqrt(np.nanmean(np.nanvar(uv, axis=0, ddof=1), axis=-1))
         return sd / math.sqrt(self.used)
 
-    def rebuild(self, sensor: Sensor, options: FrontEndOptions | None):
+    def rebuild(self):
         """The front end with the reference rebuilt from the segment's mean image,
         the frames it used and the warnings; the first frame's where it is alone
         or the features are not found in the mean."""
         first = self.frames[0].index
         if self.used == 1:
             return self.fe, 1, [ONE_FRAME_WARNING] if self.fe.options.rest_frames > 1 else []
-        fe = FrontEnd(sensor, options)
+        # The first frame's front end, copied: start() replaces its state, and its model
+        # and cloth samples are this sensor's already (a new one costs ~5 ms).
+        fe = copy.copy(self.fe)
         try:
             images = [f.image for f, s in zip(self.frames, self.still, strict=True) if s]
             fe.start(mean_image(images), first, self.fe.rest.uv)
@@ -216,10 +218,10 @@ class _RestSegment:
         return fe, self.used, []
 
 
-def _close(segment: _RestSegment, sensor, options, hold: bool, rest_log: list | None):
+def _close(segment: _RestSegment, hold: bool, rest_log: list | None):
     """End a rest segment: rebuild the reference, record it, and (``hold``) yield the
     segment's rows measured with it. Returns the front end to go on with."""
-    fe, used, warnings = segment.rebuild(sensor, options)
+    fe, used, warnings = segment.rebuild()
     _record(fe, segment, used, warnings, rest_log)
     if hold:
         for frame, r in zip(segment.frames, segment.results, strict=True):
@@ -289,19 +291,19 @@ def stream(
                 if not hold:
                     yield frame, r
                 continue
-            fe = yield from _close(segment, sensor, options, hold, rest_log)
+            fe = yield from _close(segment, hold, rest_log)
             segment = None
         r, started = _step(fe, frame, sensor, options, rest_index, strict, warm_up)
         if started is not None:
             fe, segment = started, _RestSegment(started, frame, r)
             if started.options.rest_frames == 1:  # nothing to average: recorded at once
-                fe = yield from _close(segment, sensor, options, False, rest_log)
+                fe = yield from _close(segment, False, rest_log)
                 segment = None
             elif hold:
                 continue
         yield frame, r
     if segment is not None:
-        yield from _close(segment, sensor, options, hold, rest_log)
+        yield from _close(segment, hold, rest_log)
 
 
 def _step(fe, frame, sensor, options, rest_index, strict, warm_up):

@@ -346,8 +346,9 @@ def blurred_rim(rim_uv: np.ndarray, blur_px: float) -> np.ndarray:
     if not blur_px > 0:
         return rim
     c = polygon_centroid(rim)
-    r2 = float(np.mean(np.sum((rim - c) ** 2, axis=1)))
-    return c + (rim - c) * (1.0 - blur_px**2 / (2.0 * r2))
+    d = rim - c
+    r2 = float((d[:, 0] ** 2 + d[:, 1] ** 2).sum()) / len(d)  # np.mean's sum, fewer calls
+    return c + d * (1.0 - blur_px**2 / (2.0 * r2))
 
 
 def rim_scale(pts: np.ndarray, rim_uv: np.ndarray, body_hull_uv: np.ndarray,

@@ -453,9 +453,10 @@ class FrontEnd:
         uv_still, _, rim = self.model.project(q_still, jacobian=False)
         radius = math.sqrt(polygon_area(rim) / math.pi)
         tip_still = uv_still[TIP] + self.rest.offsets[TIP]
-        tip_moving = tip_still
+        tip_moving, at_moving = tip_still, None
         if not np.array_equal(q_moving, q_still):
-            tip_moving = self.model.tip(q_moving)[0] + self.rest.offsets[TIP]
+            at_moving = self.model.tip(q_moving)  # the tilt's first step reads it again
+            tip_moving = at_moving[0] + self.rest.offsets[TIP]
         predicted = [tip_still] if tip_moving is tip_still else [tip_still, tip_moving]
         edges, blob_uv, why, afar = self._tip_edges(look, predicted, radius)
         if edges is None:
@@ -463,18 +464,18 @@ class FrontEnd:
         # Place the model's rim at the prediction the tip came closest to (the
         # refits place it again at the fitted pose).
         off_still, off_moving = np.hypot(*(blob_uv - [tip_still, tip_moving]).T).tolist()
-        q0 = q_moving if off_moving < off_still else q_still
+        q0, at_q0 = (q_moving, at_moving) if off_moving < off_still else (q_still, None)
         tip = None
         if not afar and min(off_still, off_moving) <= TIP_JUMP_PX:
             tip = self._tip_at(edges, q0)
         if tip is not None and tip.ok:
-            return _TipFind(edges, tip, q0, tip.centre_uv, self._tilt_from_tip(q0, tip.centre_uv),
-                            why)  # fmt: skip
+            return _TipFind(edges, tip, q0, tip.centre_uv,
+                            self._tilt_from_tip(q0, tip.centre_uv, at_q0), why)  # fmt: skip
         # A jump: the tilt guess comes from the dark blob's centroid (within ~1 px
         # of the tip's, enough to start the corners), and the tip is measured after
         # the corners, with the rim placed at their fit: a jump moves dz too, which
         # the corners tell and the tip does not.
-        return _TipFind(edges, None, None, blob_uv, self._tilt_from_tip(q0, blob_uv), why)
+        return _TipFind(edges, None, None, blob_uv, self._tilt_from_tip(q0, blob_uv, at_q0), why)
 
     def _tip_edges(self, look: _Look, predicted: list[np.ndarray], radius: float):
         """The tip's edge points in a window over the predictions with dark pixels
@@ -701,12 +702,14 @@ class FrontEnd:
         """The tip's centroid from its edge points, with the model's rim at pose q."""
         return _tip_with_rim(self.model, edges, q, self.rest.offsets[TIP], self.rest.tip_blur_px)
 
-    def _tilt_from_tip(self, q: np.ndarray, tip_uv: np.ndarray) -> np.ndarray:
-        """Solve (a, b) so the model's tip meets the measured one, dz and shift held."""
+    def _tilt_from_tip(self, q: np.ndarray, tip_uv: np.ndarray, at_q=None) -> np.ndarray:
+        """Solve (a, b) so the model's tip meets the measured one, dz and shift held;
+        ``at_q``: the model's tip at q (:meth:`PlateModel.tip`) where already known."""
         q = q.copy()
         target = tip_uv - self.rest.offsets[TIP]
         for _ in range(TILT_MAX_ITER):
-            uv, jac = self.model.tip(q)
+            uv, jac = self.model.tip(q) if at_q is None else at_q
+            at_q = None
             # OpenCV's LU solve: far less call overhead than np.linalg.solve at 2 x 2.
             solved, step = cv2.solve(jac[:, 1:3], (target - uv)[:, None])
             if not solved:
@@ -797,16 +800,16 @@ class FrontEnd:
         (at large tilts its arm ends pass over them). Both are placed where the
         points are seen: the rod with the tip's rest offset (as the tip's rim), the
         cross with its corners' mean offset (``offsets`` (13, 2), at q)."""
-        _, rod, cross = self.model.outlines(q)
+        rod, cross = self.model.covers(q)
         hull = cv2.convexHull((rod + offsets[TIP]).astype(np.float32))
         cross = (cross + offsets[N_SQUARE:TIP].mean(axis=0)).astype(np.float32)
         reach = self.options.lk_half_px * math.sqrt(2) + OCCLUSION_MARGIN_PX
         out = np.zeros(TIP, bool)
-        for k in range(TIP):
-            pt = (float(uv[k, 0]), float(uv[k, 1]))
-            out[k] = cv2.pointPolygonTest(hull, pt, True) > -reach
-            if k < N_SQUARE:
-                out[k] |= cv2.pointPolygonTest(cross, pt, True) > -reach
+        pts = np.asarray(uv, float).tolist()
+        for k in _near_box(pts, hull, reach):
+            out[k] = cv2.pointPolygonTest(hull, pts[k], True) > -reach
+        for k in _near_box(pts[:N_SQUARE], cross, reach):
+            out[k] |= cv2.pointPolygonTest(cross, pts[k], True) > -reach
         return out
 
     def _fit(self, measured, q0, offsets) -> PoseFit:
@@ -848,6 +851,17 @@ def _tip_with_rim(model: PlateModel, edges, q, tip_offset, blur_px: float) -> Ti
     moved by the tip's rest offset (px) and to where a blur of ``blur_px`` shows it."""
     rim, rod, _ = model.outlines(q)
     return rim_centre(edges, blurred_rim(rim, blur_px) + tip_offset, rod + tip_offset)
+
+
+def _near_box(pts: list, polygon: np.ndarray, reach: float) -> list[int]:
+    """The points (u, v) within ``reach`` (px, and 1 px more for rounding) of the
+    polygon's bounding box: the only ones that can lie within ``reach`` of the polygon."""
+    x, y, w, h = cv2.boundingRect(polygon)  # whole pixels, around every vertex
+    m = reach + 1.0
+    lo_u, lo_v, hi_u, hi_v = x - m, y - m, x + w + m, y + h + m
+    # A NaN point compares False: it is tested.
+    return [k for k, (u, v) in enumerate(pts)
+            if not (u < lo_u or u > hi_u or v < lo_v or v > hi_v)]  # fmt: skip
 
 
 def _moved(q1: np.ndarray, q0: np.ndarray) -> bool:
