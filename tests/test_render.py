@@ -12,7 +12,7 @@ every row, and the mean over rows is far tighter.
 import numpy as np
 import pytest
 
-from camwhisker.sensor.camera import pixel_rays, project
+from camwhisker.sensor.camera import project, unproject
 from camwhisker.sensor.file import Sensor
 from camwhisker.sensor.plate import Pose, plate_to_camera, square_corners
 from camwhisker.sim.render.render import SceneRenderer, fibonacci_offsets
@@ -137,11 +137,14 @@ def test_geometry_does_not_touch_the_background(plain):
 
 
 def test_rays_computed_when_first_needed_are_the_cameras(distorted):
-    # Each pixel's ray is unprojected on its own, so a tile computed alone (in any order,
-    # over any region) equals the whole frame's rays to the bit: renders stay reproducible.
-    full = pixel_rays(distorted.sensor.camera)
+    # Each pixel's ray is unprojected on its own, so tiles computed as layers ask for them
+    # (in any order, over any region) equal the region's rays computed at once, to the
+    # bit: renders stay reproducible.
+    cam = distorted.sensor.camera
     fresh = SceneRenderer(distorted.sensor)
     for rows, cols in [(slice(300, 331), slice(17, 90)), (slice(0, 720), slice(1200, 1280)),
                        (slice(100, 500), slice(500, 800))]:  # fmt: skip
-        assert np.array_equal(fresh.rays(rows, cols), full[rows, cols], equal_nan=True)
+        v, u = np.mgrid[rows, cols].astype(float)
+        at_once = unproject(np.stack([u, v], axis=-1), cam)
+        assert np.array_equal(fresh.rays(rows, cols), at_once, equal_nan=True)
     assert fresh._ray_tiles.mean() < 0.3  # only the asked tiles were computed
