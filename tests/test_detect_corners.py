@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from camwhisker.vision.detect import (
+    RED_MIN,
     REFINE_MAX_SHIFT_PX,
     _assign_corners,
     _corners_of,
@@ -63,7 +64,7 @@ def scene():
     area = _bar(REACH, HALF) + _bar(HALF, REACH) - _bar(HALF, HALF)  # the two bars' union
     gmap = cv2.GaussianBlur(area.astype(np.float32), (0, 0), BLUR_PX)
     corners = cross()
-    return gmap, (gmap > 0.6).astype(np.uint8), corners
+    return gmap, (gmap > RED_MIN).astype(np.uint8), corners  # as detection thresholds
 
 
 @pytest.mark.parametrize("bump", [None, (9, 15), (8, 14)])
