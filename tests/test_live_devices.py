@@ -39,7 +39,7 @@ from camwhisker.live.cameras import (
 from camwhisker.live.capture import READ_CLOCK, CameraCapture
 from camwhisker.live.grabber import Grabber
 from camwhisker.live.loop import LiveConfig, run_live
-from camwhisker.live.record import MjpgRoundTrip
+from camwhisker.live.record import MjpgRoundTrip, decode_only
 from camwhisker.sensor.file import load_sensor
 from camwhisker.vision.tracker import FrameResult
 
@@ -185,8 +185,9 @@ class GarbageCapture:
         return True, np.frombuffer(b"\xff\xd8 not a jpeg", np.uint8)
 
 
-def test_a_frame_that_does_not_decode_is_a_gap():
-    g = Grabber(GarbageCapture(), "every", MjpgRoundTrip(), backoff_s=0.001).start()
+@pytest.mark.parametrize("prepare", [MjpgRoundTrip(), decode_only], ids=["record", "raw"])
+def test_a_frame_that_does_not_decode_is_a_gap(prepare):
+    g = Grabber(GarbageCapture(), "every", prepare, backoff_s=0.001).start()
     items = []
     while (item := g.get(5.0)) is not None:
         items.append(item)
@@ -267,6 +268,9 @@ def test_latency_bench_on_the_mjpg_sample(capsys):
     # CPU time of the processing thread cannot exceed its wall-clock (one thread)
     assert b.cpu["n"] == 11 and 0 < b.cpu["mean_ms"] <= 1.05 * p["mean_ms"]
     assert b.decode["n"] == 12 and b.ok_share == 1.0
+    # each frame's decode plus processing is at least its processing: so are the quantiles
+    w = b.with_decode
+    assert w["n"] == 11 and w["p50_ms"] >= p["p50_ms"] and w["p99_ms"] >= p["p99_ms"]
     assert math.isnan(b.phi_rmse_deg)  # no truth given
     assert bench_main(["--video", str(SAMPLES / "nominal_mjpg.avi"),
                        "--sensor", str(SAMPLES / "nominal_mjpg.sensor.toml")]) == 0  # fmt: skip

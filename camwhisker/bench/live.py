@@ -1,10 +1,12 @@
 """Live latency benchmark: the front end's time per 720p frame on one core.
 
 Renders a nominal scene (fixed seed) to MJPG, decodes every frame into memory
-as the live loop gets it (FFmpeg's MJPG decoder), then times
+as the live loop gets a camera's JPEG bytes (libjpeg-turbo,
+:func:`~camwhisker.live.record.decode_only`), then times
 :meth:`LiveProcessor.process` per frame with ``cv2.setNumThreads(1)`` (the
 first, rest frame, which detects the features, is timed apart). The JPEG
-decode, which the grabber thread does before processing, is timed too.
+decode, which the grabber thread does before processing, is timed too, and
+each frame's decode plus processing is the latency the target is for.
 Prints p50 / p99 / max, wall-clock and CPU time (on a loaded machine the
 wall-clock includes waits for a core; CPU time does not), and the accuracy
 against the renderer's truth, so the speed is that of the front end at its
@@ -45,7 +47,7 @@ import cv2
 import numpy as np
 
 from camwhisker.live.loop import LiveProcessor, latency_summary
-from camwhisker.live.record import MjpgRoundTrip
+from camwhisker.live.record import MjpgRoundTrip, decode_only
 from camwhisker.sensor.file import Sensor, load_sensor
 from camwhisker.sim.render.scenarios import PoseTrack, make_scenario
 from camwhisker.sim.render.video import render_scenario, sidecar_paths
@@ -56,7 +58,7 @@ __all__ = ["BENCH_SEED", "TARGET_P99_MS", "TARGET_CONTACT_P99_MS", "LatencyBench
 
 #: Seed of the rendered scene (not one the front end was tuned on).
 BENCH_SEED = 3001
-#: The issue's target for closed-loop use: p99 processing latency per frame.
+#: The target for closed-loop use: p99 latency per frame, decode and processing.
 TARGET_P99_MS = 4.0
 #: The target for the contact work per frame, on top of the front end.
 TARGET_CONTACT_P99_MS = 1.0
@@ -81,18 +83,21 @@ class LatencyBench:
     ok_share: float
     phi_rmse_deg: float
     dz_rmse_mm: float
+    #: Each frame's decode plus processing, wall-clock (the first pass's).
+    with_decode: dict
     #: Each frame's least CPU time over ``passes`` passes (the first pass is above).
     passes: int = 1
     cpu_least: dict | None = None
 
     def text(self) -> str:
-        p, d = self.processing, self.decode
-        verdict = "meets" if p["p99_ms"] <= TARGET_P99_MS else "misses"
+        p, d, w = self.processing, self.decode, self.with_decode
+        verdict = "meets" if w["p99_ms"] <= TARGET_P99_MS else "misses"
         return "\n".join([
             f"live latency, {self.frames} frames of 1280x720, {self.threads} OpenCV thread(s)",
+            f"  decode + front end per frame: p50 {w['p50_ms']:.2f} ms, p99 {w['p99_ms']:.2f} ms"
+            f", max {w['max_ms']:.2f} ms ({verdict} the p99 <= {TARGET_P99_MS:g} ms target)",
             f"  front end per frame: p50 {p['p50_ms']:.2f} ms, p99 {p['p99_ms']:.2f} ms, "
-            f"max {p['max_ms']:.2f} ms, mean {p['mean_ms']:.2f} ms "
-            f"({verdict} the p99 <= {TARGET_P99_MS:g} ms target)",
+            f"max {p['max_ms']:.2f} ms, mean {p['mean_ms']:.2f} ms",
             f"  CPU time per frame: p50 {self.cpu['p50_ms']:.2f} ms, "
             f"p99 {self.cpu['p99_ms']:.2f} ms (wall-clock above minus waits for a core)",
             *([f"  each frame's least CPU time over {self.passes} passes: "
@@ -123,11 +128,10 @@ def bench_frames(
     if passes < 1:
         raise ValueError(f"passes must be >= 1, got {passes}")
     cv2.setNumThreads(threads)
-    decoder = MjpgRoundTrip()
     images, decode_ms = [], []
     for data in jpegs:
         tic = time.perf_counter()
-        image, _ = decoder(np.frombuffer(data, np.uint8))
+        image, _ = decode_only(np.frombuffer(data, np.uint8))
         decode_ms.append(1e3 * (time.perf_counter() - tic))
         images.append(image)
     results, times_ms, cpu_ms = _pass(images, sensor, options)
@@ -147,9 +151,10 @@ def bench_frames(
         dz_rmse = float(np.sqrt(np.mean((dz[ok] - truth.dz_mm[:n][ok]) ** 2)))
     processing = latency_summary(times_ms[1:])
     decode = latency_summary(decode_ms)
+    both = latency_summary([a + b for a, b in zip(decode_ms[1:], times_ms[1:], strict=True)])
     return LatencyBench(len(images) - 1, threads, times_ms[0], processing,
                         latency_summary(cpu_ms[1:]), decode, float(ok.mean()), phi_rmse,
-                        dz_rmse, passes,
+                        dz_rmse, both, passes,
                         latency_summary(list(least[1:])) if passes > 1 else None)  # fmt: skip
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 from pathlib import Path
@@ -63,7 +64,7 @@ def _contact_args(p, live: bool) -> None:
 
 
 def _mcap_arg(p, live: bool) -> None:
-    images = ("the recording's JPEG bytes with --record, the camera's with --raw-mjpg, else "
+    images = ("the recording's JPEG bytes with --record, the camera's as sent (--raw-mjpg), else "
               "the frames at JPEG quality 90" if live else "the recording's JPEG bytes")
     p.add_argument("--mcap", metavar="FILE.mcap",
                    help="also the rows as ROS 2 messages in an MCAP file, streamed: "
@@ -206,7 +207,10 @@ def add_live(sub) -> None:
     p.add_argument("--frames", type=int, metavar="N", help="stop after N rows (bench: clip length)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--no-keys", action="store_true", help="no r/d/q keys even on a terminal")
-    p.add_argument("--raw-mjpg", action="store_true", help="take the camera's JPEG bytes as sent")
+    p.add_argument("--raw-mjpg", action=argparse.BooleanOptionalAction, default=True,
+                   help="take the camera's JPEG bytes as sent and decode them with "
+                        "libjpeg-turbo (default; OpenCV decodes where the camera sends "
+                        "no JPEG)")
     p.add_argument(
         "--no-lock",
         action="store_true",

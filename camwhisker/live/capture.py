@@ -43,6 +43,7 @@ from camwhisker.live.cameras import (
     apply_profile,
     resolve_camera,
 )
+from camwhisker.live.record import decode_jpeg, is_jpeg_bytes
 
 __all__ = ["CaptureError", "CameraCapture", "SourceCapture", "open_capture", "is_ended",
            "describe", "capture_time", "DRIVER_CLOCK", "READ_CLOCK"]  # fmt: skip
@@ -114,6 +115,17 @@ def describe(cap) -> dict:
     return {"kind": type(cap).__name__}
 
 
+def _decodes(image: np.ndarray | None) -> bool:
+    """Whether a frame read with CONVERT_RGB off is a JPEG's bytes that decode."""
+    if image is None or not is_jpeg_bytes(image):
+        return False
+    try:
+        decode_jpeg(image)
+    except ValueError:
+        return False
+    return True
+
+
 class CameraCapture:
     """A camera with its settings profile applied and read back.
 
@@ -123,9 +135,13 @@ class CameraCapture:
         Index, ``/dev/videoN``, ``/dev/v4l/by-id/...`` or a bare by-id name.
     profile : CameraProfile
     raw_mjpg : bool
-        Ask OpenCV for the camera's JPEG bytes (``CAP_PROP_CONVERT_RGB`` off),
-        so a recording keeps them without re-encoding. Off by default: not
-        every backend honours it (the read-back says whether it took).
+        Where the camera sends MJPG (its format read back), ask OpenCV for its
+        JPEG bytes (``CAP_PROP_CONVERT_RGB`` off): they decode by libjpeg-turbo
+        (:func:`~camwhisker.live.record.decode_jpeg`, OpenCV's own pixels) in less
+        time, and a recording keeps them without re-encoding. Where the warm-up's
+        last frame is not a JPEG that decodes (a backend that does not honour it),
+        the camera is opened again for OpenCV to decode; ``raw_mjpg`` and
+        ``settings.applied["convert_rgb"]`` then say so.
     opener : callable, optional
         ``opener(target) -> cv2.VideoCapture``; default opens through V4L2.
         Tests pass one that opens a file.
@@ -144,7 +160,7 @@ class CameraCapture:
         self,
         spec: int | str,
         profile: CameraProfile = C310_PROFILE,
-        raw_mjpg: bool = False,
+        raw_mjpg: bool = True,
         opener: Callable[[int | str], cv2.VideoCapture] | None = None,
         require_mode: bool = False,
     ):
@@ -167,13 +183,22 @@ class CameraCapture:
         self.settings = apply_profile(cap, self.profile)
         if self.require_mode:
             self._check_mode(cap)
-        if self.raw_mjpg:
+        raw = self.raw_mjpg and self.settings.applied.get("fourcc") == "MJPG"
+        if raw:
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0.0)
-            self.settings.applied["convert_rgb"] = float(cap.get(cv2.CAP_PROP_CONVERT_RGB))
-        n = 0
+        n, last = 0, None
         for _ in range(self.profile.warmup_frames):
-            ok, _img = cap.read()
-            n += bool(ok)
+            ok, image = cap.read()
+            n, last = n + bool(ok), image if ok else last
+        if raw and not _decodes(last if last is not None else cap.read()[1]):
+            # Switching back mid-stream is not safe on every backend: open again.
+            log.info("camera %s: its frames are not JPEG bytes with CONVERT_RGB off; "
+                     "OpenCV decodes them", self.spec)  # fmt: skip
+            cap.release()
+            self.raw_mjpg = False
+            self._open()
+            return
+        self.settings.applied["convert_rgb"] = float(cap.get(cv2.CAP_PROP_CONVERT_RGB))
         self.settings.warmup_discarded = n
         self._cap = cap
         self.opens += 1
@@ -274,7 +299,7 @@ def open_capture(
     profile: CameraProfile = C310_PROFILE,
     playback_fps: float | None = None,
     fps: float | None = None,
-    raw_mjpg: bool = False,
+    raw_mjpg: bool = True,
     require_mode: bool = False,
 ):
     """Open what ``spec`` names: a camera, or a file / folder.
