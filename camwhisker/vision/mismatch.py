@@ -52,6 +52,9 @@ CHI2_CLIP = 9.0
 #: with the sensor file's own geometry (px, per coordinate; ~0.2 at the nominal
 #: webcam's blur, ~0.65 at 2.6 px blur and 5 DN noise): the floor of each point's noise.
 BIAS_PX = 0.5
+#: ... growing with the image's blur as measured at rest (Gaussian sigma, px), this
+#: much per px: a blurred corner's detected point and its edges' lines move more.
+BIAS_PER_BLUR = 0.25
 #: Per-point scatter assumed where only one rest frame gives none (px, per coordinate).
 SCATTER_ONE_FRAME_PX = 0.05
 #: A parameter is a suspect when its estimated deviation is at least this many
@@ -272,7 +275,8 @@ def check_mismatch(rest, model: PlateModel, scatter_px: np.ndarray | None = None
 
     r = (rest_uv - model.project(np.zeros(5), jacobian=False)[0]).reshape(-1)
     scatter = np.full(TIP + 1, SCATTER_ONE_FRAME_PX) if scatter_px is None else scatter_px
-    sigma = np.repeat(np.hypot(np.nan_to_num(scatter, nan=SCATTER_ONE_FRAME_PX), BIAS_PX), 2)
+    bias = max(BIAS_PX, BIAS_PER_BLUR * np.nan_to_num(rest.share_blur_px))
+    sigma = np.repeat(np.hypot(np.nan_to_num(scatter, nan=SCATTER_ONE_FRAME_PX), bias), 2)
     use = np.isfinite(r)
     rw = r[use] / sigma[use]
     jg = model.jacobians(np.zeros(5)).geometry.reshape(-1, len(GEOMETRY_NAMES))[use]
