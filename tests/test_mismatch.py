@@ -4,7 +4,7 @@
 |---|---|---|
 | nominal renders (nominal, distortion scenes, 3 seeds) | no warning | the issue's target |
 | fx +3 % or z_i +0.6 mm, nominal file | warns, names fx or z_i | each moves phi(20 deg) ~0.6 deg |
-| mosaic hard look, builds 0-4, true file | <= 3 of 5 warn (blind floor: 5) | floor grows with blur |
+| mosaic hard, builds 0-4, true file | <= 3 of 5 warn (blind floor: 5) | the floor grows with blur |
 | the same with fx +3 % | warns on all 5 | the blur does not hide a wrong file |
 | stream | one RestRecord per rest reference | the sidecar's record |
 """
