@@ -127,8 +127,8 @@ def registered() -> list[Kernel]:
 
 def host_cpu() -> str:
     """This machine's CPU as compiled code depends on it: vendor, family, model and
-    feature flags from ``/proc/cpuinfo`` (Linux; loading LLVM to ask would add ~35 ms
-    to every command's start), else LLVM's host CPU name and features."""
+    feature flags from ``/proc/cpuinfo`` (Linux: no command loads LLVM to ask), else
+    LLVM's host CPU name and features."""
     try:
         with open("/proc/cpuinfo") as f:
             first = f.read().split("\n\n", 1)[0]

@@ -139,9 +139,9 @@ class CameraCapture:
         JPEG bytes (``CAP_PROP_CONVERT_RGB`` off): they decode by libjpeg-turbo
         (:func:`~camwhisker.live.record.decode_jpeg`, OpenCV's own pixels) in less
         time, and a recording keeps them without re-encoding. Where the warm-up's
-        last frame is not a JPEG that decodes (a backend that does not honour it),
-        the camera is opened again for OpenCV to decode; ``raw_mjpg`` and
-        ``settings.applied["convert_rgb"]`` then say so.
+        last frame (or one read for the check) is not a JPEG that decodes (a backend
+        that does not honour it), the camera is opened again for OpenCV to decode.
+        ``settings.applied["convert_rgb"]`` says which (0: the camera's bytes).
     opener : callable, optional
         ``opener(target) -> cv2.VideoCapture``; default opens through V4L2.
         Tests pass one that opens a file.
