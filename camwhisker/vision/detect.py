@@ -59,6 +59,10 @@ EDGE_STEP_PX = 0.25
 #: A refined corner farther than this from its polygon vertex is rejected (px): the
 #: polygon cuts a corner blurred by sigma = 2.6 px by up to ~6 px.
 REFINE_MAX_SHIFT_PX = 8.0
+#: A corner still lost is refined once more from its edges' profiles smoothed by this
+#: Gaussian (px): under heavy blur and noise the steepest point of a wide ramp, taken
+#: from differences EDGE_STEP_PX apart, scatters by px and tilts the edge's line.
+LOST_SMOOTH_PX = 1.0
 #: Fallback for a feature cut into pieces: components whose centre lies within this
 #: factor of the model outline's radius, and larger than this share of its area, join.
 MERGE_REACH = 1.2
@@ -152,8 +156,9 @@ def _outermost(outline: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray,
     return out
 
 
-def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray):
-    """Point and unit direction of the edge leaving ``corner`` along ``along``."""
+def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray, smooth_px: float = 0.0):
+    """Point and unit direction of the edge leaving ``corner`` along ``along``; its
+    profiles smoothed across the edge by a Gaussian of ``smooth_px`` (px) first."""
     e = along / np.hypot(*along)
     n = np.array([-e[1], e[0]])
     t = np.arange(EDGE_FROM_PX, EDGE_TO_PX + 1e-9, 1.0)
@@ -162,6 +167,10 @@ def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray):
     mx = (base[:, :1] + s[None, :] * n[0]).astype(np.float32)
     my = (base[:, 1:] + s[None, :] * n[1]).astype(np.float32)
     prof = cv2.remap(gmap, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if smooth_px > 0:
+        sig = smooth_px / EDGE_STEP_PX
+        prof = cv2.GaussianBlur(prof, (2 * math.ceil(3 * sig) + 1, 1), sig,
+                                borderType=cv2.BORDER_REPLICATE)  # fmt: skip
     grad = np.abs(np.gradient(prof, axis=1))
     j = np.clip(grad.argmax(axis=1), 1, len(s) - 2)
     rows = np.arange(len(t))
@@ -175,7 +184,8 @@ def _edge_line(gmap: np.ndarray, corner: np.ndarray, along: np.ndarray):
     return m, vt[0]
 
 
-def refine_corners(gmap: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray) -> np.ndarray:
+def refine_corners(gmap: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray,
+                   smooth_px: float = 0.0) -> np.ndarray:  # fmt: skip
     """Sub-pixel corners as intersections of their two edges.
 
     Parameters
@@ -186,6 +196,8 @@ def refine_corners(gmap: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray)
         Approximate corners (NaN rows are passed through).
     edge_dirs : ndarray, shape (K, 2, 2)
         Image directions of each corner's two edges, pointing away from it.
+    smooth_px : float
+        Gaussian smoothing of the edges' profiles (px; see :func:`_edge_line`).
 
     Returns
     -------
@@ -199,8 +211,8 @@ def refine_corners(gmap: np.ndarray, corners: np.ndarray, edge_dirs: np.ndarray)
             continue
         x = c
         for _ in range(REFINE_PASSES):
-            p1, d1 = _edge_line(gmap, x, edge_dirs[k, 0])
-            p2, d2 = _edge_line(gmap, x, edge_dirs[k, 1])
+            p1, d1 = _edge_line(gmap, x, edge_dirs[k, 0], smooth_px)
+            p2, d2 = _edge_line(gmap, x, edge_dirs[k, 1], smooth_px)
             a = np.column_stack([d1, -d2])
             if abs(np.linalg.det(a)) < 0.2:
                 x = None
@@ -361,6 +373,9 @@ def _corners_of(comp, model_uv, n_vertices, gmap, edge_dirs) -> np.ndarray:
     if lost.any():
         out[lost] = refine_corners(gmap, _outermost(outline, corners[lost], edge_dirs[lost],
                                                     tol_px), edge_dirs[lost])  # fmt: skip
+    lost = np.isfinite(corners).all(axis=1) & ~np.isfinite(out).all(axis=1)
+    if lost.any():
+        out[lost] = refine_corners(gmap, corners[lost], edge_dirs[lost], LOST_SMOOTH_PX)
     return out
 
 
