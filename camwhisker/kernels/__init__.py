@@ -134,8 +134,8 @@ def host_cpu() -> str:
             first = f.read().split("\n\n", 1)[0]
     except OSError:
         first = ""
-    fields = dict(line.partition(":")[::2] for line in first.splitlines())
-    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    fields = {k.strip(): v.strip() for k, _, v in (line.partition(":")
+                                                     for line in first.splitlines())}
     cpu = [fields.get(k, "") for k in ("vendor_id", "cpu family", "model", "flags")]
     if all(cpu):
         return " ".join(cpu)

@@ -61,7 +61,7 @@ EDGE_STEP_PX = 0.25
 REFINE_MAX_SHIFT_PX = 8.0
 #: A corner still lost is refined once more from its edges' profiles smoothed by this
 #: Gaussian (px): under heavy blur and noise the steepest point of a wide ramp, taken
-#: from differences EDGE_STEP_PX apart, scatters by px and tilts the edge's line.
+#: from differences EDGE_STEP_PX apart, scatters over pixels and tilts the edge's line.
 LOST_SMOOTH_PX = 1.0
 #: Fallback for a feature cut into pieces: components whose centre lies within this
 #: factor of the model outline's radius, and larger than this share of its area, join.
